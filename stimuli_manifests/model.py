@@ -1,0 +1,281 @@
+"""The ``cgvq-manifest/1`` data model: what a stimulus set is.
+
+A manifest names a study, the rating scale, the presentation protocol, the reference videos
+(SRC) and the processed videos (PVS, "conditions") made from them by a distortion method
+(HRC family) at a level. Paths are relative to ``root``, which is relative to the manifest
+file. Every other package reads stimuli through this model.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+FORMAT = "cgvq-manifest/1"
+FORMAT_NAME, FORMAT_MAJOR = "cgvq-manifest", 1
+
+_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class ScaleLabel(_Strict):
+    """One anchor label on the rating scale."""
+
+    position: float
+    text: str = Field(min_length=1)
+
+
+DEFAULT_LABELS: tuple[tuple[float, str], ...] = (
+    (0.0, "Very annoying"),
+    (25.0, "Annoying"),
+    (50.0, "Slightly annoying"),
+    (75.0, "Perceptible but not annoying"),
+    (100.0, "Imperceptible"),
+)
+
+
+def _default_labels() -> list[ScaleLabel]:
+    return [ScaleLabel(position=p, text=t) for p, t in DEFAULT_LABELS]
+
+
+class RatingScale(_Strict):
+    """A continuous rating scale; by default 0..100 with the five impairment labels."""
+
+    min: float = 0.0
+    max: float = 100.0
+    direction: Literal["higher_is_better", "lower_is_better"] = "higher_is_better"
+    labels: list[ScaleLabel] = Field(default_factory=_default_labels)
+
+    @model_validator(mode="after")
+    def _check(self) -> RatingScale:
+        if not self.max > self.min:
+            raise ValueError(f"scale.max ({self.max}) must be greater than scale.min ({self.min})")
+        positions = [label.position for label in self.labels]
+        for label in self.labels:
+            if not self.min <= label.position <= self.max:
+                raise ValueError(
+                    f"scale label {label.text!r} at {label.position} lies outside "
+                    f"[{self.min}, {self.max}]"
+                )
+        if positions != sorted(positions) or len(set(positions)) != len(positions):
+            raise ValueError("scale.labels must have strictly increasing positions")
+        return self
+
+
+class Protocol(_Strict):
+    """How trials are presented."""
+
+    repetitions: int = Field(default=3, ge=1, le=100)
+    blank_seconds: float = Field(default=0.5, ge=0.0, le=10.0)
+    hidden_reference: bool = True
+    loop: bool = True
+    min_view_seconds: float | None = Field(
+        default=None, ge=0.0, description="minimum viewing time before submit; None = one loop"
+    )
+
+
+class DisplayRequirements(_Strict):
+    """What the participant's display must offer (checked by the study app's pre-flight)."""
+
+    min_width: int = Field(default=1920, ge=1)
+    min_height: int = Field(default=1080, ge=1)
+    min_refresh_hz: float = Field(default=59.0, gt=0)
+
+
+class _IdAndChecksum(_Strict):
+    @field_validator("id", check_fields=False)
+    @classmethod
+    def check_id(cls, value: str | None) -> str | None:
+        return _valid_id(value)
+
+    @field_validator("sha256", check_fields=False)
+    @classmethod
+    def check_sha256(cls, value: str | None) -> str | None:
+        return _valid_sha(value)
+
+
+class Reference(_IdAndChecksum):
+    """A source video (SRC)."""
+
+    id: str | None = None
+    path: str
+    sha256: str | None = None
+    scene: str | None = Field(default=None, description="scene name; defaults to the id")
+    fps: float | None = Field(default=None, gt=0)
+    width: int | None = Field(default=None, ge=1)
+    height: int | None = Field(default=None, ge=1)
+    frames: int | None = Field(default=None, ge=1)
+    metadata: dict[str, Any] = Field(default_factory=dict)
+
+
+class Condition(_IdAndChecksum):
+    """A processed video sequence (PVS): a reference through a distortion method at a level.
+
+    ``level`` is an ordinal severity rank within the method: 1 is the strongest distortion,
+    higher levels are milder. ``setting`` is the human-readable parameter ("4 spp", "1/2").
+    """
+
+    id: str | None = None
+    reference: str
+    path: str
+    method: str = Field(min_length=1)
+    level: int = Field(ge=0)
+    setting: str | None = None
+    sha256: str | None = None
+    metadata: dict[str, Any] = Field(default_factory=dict)
+
+
+class Stimulus(BaseModel):
+    """One thing a participant rates: a condition, or a reference shown as hidden reference."""
+
+    model_config = ConfigDict(frozen=True)
+
+    id: str
+    reference: str
+    path: str
+    scene: str
+    method: str
+    level: int | None
+    is_hidden_reference: bool
+    sha256: str | None = None
+
+
+HIDDEN_REFERENCE_METHOD = "reference"
+
+
+class Manifest(_Strict):
+    """A stimulus set: the ``cgvq-manifest/1`` document."""
+
+    format: str = FORMAT
+    study_id: str = Field(min_length=1)
+    title: str | None = None
+    description: str | None = None
+    root: str = "."
+    scale: RatingScale = Field(default_factory=RatingScale)
+    protocol: Protocol = Field(default_factory=Protocol)
+    display: DisplayRequirements = Field(default_factory=DisplayRequirements)
+    references: list[Reference] = Field(min_length=1)
+    conditions: list[Condition] = Field(default_factory=list)
+    metadata: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("format")
+    @classmethod
+    def _check_format(cls, value: str) -> str:
+        name, _, major = value.partition("/")
+        if name != FORMAT_NAME or not major.isdigit():
+            raise ValueError(f"format must be {FORMAT!r}, got {value!r}")
+        if int(major) != FORMAT_MAJOR:
+            raise ValueError(
+                f"manifest format major version {major} is not supported by this version of "
+                f"the toolkit (it reads {FORMAT!r}); upgrade the toolkit or convert the manifest"
+            )
+        return value
+
+    @model_validator(mode="after")
+    def _check_ids(self) -> Manifest:
+        from .ids import assign_missing_ids
+
+        assign_missing_ids(self)
+        ref_ids = [r.id for r in self.references]
+        dup = _duplicates(ref_ids)
+        if dup:
+            raise ValueError(f"duplicate reference id(s): {', '.join(dup)}")
+        cond_ids = [c.id for c in self.conditions]
+        dup = _duplicates(cond_ids + ref_ids)
+        if dup:
+            raise ValueError(f"duplicate stimulus id(s): {', '.join(dup)}")
+        known = set(ref_ids)
+        for i, cond in enumerate(self.conditions):
+            if cond.reference not in known:
+                raise ValueError(
+                    f"conditions[{i}] ({cond.id}): reference {cond.reference!r} is not one of "
+                    f"the manifest's references"
+                )
+        return self
+
+    # -- convenient views -------------------------------------------------------------
+    def reference_by_id(self, ref_id: str) -> Reference:
+        for ref in self.references:
+            if ref.id == ref_id:
+                return ref
+        raise KeyError(ref_id)
+
+    def scene_of(self, ref_id: str) -> str:
+        ref = self.reference_by_id(ref_id)
+        return ref.scene or str(ref.id)
+
+    def stimuli(self, *, include_hidden_references: bool | None = None) -> list[Stimulus]:
+        """Everything that is rated: conditions, plus references when hidden references are on."""
+        if include_hidden_references is None:
+            include_hidden_references = self.protocol.hidden_reference
+        out = [
+            Stimulus(
+                id=str(c.id),
+                reference=c.reference,
+                path=c.path,
+                scene=self.scene_of(c.reference),
+                method=c.method,
+                level=c.level,
+                is_hidden_reference=False,
+                sha256=c.sha256,
+            )
+            for c in self.conditions
+        ]
+        if include_hidden_references:
+            out += [
+                Stimulus(
+                    id=str(r.id),
+                    reference=str(r.id),
+                    path=r.path,
+                    scene=r.scene or str(r.id),
+                    method=HIDDEN_REFERENCE_METHOD,
+                    level=None,
+                    is_hidden_reference=True,
+                    sha256=r.sha256,
+                )
+                for r in self.references
+            ]
+        return out
+
+    def stimulus_by_id(self, stimulus_id: str) -> Stimulus:
+        for stim in self.stimuli(include_hidden_references=True):
+            if stim.id == stimulus_id:
+                return stim
+        raise KeyError(stimulus_id)
+
+    def methods(self) -> list[str]:
+        """Distortion methods in order of first appearance."""
+        return list(dict.fromkeys(c.method for c in self.conditions))
+
+
+def _valid_id(value: str | None) -> str | None:
+    if value is not None and not _ID_RE.match(value):
+        raise ValueError(
+            f"id {value!r} may contain only letters, digits, '_', '-' and '.', "
+            "and must start with a letter or digit"
+        )
+    return value
+
+
+def _valid_sha(value: str | None) -> str | None:
+    if value is None:
+        return None
+    value = value.lower()
+    if not re.fullmatch(r"[0-9a-f]{64}", value):
+        raise ValueError(f"sha256 must be 64 hexadecimal digits, got {value!r}")
+    return value
+
+
+def _duplicates(values: list[Any]) -> list[str]:
+    seen: set[Any] = set()
+    dup: list[str] = []
+    for v in values:
+        if v in seen and str(v) not in dup:
+            dup.append(str(v))
+        seen.add(v)
+    return dup

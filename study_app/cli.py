@@ -1,0 +1,67 @@
+"""Command line of ``cgvq-study``: parses arguments, prints, sets exit codes.
+
+Each subcommand lives in its own module under ``study_app.commands``; this module only wires
+them together and turns the package's :class:`StudyError` (and the manifest package's
+:class:`StimuliError`) into one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from types import ModuleType
+
+from stimuli_manifests import StimuliError
+
+from .commands import COMMANDS
+from .errors import StudyError
+
+
+def _command_modules() -> list[ModuleType]:
+    modules = []
+    for name in COMMANDS:
+        try:
+            modules.append(importlib.import_module(f"study_app.commands.{name}"))
+        except ModuleNotFoundError as exc:
+            if exc.name != f"study_app.commands.{name}":
+                raise
+    return modules
+
+
+def build_parser() -> tuple[argparse.ArgumentParser, dict[str, ModuleType]]:
+    parser = argparse.ArgumentParser(
+        prog="cgvq-study",
+        description="Run a video-quality rating study and prepare its stimuli.",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    handlers: dict[str, ModuleType] = {}
+    for module in _command_modules():
+        module.register(sub.add_parser(module.NAME, help=module.HELP, description=module.HELP))
+        handlers[module.NAME] = module
+    return parser, handlers
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser, handlers = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s: %(message)s"
+    )
+    if args.command is None:
+        parser.print_help()
+        return 0
+    try:
+        return int(handlers[args.command].run(args))
+    except (StudyError, StimuliError) as exc:
+        print(f"cgvq-study {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"cgvq-study {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,3 +1,39 @@
-"""From raw ratings to DMOS, reliability, outlier raters, human ceiling and metric validation."""
+"""From raw ratings to DMOS, reliability, outlier raters, human ceiling and metric validation.
+
+Library entry points (the CLI ``cgvq-analyze`` is a thin layer over these):
+:func:`load_ratings` / :func:`load_sureal` read ratings into a :class:`RatingSet`,
+:func:`run_analysis` runs every step, :func:`write_report` writes the report folder.
+"""
 
 __version__ = "0.1.0"
+
+from .data import InputProblem, RatingSet
+from .errors import AnalysisError
+from .inputs import load_ratings, ratings_from_frame
+from .metrics import load_metric_scores, validate_metrics
+from .outliers import screen_raters
+from .pipeline import Analysis, AnalysisConfig, run_analysis
+from .reliability import reliability
+from .report import write_report
+from .scores import fit_scores
+from .sureal_io import load_sureal, write_sureal_json
+
+__all__ = [
+    "Analysis",
+    "AnalysisConfig",
+    "AnalysisError",
+    "InputProblem",
+    "RatingSet",
+    "__version__",
+    "fit_scores",
+    "load_metric_scores",
+    "load_ratings",
+    "load_sureal",
+    "ratings_from_frame",
+    "reliability",
+    "run_analysis",
+    "screen_raters",
+    "validate_metrics",
+    "write_report",
+    "write_sureal_json",
+]

@@ -1,0 +1,110 @@
+"""The in-memory rating set every analysis step works on.
+
+Ratings become one array ``scores[stimulus, rater, repetition]`` (NaN for gaps), the layout
+SUREAL uses, plus a table describing the stimuli (reference, scene, method, level, hidden
+reference). Input problems found while building it travel with it so the report can list them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pandas as pd
+
+STIMULUS_COLUMNS = ("reference", "scene", "method", "level", "is_hidden_reference")
+
+
+@dataclass(frozen=True)
+class InputProblem:
+    """One bad input row or file: where it is and what was wrong; the row is left out."""
+
+    source: str
+    row: int | None
+    message: str
+
+    def __str__(self) -> str:
+        where = f":{self.row}" if self.row is not None else ""
+        return f"{self.source}{where}: {self.message}"
+
+
+@dataclass
+class RatingSet:
+    """Ratings of one study in SUREAL's layout, on a higher-is-better scale.
+
+    ``stimuli`` is indexed by stimulus id in the order of ``scores``' first axis; hidden
+    references have ``is_hidden_reference`` true and their id equals their reference id.
+    ``ref_score`` is the score a hidden reference anchors to in DMOS (the scale maximum).
+    """
+
+    stimuli: pd.DataFrame
+    raters: list[str]
+    scores: np.ndarray
+    scale_min: float
+    scale_max: float
+    ref_score: float
+    study: str = "study"
+    source: str = ""
+    problems: list[InputProblem] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.scores = np.asarray(self.scores, dtype=float)
+        if self.scores.ndim != 3:
+            raise ValueError("scores must have shape (stimuli, raters, repetitions)")
+        if self.scores.shape[0] != len(self.stimuli) or self.scores.shape[1] != len(self.raters):
+            raise ValueError("scores shape does not match the stimuli and raters")
+
+    # -- shape ------------------------------------------------------------------------
+    @property
+    def n_stimuli(self) -> int:
+        return self.scores.shape[0]
+
+    @property
+    def n_raters(self) -> int:
+        return self.scores.shape[1]
+
+    @property
+    def n_repetitions(self) -> int:
+        return self.scores.shape[2]
+
+    @property
+    def n_ratings(self) -> int:
+        return int(np.isfinite(self.scores).sum())
+
+    @property
+    def stimulus_ids(self) -> list[str]:
+        return [str(s) for s in self.stimuli.index]
+
+    @property
+    def hidden_reference_mask(self) -> np.ndarray:
+        return self.stimuli["is_hidden_reference"].to_numpy(dtype=bool)
+
+    def reference_index(self) -> np.ndarray:
+        """For every stimulus, the row of its reference's hidden-reference stimulus (-1: none)."""
+        ids = self.stimuli.index.tolist()
+        hidden = {
+            ref: ids.index(sid)
+            for sid, ref, is_ref in zip(
+                ids, self.stimuli["reference"], self.stimuli["is_hidden_reference"], strict=True
+            )
+            if is_ref
+        }
+        return np.array([hidden.get(ref, -1) for ref in self.stimuli["reference"]], dtype=int)
+
+    def rater_means(self) -> np.ndarray:
+        """Ratings averaged over repetitions: (stimuli, raters), NaN where never rated."""
+        counts = np.isfinite(self.scores).sum(axis=2)
+        sums = np.nansum(self.scores, axis=2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+
+    # -- subsets ----------------------------------------------------------------------
+    def with_raters(self, keep: list[int] | np.ndarray) -> RatingSet:
+        """A copy keeping only the raters at these positions."""
+        keep = [int(k) for k in keep]
+        return replace(
+            self,
+            raters=[self.raters[k] for k in keep],
+            scores=self.scores[:, keep, :].copy(),
+            problems=list(self.problems),
+        )

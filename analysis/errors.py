@@ -1,0 +1,10 @@
+"""The one exception type of the analysis package."""
+
+from __future__ import annotations
+
+
+class AnalysisError(Exception):
+    """A problem the user can fix (bad path, unreadable input, nothing left to analyse).
+
+    The message says what was wrong and what to do; the CLI prints it as one line.
+    """

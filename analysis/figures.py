@@ -1,0 +1,244 @@
+"""The report's figures, drawn with matplotlib's object API (no pyplot state, no display)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from .pipeline import Analysis
+
+_DPI = 100
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=_DPI)
+    return path
+
+
+def _grid(n: int, max_cols: int = 4) -> tuple[int, int]:
+    cols = min(max_cols, max(1, n))
+    return math.ceil(n / cols), cols
+
+
+def _method_colors(methods: list[str]) -> dict[str, tuple]:
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab10"]
+    return {m: cmap(i % 10) for i, m in enumerate(methods)}
+
+
+def dmos_per_scene(a: Analysis, path: Path) -> Path:
+    """DMOS with 95% CI per scene, grouped by method and level; metric predictions on top."""
+    d = a.dmos()
+    d = d[~d["is_hidden_reference"]]
+    scenes = list(dict.fromkeys(d["scene"]))
+    methods = list(dict.fromkeys(d["method"]))
+    colors = _method_colors(methods)
+    rows, cols = _grid(len(scenes))
+    fig = Figure(figsize=(4.2 * cols, 3.2 * rows))
+    preds = a.metrics.data if a.metrics is not None else {}
+    markers = "xov^sPD*"
+    for k, scene in enumerate(scenes):
+        ax = fig.add_subplot(rows, cols, k + 1)
+        sd = d[d["scene"] == scene].sort_values(["method", "level"], na_position="last")
+        x = np.arange(len(sd))
+        for i, (_, r) in enumerate(sd.iterrows()):
+            ax.errorbar(i, r["dmos"], yerr=[[r["dmos"] - r["ci95_low"]],
+                                            [r["ci95_high"] - r["dmos"]]],
+                        fmt="o", color=colors[r["method"]], capsize=2, ms=4)
+        for j, (name, pdata) in enumerate(preds.items()):
+            p = pdata.set_index("stimulus")["predicted"]
+            y = [p.get(s, np.nan) for s in sd["stimulus"]]
+            ax.plot(x, y, markers[j % len(markers)], color="k", ms=4, alpha=0.6,
+                    label=name if k == 0 else None)
+        ax.set_xticks(x)
+        ax.set_xticklabels([f"{m[:6]}{'' if pd.isna(lv) else int(lv)}"
+                            for m, lv in zip(sd["method"], sd["level"], strict=True)],
+                           rotation=90, fontsize=6)
+        ax.set_title(str(scene), fontsize=9)
+        ax.set_ylabel("DMOS")
+        ax.axhline(a.screened.ref_score, color="0.7", lw=0.8)
+    handles = [fig.axes[0].plot([], [], "o", color=c)[0] for c in colors.values()]
+    labels = list(colors)
+    if preds:
+        h, lab = fig.axes[0].get_legend_handles_labels()
+        handles, labels = handles + h, labels + lab
+    fig.legend(handles, labels, loc="lower center", ncol=min(6, len(labels)), fontsize=7,
+               bbox_to_anchor=(0.5, 0.0))
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    fig.savefig(path, dpi=_DPI)
+    return path
+
+
+def metric_scatter(a: Analysis, path: Path) -> Path | None:
+    """Each metric against DMOS with its fitted mapping."""
+    if a.metrics is None:
+        return None
+    names = list(a.metrics.data)
+    rows, cols = _grid(len(names), 3)
+    fig = Figure(figsize=(4.2 * cols, 3.6 * rows))
+    table = a.metrics.table.set_index("metric")
+    for k, name in enumerate(names):
+        ax = fig.add_subplot(rows, cols, k + 1)
+        dat = a.metrics.data[name]
+        methods = list(dict.fromkeys(dat["method"]))
+        colors = _method_colors(methods)
+        for m in methods:
+            s = dat[dat["method"] == m]
+            ax.scatter(s["score"], s["dmos"], s=12, color=colors[m], label=m)
+        grid = np.linspace(dat["score"].min(), dat["score"].max(), 200)
+        ax.plot(grid, a.metrics.mappings[name](grid), "k-", lw=1)
+        r = table.loc[name]
+        ax.set_title(f"{name}\nPLCC {r['plcc']:.3f}  SRCC {r['srcc']:.3f} "
+                     f"({a.metrics.mappings[name].kind})", fontsize=8)
+        ax.set_xlabel("metric score")
+        ax.set_ylabel("DMOS")
+        if k == 0:
+            ax.legend(fontsize=6)
+    return _save(fig, path)
+
+
+def inter_rater_heatmap(a: Analysis, path: Path) -> Path | None:
+    if a.reliability is None:
+        return None
+    m = a.reliability.inter_rater
+    n = len(m)
+    fig = Figure(figsize=(max(4, 0.3 * n + 2), max(3.5, 0.3 * n + 1.5)))
+    ax = fig.add_subplot()
+    im = ax.imshow(m.to_numpy(), vmin=min(0, np.nanmin(m.to_numpy())), vmax=1, cmap="viridis")
+    ax.set_xticks(range(n), m.columns, rotation=90, fontsize=6)
+    ax.set_yticks(range(n), m.index, fontsize=6)
+    ax.set_title("inter-rater Pearson correlation")
+    fig.colorbar(im, ax=ax)
+    return _save(fig, path)
+
+
+def intra_rater_bars(a: Analysis, path: Path) -> Path | None:
+    if a.reliability is None or a.reliability.intra_rater.isna().all():
+        return None
+    s = a.reliability.intra_rater
+    fig = Figure(figsize=(max(4, 0.3 * len(s) + 1.5), 3))
+    ax = fig.add_subplot()
+    ax.bar(range(len(s)), s.to_numpy(), color="tab:blue")
+    ax.set_xticks(range(len(s)), s.index, rotation=90, fontsize=6)
+    ax.set_ylim(min(0, float(np.nanmin(s))), 1)
+    ax.set_ylabel("mean r between repetitions")
+    ax.set_title("intra-rater reliability")
+    return _save(fig, path)
+
+
+def rater_bias(a: Analysis, path: Path) -> Path | None:
+    sc = a.scores
+    if sc.rater_bias is None:
+        return None
+    n = len(sc.raters)
+    fig = Figure(figsize=(max(5, 0.3 * n + 2), 5))
+    x = np.arange(n)
+    for k, (val, ci, label) in enumerate((
+            (sc.rater_bias, sc.rater_bias_ci, "bias"),
+            (sc.rater_inconsistency, sc.rater_inconsistency_ci, "inconsistency"))):
+        ax = fig.add_subplot(2, 1, k + 1)
+        err = np.abs(np.vstack([val - ci[:, 0], ci[:, 1] - val]))
+        ax.errorbar(x, val, yerr=err, fmt="o", capsize=2, ms=4)
+        ax.axhline(0, color="0.7", lw=0.8)
+        ax.set_ylabel(f"rater {label}")
+        ax.set_xticks(x, sc.raters if k else [""] * n, rotation=90, fontsize=6)
+    fig.axes[0].set_title(f"rater bias and inconsistency (95% CI)\n{sc.model_name}", fontsize=9)
+    return _save(fig, path)
+
+
+def content_ambiguity(a: Analysis, path: Path) -> Path | None:
+    sc = a.scores
+    if sc.content_ambiguity is None:
+        return None
+    n = len(sc.content)
+    fig = Figure(figsize=(max(4, 0.4 * n + 2), 3))
+    ax = fig.add_subplot()
+    val, ci = sc.content_ambiguity, sc.content_ambiguity_ci
+    err = np.abs(np.vstack([val - ci[:, 0], ci[:, 1] - val]))
+    ax.errorbar(np.arange(n), val, yerr=err, fmt="o", capsize=2)
+    ax.set_xticks(np.arange(n), sc.content, rotation=90, fontsize=7)
+    ax.set_ylabel("content ambiguity")
+    ax.set_title("content ambiguity (95% CI)")
+    return _save(fig, path)
+
+
+def ci_curve(a: Analysis, path: Path) -> Path | None:
+    c = a.ci_curve
+    if c is None:
+        return None
+    fig = Figure(figsize=(5, 3.5))
+    ax = fig.add_subplot()
+    ax.plot(c.n_raters, c.mean_width, "o", label="measured (subsampled raters)")
+    grid = np.linspace(c.n_raters.min(), c.n_raters.max(), 100)
+    if np.isfinite(c.a):
+        ax.plot(grid, c.a * grid ** (-c.b), "-", label=f"{c.a:.3g} n^-{c.b:.3f}")
+    ax.set_xlabel("number of raters")
+    ax.set_ylabel("mean 95% CI width")
+    ax.legend(fontsize=8)
+    ax.set_title("CI width versus number of raters")
+    return _save(fig, path)
+
+
+def split_half_hist(a: Analysis, path: Path) -> Path | None:
+    if a.ceiling is None:
+        return None
+    fig = Figure(figsize=(8, 2.8))
+    for k, key in enumerate(("plcc", "srcc", "krcc", "rmse")):
+        ax = fig.add_subplot(1, 4, k + 1)
+        ax.hist(a.ceiling.values[key], bins=30, color="tab:gray")
+        ax.set_title(f"split-half {key.upper()}", fontsize=9)
+    return _save(fig, path)
+
+
+def metric_comparison(a: Analysis, path: Path) -> Path | None:
+    if a.metrics is None:
+        return None
+    t = a.metrics.table
+    fig = Figure(figsize=(max(5, 1.2 * len(t) + 2), 3.8))
+    ax = fig.add_subplot()
+    x = np.arange(len(t))
+    w = 0.38
+    for off, key, col in ((-w / 2, "plcc", "tab:blue"), (w / 2, "srcc", "tab:orange")):
+        val = t[key].abs().to_numpy(dtype=float)
+        lo = np.abs(t[f"{key}_ci95_low"].to_numpy(dtype=float))
+        hi = np.abs(t[f"{key}_ci95_high"].to_numpy(dtype=float))
+        err = np.abs(np.vstack([val - np.minimum(lo, hi), np.maximum(lo, hi) - val]))
+        ax.bar(x + off, val, w, yerr=err, capsize=3, color=col, label=f"|{key.upper()}|")
+    ax.set_xticks(x, t["metric"], rotation=20, ha="right", fontsize=8)
+    ax.set_ylim(0, 1.05)
+    ax.legend(fontsize=8)
+    ax.set_title("metrics versus DMOS (95% bootstrap CI)", fontsize=10)
+    return _save(fig, path)
+
+
+FIGURES = {
+    "dmos_per_scene": (dmos_per_scene, "DMOS per scene with 95% CIs by method and level "
+                       "(metric predictions after the logistic mapping as black markers)"),
+    "metric_scatter": (metric_scatter, "each metric against DMOS with its fitted mapping"),
+    "metric_comparison": (metric_comparison, "metric comparison: |PLCC| and |SRCC| with 95% "
+                          "bootstrap CIs, human ceiling alongside"),
+    "inter_rater": (inter_rater_heatmap, "inter-rater Pearson correlation"),
+    "intra_rater": (intra_rater_bars, "intra-rater reliability (mean r between repetitions)"),
+    "rater_bias": (rater_bias, "rater bias and inconsistency with 95% CIs"),
+    "content_ambiguity": (content_ambiguity, "content ambiguity with 95% CIs"),
+    "split_half": (split_half_hist, "split-half (human ceiling) distributions"),
+    "ci_vs_raters": (ci_curve, "mean 95% CI width of the per-stimulus mean score versus "
+                     "number of raters (random panels), power-law fit"),
+}
+
+
+def draw_all(a: Analysis, folder: Path) -> dict[str, tuple[Path, str]]:
+    """Draw every figure that applies; returns name -> (png path, caption)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    out = {}
+    for name, (fn, caption) in FIGURES.items():
+        path = fn(a, folder / f"{name}.png")
+        if path is not None:
+            out[name] = (path, caption)
+    return out

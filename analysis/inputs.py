@@ -1,0 +1,247 @@
+"""Reading study ratings (tidy CSV or session files) against the manifest.
+
+Bad rows never stop the run: each one becomes an :class:`InputProblem` naming the file and row
+(CSV line or session trial) and is left out. Only problems that leave nothing to analyse raise
+:class:`AnalysisError`.
+"""
+
+from __future__ import annotations
+
+import logging
+import sqlite3
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from stimuli_manifests import LoadedManifest, StimuliError, load_manifest
+
+from .data import InputProblem, RatingSet
+from .errors import AnalysisError
+
+log = logging.getLogger(__name__)
+
+SESSION_SUFFIXES = (".sqlite", ".sqlite3", ".db")
+_REQUIRED = ("participant", "stimulus", "rating")
+
+
+def read_manifest(path: str | Path) -> LoadedManifest:
+    """Load the study manifest (structure only: the videos are not needed for analysis)."""
+    try:
+        return load_manifest(path)
+    except StimuliError as exc:
+        raise AnalysisError(f"cannot use manifest {path}: {exc}") from None
+
+
+def _frame_from_csv(path: Path) -> pd.DataFrame:
+    try:
+        frame = pd.read_csv(path, dtype={"participant": str, "stimulus": str, "reference": str,
+                                         "session": str, "study": str})
+    except FileNotFoundError:
+        raise AnalysisError(f"ratings file {path} does not exist") from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise AnalysisError(f"ratings file {path} is not a readable CSV ({exc})") from None
+    missing = [c for c in _REQUIRED if c not in frame.columns]
+    if missing:
+        raise AnalysisError(
+            f"ratings file {path} lacks column(s) {', '.join(missing)}; it must be the tidy "
+            "ratings table (study, session, participant, trial, stimulus, reference, repetition, "
+            "is_hidden_reference, rating, ...)"
+        )
+    frame["_source"] = str(path)
+    frame["_row"] = np.arange(len(frame)) + 2  # line number: header is line 1
+    return frame
+
+
+def session_files(paths: Sequence[str | Path]) -> list[Path]:
+    """Expand folders into their session files (``*.sqlite``), keep files as given."""
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found = sorted(f for f in p.iterdir() if f.suffix in SESSION_SUFFIXES)
+            if not found:
+                raise AnalysisError(f"no session files (*.sqlite) in folder {p}")
+            out += found
+        elif p.is_file():
+            out.append(p)
+        else:
+            raise AnalysisError(f"session path {p} does not exist")
+    return out
+
+
+def _frame_from_sessions(paths: Sequence[str | Path]) -> tuple[pd.DataFrame, list[InputProblem]]:
+    try:
+        from study_app.session import read_ratings
+    except ImportError as exc:  # pragma: no cover - the study app ships with the toolkit
+        raise AnalysisError(f"session files need study_app.session ({exc})") from None
+    try:
+        from study_app.errors import StudyError
+    except ImportError:  # pragma: no cover
+        StudyError = Exception
+
+    problems: list[InputProblem] = []
+    frames = []
+    for path in session_files(paths):
+        try:
+            rows, found = read_ratings(path)
+        except (StudyError, sqlite3.DatabaseError, OSError) as exc:
+            problems.append(InputProblem(str(path), None, f"not used: {exc}"))
+            continue
+        for prob in found:
+            problems.append(InputProblem(str(prob.path), prob.row, prob.message))
+        frame = pd.DataFrame(rows)
+        if frame.empty:
+            continue
+        frame["_source"] = str(path)
+        frame["_row"] = frame["trial"]
+        frames.append(frame)
+    if not frames:
+        raise AnalysisError(
+            "no usable ratings in the session files: "
+            + ("; ".join(str(p) for p in problems[:3]) or "they are empty")
+        )
+    return pd.concat(frames, ignore_index=True), problems
+
+
+def _problem(row: pd.Series, message: str) -> InputProblem:
+    return InputProblem(str(row["_source"]), int(row["_row"]), message)
+
+
+def ratings_from_frame(
+    frame: pd.DataFrame,
+    loaded: LoadedManifest,
+    *,
+    problems: Iterable[InputProblem] = (),
+    source: str = "",
+) -> RatingSet:
+    """Validate tidy rating rows against the manifest and build a :class:`RatingSet`.
+
+    Rows with a missing or non-numeric rating, a rating outside the scale, an unknown stimulus,
+    a reference that contradicts the manifest, or a repeated (participant, stimulus,
+    repetition) are reported and left out (the first of duplicates is kept).
+    """
+    manifest = loaded.manifest
+    scale = manifest.scale
+    problems = list(problems)
+    if "_source" not in frame.columns:
+        frame = frame.assign(_source=source or "<ratings>", _row=np.arange(len(frame)) + 2)
+    stimuli = manifest.stimuli(include_hidden_references=True)
+    by_id = {s.id: s for s in stimuli}
+
+    values = pd.to_numeric(frame["rating"], errors="coerce").to_numpy(dtype=float)
+    stim = frame["stimulus"].astype(str).to_numpy()
+    part = frame["participant"].astype(str).to_numpy()
+    no_part = np.isin(part, ["", "nan", "None", "<NA>"])
+    not_num = ~np.isfinite(values)
+    with np.errstate(invalid="ignore"):
+        outside = ~not_num & ((values < scale.min) | (values > scale.max))
+    unknown = ~np.isin(stim, list(by_id))
+    expected_ref = np.array([by_id[s].reference if s in by_id else "" for s in stim], dtype=object)
+    if "reference" in frame.columns:
+        refs = frame["reference"].astype(str).to_numpy()
+        wrong_ref = ~unknown & ~np.isin(refs, ["", "nan", "<NA>"]) & (refs != expected_ref)
+    else:
+        refs = expected_ref
+        wrong_ref = np.zeros(len(frame), dtype=bool)
+    keep = np.ones(len(frame), dtype=bool)
+    checks = (
+        (no_part, lambda i: "no participant id; row left out"),
+        (not_num, lambda i: f"rating {frame['rating'].iloc[i]!r} is missing or not a number; "
+         "row left out"),
+        (outside, lambda i: f"rating {values[i]:g} is outside the scale "
+         f"[{scale.min:g}, {scale.max:g}]; row left out"),
+        (unknown, lambda i: f"stimulus {stim[i]!r} is not in the manifest; row left out"),
+        (wrong_ref, lambda i: f"reference {refs[i]!r} contradicts the manifest "
+         f"({expected_ref[i]!r} for {stim[i]}); row left out"),
+    )
+    for mask, message in checks:
+        for i in np.flatnonzero(mask & keep):
+            problems.append(_problem(frame.iloc[i], message(i)))
+        keep &= ~mask
+
+    if "repetition" in frame.columns:
+        rep = pd.to_numeric(frame["repetition"], errors="coerce")
+    else:
+        rep = pd.Series(np.nan, index=frame.index)
+    for i in np.flatnonzero(keep & rep.isna().to_numpy() & ("repetition" in frame.columns)):
+        problems.append(_problem(frame.iloc[i], "repetition is missing or not a number; "
+                                 "row left out"))
+        keep[i] = False
+    if "repetition" not in frame.columns:
+        # Number repetitions by order of appearance when the column is absent.
+        rep = frame.groupby(["participant", "stimulus"]).cumcount().astype(float)
+    good = frame.loc[keep].assign(_rating=values[keep], _rep=rep[keep].to_numpy(),
+                                  participant=part[keep], stimulus=stim[keep])
+    dup = good.duplicated(["participant", "stimulus", "_rep"], keep="first")
+    for _, row in good.loc[dup].iterrows():
+        problems.append(_problem(row, f"duplicate rating of {row['stimulus']} repetition "
+                                 f"{row['_rep']:g} by {row['participant']}; later copy left out"))
+    good = good.loc[~dup]
+    if good.empty:
+        raise AnalysisError(
+            "no valid ratings left after checking the input against the manifest (first "
+            "problems: " + "; ".join(str(p) for p in problems[:3]) + ")"
+        )
+
+    rated = set(good["stimulus"])
+    order = [s for s in stimuli if s.id in rated]
+    unrated = [s.id for s in stimuli if s.id not in rated
+               and (not s.is_hidden_reference or manifest.protocol.hidden_reference)]
+    if unrated:
+        problems.append(InputProblem(source or "<ratings>", None,
+                                     f"{len(unrated)} manifest stimulus/stimuli never rated "
+                                     f"(e.g. {', '.join(unrated[:5])})"))
+    raters = sorted(set(good["participant"]))
+    # Repetition slot: rank of the repetition value within (rater, stimulus).
+    good = good.sort_values(["participant", "stimulus", "_rep"])
+    slot = good.groupby(["participant", "stimulus"]).cumcount().to_numpy()
+    e_idx = pd.Index([s.id for s in order]).get_indexer(good["stimulus"])
+    s_idx = pd.Index(raters).get_indexer(good["participant"])
+    ratings = good["_rating"].to_numpy(dtype=float)
+    if scale.direction == "lower_is_better":
+        ratings = scale.min + scale.max - ratings
+        log.info("scale is lower-is-better: ratings are mirrored so that higher is better")
+    scores = np.full((len(order), len(raters), int(slot.max()) + 1), np.nan)
+    scores[e_idx, s_idx, slot] = ratings
+
+    table = pd.DataFrame(
+        {
+            "reference": [s.reference for s in order],
+            "scene": [s.scene for s in order],
+            "method": [s.method for s in order],
+            "level": pd.array([s.level for s in order], dtype="Int64"),
+            "is_hidden_reference": [s.is_hidden_reference for s in order],
+        },
+        index=pd.Index([s.id for s in order], name="stimulus"),
+    )
+    return RatingSet(
+        stimuli=table, raters=raters, scores=scores, scale_min=float(scale.min),
+        scale_max=float(scale.max), ref_score=float(scale.max), study=manifest.study_id,
+        source=source, problems=problems,
+    )
+
+
+def load_ratings(
+    manifest: str | Path,
+    *,
+    ratings_csv: str | Path | Sequence[str | Path] | None = None,
+    sessions: Sequence[str | Path] | None = None,
+) -> RatingSet:
+    """Ratings of a study from the tidy CSV(s) or session files, checked against the manifest."""
+    loaded = read_manifest(manifest)
+    if (ratings_csv is None) == (sessions is None):
+        raise AnalysisError("give the ratings either as a CSV (--ratings) or as session "
+                            "files (--sessions), not both or neither")
+    problems: list[InputProblem] = []
+    if ratings_csv is not None:
+        paths = [ratings_csv] if isinstance(ratings_csv, (str, Path)) else list(ratings_csv)
+        frame = pd.concat([_frame_from_csv(Path(p)) for p in paths], ignore_index=True)
+        source = ", ".join(str(p) for p in paths)
+    else:
+        frame, problems = _frame_from_sessions(sessions or [])
+        source = ", ".join(str(p) for p in sessions or [])
+    rs = ratings_from_frame(frame, loaded, problems=problems, source=source)
+    for prob in rs.problems:
+        log.warning("input problem: %s", prob)
+    return rs

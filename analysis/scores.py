@@ -1,0 +1,247 @@
+"""Quality scores per stimulus, rater and content, and DMOS per ITU-T P.910.
+
+Models (``--model``):
+
+- ``mle``: SUREAL's MaximumLikelihoodEstimationModel (Li & Bampis 2020): quality, rater
+  bias and inconsistency, content ambiguity, each with a 95% CI;
+- ``p910``: SUREAL's MLE_CO_AP2, the ITU-T P.910 subject model (no content ambiguity);
+- ``mos``: plain means with Student-t CIs;
+- ``bt500``: SUREAL's ITU-R BT.500 rater rejection, then plain means.
+
+Repetitions enter as repeated votes. SUREAL prints progress on stdout; it is silenced here.
+DMOS(v) = Q(v) - Q(ref(v)) + ref_score, where the hidden reference's score gives Q(ref).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import logging
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from .data import InputProblem, RatingSet
+from .errors import AnalysisError
+
+log = logging.getLogger(__name__)
+
+MODELS = ("mle", "p910", "mos", "bt500")
+MODEL_NAMES = {
+    "mle": "SUREAL MLE (MaximumLikelihoodEstimationModel)",
+    "p910": "SUREAL MLE_CO_AP2 (ITU-T P.910 subject model)",
+    "mos": "MOS (plain means, t-based CI)",
+    "bt500": "BT.500 rater rejection + MOS (SUREAL SR_MOS)",
+}
+
+
+@dataclass
+class ScoreResult:
+    """Per-stimulus quality and DMOS with 95% CIs, plus the subject/content parameters."""
+
+    model: str
+    quality: np.ndarray
+    quality_halfwidth: np.ndarray
+    mos: np.ndarray
+    n_ratings: np.ndarray
+    dmos: np.ndarray
+    dmos_halfwidth: np.ndarray
+    raters: list[str]
+    rater_bias: np.ndarray | None = None
+    rater_bias_ci: np.ndarray | None = None  # (S, 2) low/high
+    rater_inconsistency: np.ndarray | None = None
+    rater_inconsistency_ci: np.ndarray | None = None
+    content: list[str] = field(default_factory=list)
+    content_ambiguity: np.ndarray | None = None
+    content_ambiguity_ci: np.ndarray | None = None
+    rejected: list[str] = field(default_factory=list)
+    problems: list[InputProblem] = field(default_factory=list)
+
+    @property
+    def model_name(self) -> str:
+        return MODEL_NAMES.get(self.model, self.model)
+
+
+def _quiet_sureal(model_cls: type, rs: RatingSet) -> dict:
+    from sureal.dataset_reader import RawDatasetReader
+
+    from .sureal_io import sureal_namespace
+
+    with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings(), \
+            np.errstate(all="ignore"):
+        warnings.simplefilter("ignore")
+        return model_cls(RawDatasetReader(sureal_namespace(rs))).run_modeling()
+
+
+def mos_and_t(scores: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean over all votes (raters x repetitions), t-based 95% half-width, vote count."""
+    flat = scores.reshape(scores.shape[0], -1)
+    n = np.isfinite(flat).sum(axis=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mean = np.nanmean(flat, axis=1)
+        sd = np.nanstd(flat, axis=1, ddof=1)
+        t = stats.t.ppf(0.975, np.maximum(n - 1, 1))
+        half = np.where(n > 1, t * sd / np.sqrt(np.maximum(n, 1)), np.nan)
+    return mean, half, n
+
+
+def _rater_stats_from_means(rs: RatingSet, quality: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Bias (mean residual) and inconsistency (residual s.d.) per rater, with 95% CIs."""
+    resid = rs.scores - quality[:, None, None]
+    flat = np.moveaxis(resid, 1, 0).reshape(rs.n_raters, -1)
+    n = np.isfinite(flat).sum(axis=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        bias = np.nanmean(flat, axis=1)
+        sd = np.nanstd(flat - bias[:, None], axis=1, ddof=1)
+        half = stats.t.ppf(0.975, np.maximum(n - 1, 1)) * sd / np.sqrt(np.maximum(n, 1))
+        lo = np.sqrt((n - 1) * sd**2 / stats.chi2.ppf(0.975, np.maximum(n - 1, 1)))
+        hi = np.sqrt((n - 1) * sd**2 / stats.chi2.ppf(0.025, np.maximum(n - 1, 1)))
+    return bias, np.c_[bias - half, bias + half], sd, np.c_[lo, hi]
+
+
+def _ci_pair(ci95: list, value: np.ndarray) -> np.ndarray:
+    """SUREAL gives CI as [lower distances, upper distances]; turn into absolute bounds."""
+    lo = np.asarray(ci95[0], dtype=float)
+    hi = np.asarray(ci95[1], dtype=float)
+    return np.c_[value - lo, value + hi]
+
+
+def fit_scores(rs: RatingSet, model: str = "mle") -> ScoreResult:
+    """Quality scores of every stimulus under the chosen model, and DMOS from them."""
+    if model not in MODELS:
+        raise AnalysisError(f"unknown score model {model!r}; use one of {', '.join(MODELS)}")
+    if rs.n_raters < 2:
+        raise AnalysisError("at least 2 raters are needed to fit a score model")
+    rejected: list[str] = []
+    work = rs
+    if model == "bt500":
+        from .outliers import bt500_rejection
+
+        flags, _, _ = bt500_rejection(rs)
+        rejected = [r for r, f in zip(rs.raters, flags, strict=True) if f]
+        work = rs.with_raters([s for s, f in enumerate(flags) if not f])
+    mos, mos_half, n = mos_and_t(work.scores)
+    result = ScoreResult(
+        model=model, quality=mos, quality_halfwidth=mos_half, mos=mos, n_ratings=n,
+        dmos=mos, dmos_halfwidth=mos_half, raters=list(work.raters), rejected=rejected,
+    )
+    if model in ("mos", "bt500"):
+        b, bci, v, vci = _rater_stats_from_means(work, mos)
+        result.rater_bias, result.rater_bias_ci = b, bci
+        result.rater_inconsistency, result.rater_inconsistency_ci = v, vci
+    else:
+        from sureal.subjective_model import (
+            MaximumLikelihoodEstimationModel,
+            MaximumLikelihoodEstimationModelContentObliviousAlternativeProjection2,
+        )
+
+        cls = (MaximumLikelihoodEstimationModel if model == "mle"
+               else MaximumLikelihoodEstimationModelContentObliviousAlternativeProjection2)
+        out = _run_sureal(cls, work)
+        if model == "mle" and not _plausible(out, work):
+            # SUREAL's full MLE can diverge (content ambiguity -> inf) when one rater is far
+            # noisier than the rest; the P.910 model is the stable fallback.
+            msg = ("SUREAL MLE did not converge to plausible values (content ambiguity or "
+                   "inconsistency beyond the scale range); fell back to MLE_CO_AP2 (p910)")
+            log.warning(msg)
+            result.problems.append(InputProblem("score model", None, msg))
+            result.model = model = "p910"
+            out = _run_sureal(
+                MaximumLikelihoodEstimationModelContentObliviousAlternativeProjection2, work)
+            if not _plausible(out, work):
+                raise AnalysisError("SUREAL's score models did not converge on these ratings; "
+                                    "try --model mos")
+        q = np.asarray(out["quality_scores"], dtype=float)
+        result.quality = q
+        result.quality_halfwidth = np.asarray(out["quality_scores_ci95"][1], dtype=float)
+        bias = np.asarray(out["observer_bias"], dtype=float)
+        result.rater_bias = bias
+        result.rater_bias_ci = _ci_pair(out["observer_bias_ci95"], bias)
+        inc = np.asarray(out["observer_inconsistency"], dtype=float)
+        result.rater_inconsistency = inc
+        result.rater_inconsistency_ci = _ci_pair(out["observer_inconsistency_ci95"], inc)
+        if "content_ambiguity" in out:
+            amb = np.asarray(out["content_ambiguity"], dtype=float)
+            result.content = list(dict.fromkeys(work.stimuli["reference"]))
+            result.content_ambiguity = amb
+            result.content_ambiguity_ci = _ci_pair(out["content_ambiguity_ci95"], amb)
+    result.dmos, result.dmos_halfwidth, dmos_problems = dmos_from_quality(
+        rs, result.quality, result.quality_halfwidth)
+    result.problems += dmos_problems
+    return result
+
+
+def _run_sureal(cls: type, rs: RatingSet) -> dict:
+    try:
+        return _quiet_sureal(cls, rs)
+    except (ValueError, AssertionError, FloatingPointError, np.linalg.LinAlgError) as exc:
+        return {"error": str(exc) or type(exc).__name__}
+
+
+def _plausible(out: dict, rs: RatingSet) -> bool:
+    """Finite quality inside a generous band around the scale, spreads below its range."""
+    if "error" in out:
+        return False
+    span = rs.scale_max - rs.scale_min
+    q = np.asarray(out["quality_scores"], dtype=float)
+    if not np.isfinite(q).all() or (q < rs.scale_min - span).any() or \
+            (q > rs.scale_max + span).any():
+        return False
+    for key in ("observer_inconsistency", "content_ambiguity"):
+        v = np.asarray(out.get(key, []), dtype=float)
+        if v.size and (not np.isfinite(v).all() or (v > span).any()):
+            return False
+    return True
+
+
+def dmos_from_quality(
+    rs: RatingSet, quality: np.ndarray, halfwidth: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, list[InputProblem]]:
+    """DMOS = Q(v) - Q(ref(v)) + ref_score with the two half-widths combined in quadrature.
+
+    A hidden reference gets ref_score and its own half-width. Stimuli whose reference was
+    never rated as hidden reference keep their quality score (reported as a problem).
+    """
+    ref = rs.reference_index()
+    has = ref >= 0
+    dmos = quality.astype(float).copy()
+    half = halfwidth.astype(float).copy()
+    dmos[has] = quality[has] - quality[ref[has]] + rs.ref_score
+    hidden = rs.hidden_reference_mask
+    cond = has & ~hidden
+    half[cond] = np.sqrt(halfwidth[cond] ** 2 + halfwidth[ref[cond]] ** 2)
+    problems = []
+    if (~has).any():
+        missing = sorted(set(rs.stimuli["reference"].to_numpy()[~has]))
+        problems.append(InputProblem(
+            rs.source or "<ratings>", None,
+            f"no hidden-reference ratings for {', '.join(map(str, missing))}: DMOS of their "
+            "stimuli is their raw quality score"))
+    return dmos, half, problems
+
+
+def dmos_table(rs: RatingSet, res: ScoreResult) -> pd.DataFrame:
+    """The DMOS contract (DESIGN.md 5) columns first, then scene, quality and its CI."""
+    st = rs.stimuli
+    return pd.DataFrame({
+        "stimulus": st.index.astype(str),
+        "reference": st["reference"].to_numpy(),
+        "method": st["method"].to_numpy(),
+        "level": pd.array(st["level"], dtype="Int64"),
+        "dmos": res.dmos,
+        "ci95_low": res.dmos - res.dmos_halfwidth,
+        "ci95_high": res.dmos + res.dmos_halfwidth,
+        "mos": res.mos,
+        "n_ratings": res.n_ratings.astype(int),
+        "model": res.model_name,
+        "scene": st["scene"].to_numpy(),
+        "quality": res.quality,
+        "quality_ci95_low": res.quality - res.quality_halfwidth,
+        "quality_ci95_high": res.quality + res.quality_halfwidth,
+        "is_hidden_reference": st["is_hidden_reference"].to_numpy(),
+    })

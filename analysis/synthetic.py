@@ -1,0 +1,85 @@
+"""Generated studies with known truth, for tests, benchmarks and planning a panel size.
+
+Each rater s rates stimulus v as ``clip(Q(v) + bias_s + N(0, noise_s^2))`` on the manifest
+scale; outlier raters rate at random. The truth (Q, biases, who is an outlier) is returned.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from stimuli_manifests import LoadedManifest, Manifest, parse_manifest
+
+
+@dataclass
+class SyntheticStudy:
+    manifest: LoadedManifest
+    ratings: pd.DataFrame  # tidy ratings table (DESIGN.md contract 3, main columns)
+    quality: pd.Series  # true quality per stimulus id
+    bias: pd.Series  # true bias per rater
+    outliers: list[str]
+
+
+def synthetic_manifest(n_scenes: int = 10, methods: tuple[str, ...] = ("blur", "noise"),
+                       levels: int = 3, *, repetitions: int = 3) -> Manifest:
+    """A manifest of ``n_scenes`` references x methods x levels (paths are never read)."""
+    refs = [{"id": f"SRC{i + 1:02d}", "path": f"src{i + 1:02d}.mkv", "scene": f"scene{i + 1}"}
+            for i in range(n_scenes)]
+    conds = [{"reference": r["id"], "path": f"{r['id']}_{m}{lv}.mkv", "method": m, "level": lv}
+             for r in refs for m in methods for lv in range(1, levels + 1)]
+    return parse_manifest({"format": "cgvq-manifest/1", "study_id": "synthetic",
+                           "protocol": {"repetitions": repetitions},
+                           "references": refs, "conditions": conds})
+
+
+def synthetic_study(
+    n_scenes: int = 10,
+    methods: tuple[str, ...] = ("blur", "noise"),
+    levels: int = 3,
+    n_raters: int = 20,
+    repetitions: int = 3,
+    *,
+    bias_sd: float = 5.0,
+    noise_sd: float = 8.0,
+    n_outliers: int = 0,
+    seed: int = 0,
+) -> SyntheticStudy:
+    """Ratings of a generated panel; ``noise_sd = 0`` and ``bias_sd = 0`` give exact truth."""
+    rng = np.random.default_rng(seed)
+    manifest = synthetic_manifest(n_scenes, methods, levels, repetitions=repetitions)
+    stimuli = manifest.stimuli()
+    q = {}
+    ref_q = {r.id: rng.uniform(70, 85) for r in manifest.references}
+    method_k = {m: rng.uniform(8, 14) for m in methods}
+    for s in stimuli:
+        if s.is_hidden_reference:
+            q[s.id] = ref_q[s.id]
+        else:
+            q[s.id] = ref_q[s.reference] - method_k[s.method] * (levels + 1 - s.level) \
+                + rng.normal(0, 3)
+    raters = [f"P{i + 1:02d}" for i in range(n_raters)]
+    bias = rng.normal(0, bias_sd, n_raters) if bias_sd > 0 else np.zeros(n_raters)
+    bias -= bias.mean()
+    outliers = raters[:n_outliers]
+    rows = []
+    trial = 0
+    for k, rater in enumerate(raters):
+        for rep in range(1, repetitions + 1):
+            for s in stimuli:
+                if rater in outliers:
+                    value = rng.uniform(0, 100)
+                else:
+                    value = q[s.id] + bias[k] + (rng.normal(0, noise_sd) if noise_sd else 0.0)
+                rows.append({"study": "synthetic", "session": f"{rater}-s1", "participant": rater,
+                             "trial": trial, "stimulus": s.id, "reference": s.reference,
+                             "repetition": rep, "is_hidden_reference": s.is_hidden_reference,
+                             "rating": float(np.clip(value, 0, 100))})
+                trial += 1
+    from pathlib import Path
+
+    loaded = LoadedManifest(manifest, None, Path("."))
+    return SyntheticStudy(loaded, pd.DataFrame(rows), pd.Series(q), pd.Series(bias, raters),
+                          outliers)

@@ -1,0 +1,74 @@
+"""Grubbs' test against textbook values; outlier raters found in generated panels."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from analysis.inputs import ratings_from_frame
+from analysis.outliers import grubbs_critical, grubbs_statistic, screen_raters
+from analysis.synthetic import synthetic_study
+
+
+@pytest.mark.parametrize(("n", "table"), [(3, 1.155), (4, 1.481), (5, 1.715), (7, 2.020),
+                                          (10, 2.290), (20, 2.709), (30, 2.908)])
+def test_grubbs_critical_values_table(n: int, table: float) -> None:
+    """Two-sided alpha 0.05 (upper 2.5%) critical values of the published Grubbs tables."""
+    assert grubbs_critical(n, 0.05) == pytest.approx(table, abs=1.5e-3)
+
+
+def test_grubbs_textbook_nitrite_example() -> None:
+    """Miller & Miller's nitrite example: 0.380 is suspect among 0.403, 0.410, 0.401.
+
+    G = 1.43 < 1.481 (n = 4); with three more values G = 2.016 < 2.02 (n = 7): kept both times.
+    """
+    g, k = grubbs_statistic(np.array([0.403, 0.410, 0.401, 0.380]))
+    assert k == 3
+    assert g == pytest.approx(1.43, abs=5e-3)
+    assert g < grubbs_critical(4)
+    g7, k7 = grubbs_statistic(np.array([0.403, 0.410, 0.401, 0.380, 0.400, 0.413, 0.411]))
+    assert k7 == 3
+    assert g7 == pytest.approx(2.016, abs=5e-3)
+    assert g7 < grubbs_critical(7) == pytest.approx(2.02, abs=1e-2)
+
+
+def test_injected_outlier_rater_is_found(study) -> None:
+    rs = ratings_from_frame(study.ratings, study.manifest)
+    result = screen_raters(rs, "grubbs")
+    assert result.removed_names == study.outliers == ["P01"]
+    r = result.removed[0]
+    assert r.statistic > r.critical
+    assert r.critical == pytest.approx(grubbs_critical(20), abs=1e-12)
+    assert "P01" not in [rs.raters[k] for k in result.kept]
+
+
+def test_clean_panel_keeps_everyone() -> None:
+    st = synthetic_study(n_scenes=6, levels=2, n_raters=12, noise_sd=6, bias_sd=3, seed=11)
+    rs = ratings_from_frame(st.ratings, st.manifest)
+    assert screen_raters(rs, "grubbs").removed == []
+    assert screen_raters(rs, "none").kept == list(range(12))
+
+
+def test_two_random_raters_are_both_removed() -> None:
+    st = synthetic_study(n_scenes=8, levels=2, n_raters=16, n_outliers=2, noise_sd=5,
+                         bias_sd=3, seed=5)
+    rs = ratings_from_frame(st.ratings, st.manifest)
+    assert sorted(screen_raters(rs, "grubbs").removed_names) == ["P01", "P02"]
+
+
+def test_bt500_screening(study) -> None:
+    """BT.500 rejects a rater whose deviant votes fall on both sides of the panel, and keeps
+    one whose deviant votes are one-sided (|P-Q|/(P+Q) >= 0.3), as the recommendation says."""
+    import numpy as np
+
+    # As generated, P01 answers uniformly at random: mostly below the (high) panel mean.
+    one_sided = screen_raters(ratings_from_frame(study.ratings, study.manifest), "bt500")
+    assert "P01" not in one_sided.removed_names and one_sided.deviation["P01"] > 0.05
+    frame = study.ratings.copy()
+    sel = frame["participant"] == "P01"
+    truth = frame.loc[sel, "stimulus"].map(study.quality).to_numpy()
+    rng = np.random.default_rng(1)
+    frame.loc[sel, "rating"] = np.clip(truth + rng.normal(0, 25, sel.sum()), 0, 100)
+    result = screen_raters(ratings_from_frame(frame, study.manifest), "bt500")
+    assert result.removed_names == ["P01"]
+    assert result.removed[0].statistic > 0.05 and result.removed[0].value < 0.3

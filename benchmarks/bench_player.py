@@ -1,0 +1,206 @@
+"""Presentation timing of the real player on a virtual 60 Hz display (Xvfb + Mesa llvmpipe).
+
+For 1024x1024 stimuli at 30 and 60 fps it runs ``cgvq-study run``'s app on a private Xvfb,
+injects SDL key events (Space every 2 s for a 10 s viewing, then Enter, a rating and quit)
+and reads the presentation log from the session file. Prints frames presented vs expected,
+dropped frames, blank duration error, switch latency and the p99 flip interval.
+Target: zero dropped frames, blank within one refresh of 0.5 s.
+
+    .venv/bin/python benchmarks/bench_player.py [--seconds 10] [--fps 30 60]
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+
+def make_study(folder: Path, fps: int, size: int, seconds: float) -> Path:
+    from stimuli_manifests import (
+        fill_checksums,
+        load_manifest,
+        parse_manifest,
+        save_manifest,
+        write_video,
+    )
+
+    n = round(fps * seconds)
+    yy, xx = np.mgrid[0:size, 0:size]
+    ref = np.empty((n, size, size, 3), dtype=np.uint8)
+    for t in range(n):
+        for c in range(3):
+            ref[t, :, :, c] = ((xx + 3 * t * (c + 1)) ^ (yy + 5 * t)) & 0xFF
+    rng = np.random.default_rng(0)
+    test = np.clip(ref.astype(np.int16) + rng.integers(-20, 21, ref.shape), 0, 255)
+    write_video(folder / "videos" / "ref.mkv", ref, fps)
+    write_video(folder / "videos" / "test.mkv", test.astype(np.uint8), fps)
+    manifest = parse_manifest({
+        "study_id": f"bench-{fps}", "root": "videos",
+        "protocol": {"repetitions": 1, "blank_seconds": 0.5},
+        "display": {"min_width": size, "min_height": size, "min_refresh_hz": 59},
+        "references": [{"path": "ref.mkv", "width": size, "height": size}],
+        "conditions": [{"reference": "SRC01", "path": "test.mkv", "method": "noise",
+                        "level": 1}],
+    })
+    save_manifest(manifest, folder / "manifest.json")
+    save_manifest(fill_checksums(load_manifest(folder / "manifest.json")),
+                  folder / "manifest.json")
+    return folder
+
+
+class StateWatcher(logging.Handler):
+    """Collects the app's ``state:`` debug lines."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.states: list[str] = []
+        self.cond = threading.Condition()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        msg = record.getMessage()
+        if msg.startswith("state:"):
+            with self.cond:
+                self.states.append(msg)
+                self.cond.notify_all()
+
+    def wait(self, text: str, timeout: float = 120) -> None:
+        with self.cond:
+            ok = self.cond.wait_for(
+                lambda: any(re.search(rf"state: {re.escape(text)}(\s|$)", s)
+                            for s in self.states), timeout)
+        if not ok:
+            raise TimeoutError(f"player never reached {text!r}")
+        with self.cond:
+            self.states.clear()
+
+
+def script(watch: StateWatcher, seconds: float, errors: list[BaseException]) -> None:
+    import pygame
+
+    def key(k: int) -> None:
+        pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=k, mod=0, unicode="",
+                                             scancode=0))
+
+    try:
+        watch.wait("viewing trial=0")
+        t_end = time.monotonic() + seconds
+        time.sleep(1.0)
+        while time.monotonic() < t_end - 1.0:
+            key(pygame.K_SPACE)
+            time.sleep(2.0)
+        time.sleep(max(0.0, t_end - time.monotonic()))
+        key(pygame.K_RETURN)
+        watch.wait("rating")
+        key(pygame.K_RIGHT)
+        time.sleep(0.1)
+        key(pygame.K_RETURN)
+        watch.wait("viewing trial=1")
+        key(pygame.K_p)
+        watch.wait("pause")
+        key(pygame.K_q)
+    except BaseException as exc:  # reported by the main thread
+        errors.append(exc)
+
+
+def run_one(fps: int, seconds: float, size: int, workdir: Path) -> dict:
+    from study_app.app import RunOptions, run_study
+    from study_app.session import SessionStore
+    from study_app.study import load_study
+
+    study = load_study(make_study(workdir / f"study{fps}", fps, size, 3.0))
+    watch = StateWatcher()
+    logging.getLogger("study_app").addHandler(watch)
+    logging.getLogger("study_app").setLevel(logging.DEBUG)
+    errors: list[BaseException] = []
+    thread = threading.Thread(target=script, args=(watch, seconds, errors), daemon=True)
+    thread.start()
+    try:
+        run_study(study, RunOptions(participant="bench", practice=0, max_dropped_frames=-1,
+                                    skip_preflight=True, seed=1))
+    finally:
+        logging.getLogger("study_app").removeHandler(watch)
+    thread.join(timeout=5)
+    if errors:
+        raise errors[0]
+    with SessionStore.open(study.session_path("bench")) as store:
+        log0 = next(p for p in store.presentations() if p["trial"] == 0)
+        display = store.info.display
+    period_ms = 1000.0 / display["refresh_hz"]
+    return {"fps": fps, "display": display, "log": log0, "period_ms": period_ms}
+
+
+def report(res: dict) -> None:
+    log, period = res["log"], res["period_ms"]
+    expected = log["viewing_ms"] / period + 1
+    blanks = np.array(log["blank_durations_ms"])
+    lat = np.array(log["switch_latencies_ms"])
+    print(f"\n{res['fps']} fps stimuli, {res['display']['window'][0]}x"
+          f"{res['display']['window'][1]} window, vsync={res['display']['vsync']}, "
+          f"{res['display']['refresh_hz']:.2f} Hz ({res['display']['refresh_source']})")
+    print(f"  viewing time            {log['viewing_ms'] / 1000:.2f} s")
+    print(f"  frames presented        {log['frames_presented']} (expected {expected:.0f})")
+    print(f"  dropped frames          {log['dropped_frames']}")
+    print(f"  max / p99 flip interval {log['max_flip_interval_ms']:.2f} / "
+          f"{log['p99_flip_interval_ms']:.2f} ms (nominal {period:.2f})")
+    print(f"  CPU per flip (process)  {log['cpu_ms_per_flip']:.2f} ms "
+          f"(all threads; {100 * log['cpu_ms_per_flip'] / period:.0f}% of one core at "
+          f"{1000 / period:.0f} Hz)")
+    if blanks.size:
+        err = blanks - 500.0
+        print(f"  blank duration error    mean {err.mean():+.2f} ms, max |err| "
+              f"{np.abs(err).max():.2f} ms ({np.abs(err).max() / period:.2f} refreshes) "
+              f"over {blanks.size} blanks")
+    if lat.size:
+        print(f"  switch latency          mean {lat.mean():.1f} ms, max {lat.max():.1f} ms "
+              f"(blank + {(lat.max() - 500) / period:.2f} refreshes at most)")
+    ok = log["dropped_frames"] == 0 and (not blanks.size or np.abs(blanks - 500).max() <= period)
+    print(f"  target (0 dropped, blank within 1 refresh): {'MET' if ok else 'NOT MET'}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=10.0, help="viewing time per condition")
+    ap.add_argument("--fps", type=int, nargs="+", default=[30, 60])
+    ap.add_argument("--size", type=int, default=1024)
+    ap.add_argument("--screen", default="1920x1200", help="Xvfb screen size")
+    ap.add_argument("--use-display", action="store_true",
+                    help="use $DISPLAY instead of starting a private Xvfb")
+    args = ap.parse_args()
+    xvfb = None
+    if not args.use_display:
+        if shutil.which("Xvfb") is None:
+            print("Xvfb is not installed; run with --use-display on a real display")
+            return 2
+        n = next(i for i in range(150, 250) if not Path(f"/tmp/.X{i}-lock").exists())
+        xvfb = subprocess.Popen(["Xvfb", f":{n}", "-screen", "0", f"{args.screen}x24",
+                                 "-nolisten", "tcp"], stderr=subprocess.DEVNULL)
+        while not Path(f"/tmp/.X11-unix/X{n}").exists():
+            time.sleep(0.05)
+        os.environ["DISPLAY"] = f":{n}"
+        os.environ["SDL_VIDEODRIVER"] = "x11"
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            for fps in args.fps:
+                report(run_one(fps, args.seconds, args.size, Path(tmp)))
+    finally:
+        if xvfb is not None:
+            xvfb.terminate()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

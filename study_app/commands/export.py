@@ -1,0 +1,35 @@
+"""``cgvq-study export SESSION_FILE``: the one file a participant sends back."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+NAME = "export"
+HELP = "pack a session file into one zip to send back (and optionally write the ratings CSV)"
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("session", type=Path, help="the session file (<participant>.sqlite)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="zip to write (default: <participant>_<session>.zip beside it)")
+    parser.add_argument("--csv", type=Path, default=None, metavar="OUT",
+                        help="also write the tidy ratings CSV to OUT")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..export import export_session
+    from ..session import read_ratings, verify_session, write_ratings_csv
+
+    report = verify_session(args.session)
+    out = export_session(args.session, args.out)
+    if args.csv is not None:
+        rows, _ = read_ratings(args.session)
+        write_ratings_csv(rows, args.csv)
+        print(f"ratings CSV: {args.csv} ({len(rows)} rows)")
+    state = ("complete" if report.complete else
+             "INCOMPLETE" if report.intact else "DAMAGED")
+    print(f"{out}  ({report.n_ratings} of {report.n_planned} ratings, {state})")
+    for problem in report.problems:
+        print(f"  problem: {problem}")
+    return 0

@@ -1,0 +1,177 @@
+"""Drawing with ModernGL: videos at 1:1 pixels, flat rectangles and text.
+
+All coordinates are window pixels with the origin at the top left. Video frames live in
+texture arrays (one layer per frame, split over several arrays when a video has more frames
+than the driver allows layers), uploaded before a trial starts so the presentation path only
+switches a uniform.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+import pygame
+
+from shaders import shader_source
+
+Color = tuple[float, float, float, float]
+MID_GREY: Color = (0.5, 0.5, 0.5, 1.0)
+WHITE: Color = (1.0, 1.0, 1.0, 1.0)
+BLACK: Color = (0.0, 0.0, 0.0, 1.0)
+
+
+@dataclass
+class VideoTexture:
+    """A decoded video on the GPU: frames in one or more texture arrays."""
+
+    arrays: list[moderngl.TextureArray]
+    layers_per_array: int
+    width: int
+    height: int
+    frame_count: int
+
+    def locate(self, frame: int) -> tuple[moderngl.TextureArray, int]:
+        return self.arrays[frame // self.layers_per_array], frame % self.layers_per_array
+
+    def release(self) -> None:
+        for a in self.arrays:
+            a.release()
+        self.arrays = []
+
+
+class Renderer:
+    """The player's GL programs and a text cache."""
+
+    def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
+        self.ctx = ctx
+        self.size = size
+        vert = shader_source("player_quad.vert")
+        self.solid = ctx.program(vertex_shader=vert,
+                                 fragment_shader=shader_source("player_solid.frag"))
+        self.video = ctx.program(vertex_shader=vert,
+                                 fragment_shader=shader_source("player_video.frag"))
+        self.text_prog = ctx.program(vertex_shader=vert,
+                                     fragment_shader=shader_source("player_text.frag"))
+        corners = np.array([0, 0, 1, 0, 0, 1, 1, 1], dtype="f4")
+        self._vbo = ctx.buffer(corners.tobytes())
+        self._vaos = {
+            prog: ctx.vertex_array(prog, [(self._vbo, "2f", "in_corner")])
+            for prog in (self.solid, self.video, self.text_prog)
+        }
+        for prog in self._vaos:
+            prog["u_viewport"].value = size
+        self.video["u_win_h"].value = size[1]
+        self.video["u_frames"].value = 0
+        self.text_prog["u_tex"].value = 0
+        self.max_layers = int(ctx.info.get("GL_MAX_ARRAY_TEXTURE_LAYERS", 256))
+        pygame.font.init()
+        self._fonts: dict[int, pygame.font.Font] = {}
+        self._text_cache: dict[tuple[str, int, bool], tuple[moderngl.Texture, int, int]] = {}
+        ctx.enable(moderngl.BLEND)
+        ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
+
+    # -- primitives -------------------------------------------------------------------
+    def clear(self, color: Color = MID_GREY) -> None:
+        self.ctx.screen.use()
+        self.ctx.clear(*color)
+
+    def rect(self, x: float, y: float, w: float, h: float, color: Color) -> None:
+        self.solid["u_rect"].value = (x, y, w, h)
+        self.solid["u_color"].value = color
+        self._vaos[self.solid].render(moderngl.TRIANGLE_STRIP)
+
+    def upload_video(self, frames: np.ndarray) -> VideoTexture:
+        """Upload (T, H, W, 3) uint8 frames into texture arrays."""
+        t, h, w, _ = frames.shape
+        per = max(1, min(self.max_layers, t))
+        arrays = []
+        for start in range(0, t, per):
+            chunk = np.ascontiguousarray(frames[start:start + per])
+            tex = self.ctx.texture_array((w, h, chunk.shape[0]), 3, chunk, alignment=1)
+            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            tex.repeat_x = tex.repeat_y = False
+            arrays.append(tex)
+        return VideoTexture(arrays, per, w, h, t)
+
+    def draw_video(self, video: VideoTexture, frame: int) -> tuple[int, int]:
+        """Draw one frame centred at 1:1 pixels; returns its top-left corner."""
+        x = (self.size[0] - video.width) // 2
+        y = (self.size[1] - video.height) // 2
+        array, layer = video.locate(frame)
+        array.use(0)
+        self.video["u_layer"].value = layer
+        self.video["u_origin"].value = (x, y)
+        self.video["u_rect"].value = (x, y, video.width, video.height)
+        self._vaos[self.video].render(moderngl.TRIANGLE_STRIP)
+        return x, y
+
+    def video_rect(self, width: int, height: int) -> tuple[int, int, int, int]:
+        return ((self.size[0] - width) // 2, (self.size[1] - height) // 2, width, height)
+
+    # -- text -------------------------------------------------------------------------
+    def _font(self, px: int) -> pygame.font.Font:
+        if px not in self._fonts:
+            self._fonts[px] = pygame.font.Font(None, px)
+        return self._fonts[px]
+
+    def text_size(self, text: str, px: int = 28) -> tuple[int, int]:
+        return self._font(px).size(text)
+
+    def text(self, text: str, x: float, y: float, *, px: int = 28, color: Color = WHITE,
+             anchor: str = "topleft") -> tuple[int, int]:
+        """Draw one line of text; ``anchor`` is topleft, center or topright. Returns its size."""
+        if not text:
+            return 0, 0
+        key = (text, px, False)
+        if key not in self._text_cache:
+            surf = self._font(px).render(text, True, (255, 255, 255))
+            data = pygame.image.tostring(surf, "RGBA", False)
+            tex = self.ctx.texture(surf.get_size(), 4, data)
+            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            if len(self._text_cache) > 512:
+                for old, _, _ in self._text_cache.values():
+                    old.release()
+                self._text_cache.clear()
+            self._text_cache[key] = (tex, surf.get_width(), surf.get_height())
+        tex, w, h = self._text_cache[key]
+        if anchor == "center":
+            x -= w / 2
+        elif anchor == "topright":
+            x -= w
+        tex.use(0)
+        self.text_prog["u_rect"].value = (round(x), round(y), w, h)
+        self.text_prog["u_tint"].value = color
+        self._vaos[self.text_prog].render(moderngl.TRIANGLE_STRIP)
+        return w, h
+
+    def paragraph(self, lines: Sequence[str], x: float, y: float, width: float, *,
+                  px: int = 28, color: Color = WHITE, spacing: float = 1.35) -> float:
+        """Draw word-wrapped lines; returns the y below the last line."""
+        line_h = round(px * spacing)
+        for line in lines:
+            words = line.split()
+            if not words:
+                y += line_h
+                continue
+            current = ""
+            for word in words:
+                trial = f"{current} {word}".strip()
+                if current and self.text_size(trial, px)[0] > width:
+                    self.text(current, x, y, px=px, color=color)
+                    y += line_h
+                    current = word
+                else:
+                    current = trial
+            if current:
+                self.text(current, x, y, px=px, color=color)
+                y += line_h
+        return y
+
+    def read_pixels(self) -> np.ndarray:
+        """The window's current back buffer as (H, W, 3) uint8, top row first."""
+        data = self.ctx.screen.read(components=3, alignment=1)
+        arr = np.frombuffer(data, dtype=np.uint8).reshape(self.size[1], self.size[0], 3)
+        return arr[::-1].copy()

@@ -1,0 +1,166 @@
+"""A study folder: ``manifest.json``, optional ``briefing.md`` / ``consent.md``, the videos.
+
+:func:`load_study` reads it; :func:`check_study` validates everything an experimenter should
+know before sending the folder out (manifest, files, checksums, decodability, durations, frame
+rates and sizes of each test/reference pair).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from stimuli_manifests import (
+    LoadedManifest,
+    Manifest,
+    StimuliError,
+    VideoInfo,
+    load_manifest,
+    probe_video,
+    validate_manifest,
+)
+
+from .errors import StudyError
+from .schedule import ScheduleItem
+
+log = logging.getLogger(__name__)
+
+MANIFEST_NAME = "manifest.json"
+BRIEFING_NAME = "briefing.md"
+CONSENT_NAME = "consent.md"
+SESSIONS_DIR = "sessions"
+
+
+@dataclass
+class Study:
+    """A loaded study folder."""
+
+    folder: Path
+    loaded: LoadedManifest
+    briefing: str | None
+    consent: str | None
+
+    @property
+    def manifest(self) -> Manifest:
+        return self.loaded.manifest
+
+    def session_path(self, participant: str, sessions_dir: Path | None = None) -> Path:
+        """Where this participant's session file lives (``<study>/sessions/<id>.sqlite``)."""
+        safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in participant)
+        if not safe or safe != participant:
+            raise StudyError(
+                f"participant id {participant!r} may contain only letters, digits, '-', '_' "
+                "and '.'; choose another id"
+            )
+        return (sessions_dir or self.folder / SESSIONS_DIR) / f"{participant}.sqlite"
+
+    def schedule_items(self) -> list[ScheduleItem]:
+        return [ScheduleItem(s.id, s.reference, s.is_hidden_reference)
+                for s in self.manifest.stimuli()]
+
+
+def load_study(folder: str | Path) -> Study:
+    """Load a study folder (or a manifest file inside one)."""
+    folder = Path(folder)
+    if folder.is_file():
+        manifest_path, folder = folder, folder.parent
+    else:
+        manifest_path = folder / MANIFEST_NAME
+    if not folder.is_dir():
+        raise StudyError(f"study folder not found: {folder}")
+    if not manifest_path.is_file():
+        raise StudyError(
+            f"{folder} holds no {MANIFEST_NAME}; a study folder needs one (see README, "
+            "'Preparing a study folder')"
+        )
+    try:
+        loaded = load_manifest(manifest_path)
+    except StimuliError as exc:
+        raise StudyError(str(exc)) from None
+
+    def text(name: str) -> str | None:
+        p = folder / name
+        return p.read_text(encoding="utf-8") if p.is_file() else None
+
+    return Study(folder, loaded, text(BRIEFING_NAME), text(CONSENT_NAME))
+
+
+@dataclass
+class StudyCheck:
+    """What :func:`check_study` found; ``ok`` when no error."""
+
+    errors: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    n_stimuli: int = 0
+    n_trials: int = 0
+    videos: dict[str, VideoInfo] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+
+def check_study(study: Study, *, progress: bool = False) -> StudyCheck:
+    """Validate a study folder; never raises for problems it can report."""
+    out = StudyCheck()
+    m = study.manifest
+    report = validate_manifest(study.loaded, verify_checksums=True, probe_videos=False,
+                               progress=progress)
+    out.errors += report.errors + [f"checksum mismatch: {mm}" for mm in report.mismatches]
+    out.warnings += report.warnings
+    stimuli = m.stimuli()
+    out.n_stimuli = len(stimuli)
+    out.n_trials = len(stimuli) * m.protocol.repetitions
+    if len(stimuli) < 2 and m.protocol.repetitions > 1:
+        out.errors.append("with one stimulus and repetitions > 1 the same stimulus would be "
+                          "shown twice in a row; add stimuli or set repetitions to 1")
+    for ref in m.references:
+        _probe(study, str(ref.id), ref.path, out)
+    for cond in m.conditions:
+        _probe(study, str(cond.id), cond.path, out)
+    for cond in m.conditions:
+        a, b = out.videos.get(str(cond.id)), out.videos.get(cond.reference)
+        if a is None or b is None:
+            continue
+        if (a.width, a.height) != (b.width, b.height):
+            out.errors.append(f"{cond.id}: size {a.width}x{a.height} differs from its reference "
+                              f"{cond.reference} ({b.width}x{b.height}); re-encode it")
+        if abs(a.fps - b.fps) > 1e-3:
+            out.errors.append(f"{cond.id}: {a.fps:g} fps differs from its reference "
+                              f"{cond.reference} ({b.fps:g} fps)")
+        if a.frame_count != b.frame_count:
+            out.errors.append(f"{cond.id}: {a.frame_count} frames, its reference "
+                              f"{cond.reference} has {b.frame_count}; both loops must match")
+    disp = m.display
+    for sid, info in out.videos.items():
+        if info.width > disp.min_width or info.height > disp.min_height:
+            out.errors.append(
+                f"{sid}: {info.width}x{info.height} does not fit the minimum display "
+                f"{disp.min_width}x{disp.min_height} at 1:1 pixels; raise display.min_width/"
+                "min_height in the manifest or use smaller videos")
+        if info.fps > disp.min_refresh_hz + 1.5:
+            out.warnings.append(
+                f"{sid}: {info.fps:g} fps is faster than the minimum refresh rate "
+                f"{disp.min_refresh_hz:g} Hz; frames would be skipped on such a display")
+        if info.duration < 0.5:
+            out.warnings.append(f"{sid}: only {info.duration:.2f} s long")
+        if info.kind == "video" and info.codec not in ("ffv1", "libx264rgb", "h264", "rawvideo",
+                                                       "png", "utvideo", "ffvhuff"):
+            out.warnings.append(f"{sid}: codec {info.codec}; make sure decoding is lossless "
+                                "enough for a quality study")
+    fps_set = {round(v.fps, 3) for v in out.videos.values()}
+    if len(fps_set) > 1:
+        out.warnings.append("stimuli use several frame rates: " +
+                            ", ".join(f"{f:g}" for f in sorted(fps_set)))
+    return out
+
+
+def _probe(study: Study, sid: str, rel: str, out: StudyCheck) -> None:
+    try:
+        path = study.loaded.resolve(rel, field=f"{sid}.path")
+        if not path.exists():
+            return  # already reported by validate_manifest
+        out.videos[sid] = probe_video(path)
+    except StimuliError as exc:
+        out.errors.append(f"{sid}: {exc}")

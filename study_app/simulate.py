@@ -1,0 +1,317 @@
+"""Simulated participants: SUREAL's generative model, written through the session store.
+
+For rater ``s``, stimulus ``e`` of content (scene) ``c`` and repetition ``r``::
+
+    rating = clip(Q_e + b_s + sigma_s * N(0, 1) + delta_c * N(0, 1), scale.min, scale.max)
+
+with true quality ``Q_e``, rater bias ``b_s`` (normal, truncated at two standard deviations),
+rater inconsistency ``sigma_s`` (uniform) and content ambiguity ``delta_c`` (uniform): the
+model of Li & Bampis that SUREAL's maximum-likelihood estimator inverts; every repetition
+draws new noise. Outlier raters ignore the stimulus: ``random``
+ones answer uniformly on the scale, ``inverted`` ones answer ``min + max - Q_e`` plus their
+usual noise (they read the scale backwards).
+
+True quality is a documented function of method and level (:func:`true_quality`): on the
+0..100 scale ``Q = 100 - A_m * severity ** gamma_m`` with ``severity = (L + 1 - level) / L``
+for the method's levels 1..L (level 1 = strongest distortion, severity 1), per-method
+``A_m`` and ``gamma_m`` in :data:`QUALITY_CURVES`; hidden references get
+:data:`HIDDEN_REFERENCE_QUALITY`. Other scales are mapped linearly.
+
+Every simulated participant is one session file made by :class:`~study_app.session.SessionStore`
+with the app's own trial schedule, so the analysis reads it exactly like a real one. The truth
+is written beside the sessions (``ground_truth.json`` and ``ground_truth_stimuli.csv``).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from stimuli_manifests import LoadedManifest, Stimulus, load_manifest
+
+from . import __version__
+from .errors import StudyError
+from .schedule import ScheduleItem, make_schedule
+from .session import SessionStore, TrialResult
+
+log = logging.getLogger(__name__)
+
+OutlierKind = Literal["random", "inverted"]
+TRUTH_JSON = "ground_truth.json"
+TRUTH_CSV = "ground_truth_stimuli.csv"
+TRUTH_FORMAT = "cgvq-simulation-truth/1"
+SESSION_SUFFIX = ".sqlite"
+
+HIDDEN_REFERENCE_QUALITY = 97.0
+"""True quality of a hidden reference on the 0..100 scale (near the top, not at it)."""
+
+QUALITY_CURVES: dict[str, tuple[float, float]] = {
+    # method: (A = impairment at the strongest level, gamma = how fast milder levels recover)
+    "path_tracing": (75.0, 1.3),
+    "denoising": (55.0, 1.2),
+    "upscaling": (50.0, 1.0),
+    "splatting": (65.0, 1.1),
+    "frame_interpolation": (45.0, 1.5),
+    "vrs": (40.0, 1.4),
+}
+DEFAULT_CURVE = (55.0, 1.2)
+"""Curve of methods not listed above."""
+
+START_TIME = datetime(2026, 1, 1, 9, 0, 0, tzinfo=UTC)
+"""Simulated sessions carry fixed, made-up times so that their contents follow the seed."""
+
+
+@dataclass(frozen=True)
+class SimulationOptions:
+    """The panel to simulate (standard deviations on the 0..100 scale)."""
+
+    raters: int = 20
+    outliers: int = 0
+    outlier_kind: Literal["random", "inverted", "mixed"] = "random"
+    seed: int = 0
+    bias_sd: float = 6.0
+    bias_limit_sd: float = 2.0  # biases are drawn from N(0, bias_sd) truncated at this many sd
+    inconsistency_range: tuple[float, float] = (4.0, 10.0)
+    ambiguity_range: tuple[float, float] = (2.0, 6.0)
+    repetitions: int | None = None  # None: the manifest's protocol.repetitions
+    participant_prefix: str = "sim"
+
+    def check(self) -> None:
+        if self.raters < 1:
+            raise StudyError(f"--raters {self.raters}: simulate at least one rater")
+        if not 0 <= self.outliers <= self.raters:
+            raise StudyError(
+                f"--outliers {self.outliers}: choose between 0 and the number of raters "
+                f"({self.raters})"
+            )
+        if self.outlier_kind not in ("random", "inverted", "mixed"):
+            raise StudyError(f"outlier kind {self.outlier_kind!r}: random, inverted or mixed")
+        if self.bias_limit_sd <= 0:
+            raise StudyError("bias_limit_sd must be positive")
+        if self.bias_sd < 0 or min(self.inconsistency_range + self.ambiguity_range) < 0:
+            raise StudyError("standard deviations of the simulation must not be negative")
+        if self.repetitions is not None and self.repetitions < 1:
+            raise StudyError(f"--repetitions {self.repetitions}: use at least 1")
+
+
+@dataclass(frozen=True)
+class RaterTruth:
+    participant: str
+    bias: float
+    inconsistency: float
+    outlier: OutlierKind | None
+    seed: int
+    session_file: str
+
+
+def true_quality(stimulus: Stimulus, levels: dict[str, tuple[int, int]],
+                 scale: tuple[float, float] = (0.0, 100.0)) -> float:
+    """Documented true quality of a stimulus (see the module docstring).
+
+    ``levels`` maps each method to its (lowest, highest) level in the manifest.
+    """
+    lo, hi = scale
+    if stimulus.is_hidden_reference:
+        q100 = HIDDEN_REFERENCE_QUALITY
+    else:
+        amp, gamma = QUALITY_CURVES.get(stimulus.method, DEFAULT_CURVE)
+        first, last = levels[stimulus.method]
+        span = last - first + 1
+        level = stimulus.level if stimulus.level is not None else last
+        severity = (last + 1 - level) / span
+        q100 = 100.0 - amp * severity**gamma
+    return lo + (hi - lo) * q100 / 100.0
+
+
+def _method_levels(stimuli: list[Stimulus]) -> dict[str, tuple[int, int]]:
+    out: dict[str, tuple[int, int]] = {}
+    for s in stimuli:
+        if s.is_hidden_reference or s.level is None:
+            continue
+        lo, hi = out.get(s.method, (s.level, s.level))
+        out[s.method] = (min(lo, s.level), max(hi, s.level))
+    return out
+
+
+def _outlier_kinds(opts: SimulationOptions, rng: np.random.Generator) -> list[OutlierKind | None]:
+    kinds: list[OutlierKind | None] = [None] * opts.raters
+    chosen = rng.choice(opts.raters, size=opts.outliers, replace=False)
+    for j, idx in enumerate(sorted(int(i) for i in chosen)):
+        if opts.outlier_kind == "mixed":
+            kinds[idx] = "random" if j % 2 == 0 else "inverted"
+        else:
+            kinds[idx] = opts.outlier_kind
+    return kinds
+
+
+def _iso(t: datetime) -> str:
+    return t.isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+def simulate_panel(manifest_path: str | Path, out_dir: str | Path, opts: SimulationOptions,
+                   *, overwrite: bool = False, progress: bool = True) -> Path:
+    """Write one session file per simulated rater into ``out_dir``; returns the truth file."""
+    opts.check()
+    loaded: LoadedManifest = load_manifest(manifest_path)
+    m = loaded.manifest
+    stimuli = m.stimuli()
+    if not stimuli:
+        raise StudyError(f"{manifest_path}: the manifest has no stimuli to rate")
+    repetitions = opts.repetitions or m.protocol.repetitions
+    if len(stimuli) == 1 and repetitions > 1:
+        raise StudyError("a single stimulus cannot be repeated without showing it twice in a "
+                         "row; use --repetitions 1")
+    out = Path(out_dir)
+    participants = [f"{opts.participant_prefix}{k + 1:02d}" for k in range(opts.raters)]
+    targets = [out / f"{p}{SESSION_SUFFIX}" for p in participants] + [out / TRUTH_JSON,
+                                                                       out / TRUTH_CSV]
+    existing = [t for t in targets if t.exists()]
+    if existing and not overwrite:
+        raise StudyError(
+            f"{out} already holds simulated sessions ({existing[0].name}, ...); choose another "
+            "--out or pass --overwrite"
+        )
+    for t in existing:
+        t.unlink()
+        for suffix in ("-wal", "-shm"):
+            Path(str(t) + suffix).unlink(missing_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
+
+    scale = (m.scale.min, m.scale.max)
+    unit = (scale[1] - scale[0]) / 100.0  # standard deviations are given on 0..100
+    levels = _method_levels(stimuli)
+    quality = {s.id: true_quality(s, levels, scale) for s in stimuli}
+    scenes = sorted({s.scene for s in stimuli})
+    root = np.random.SeedSequence(opts.seed)
+    panel_rng = np.random.default_rng(root.spawn(1)[0])
+    ambiguity = {c: float(panel_rng.uniform(*opts.ambiguity_range)) * unit for c in scenes}
+    kinds = _outlier_kinds(opts, panel_rng)
+    rater_seeds = [int(s.generate_state(1)[0]) for s in root.spawn(opts.raters + 1)[1:]]
+    items = [ScheduleItem(s.id, s.reference, s.is_hidden_reference) for s in stimuli]
+    by_id = {s.id: s for s in stimuli}
+    settings = {
+        "protocol": m.protocol.model_dump(mode="json"),
+        "scale": m.scale.model_dump(mode="json"),
+        "simulated": True,
+        "simulation": {"model": "sureal-generative", "seed": opts.seed,
+                       "repetitions": repetitions, "truth_file": TRUTH_JSON},
+    }
+
+    raters: list[RaterTruth] = []
+    n_trials = len(stimuli) * repetitions
+    bar = tqdm(total=opts.raters * n_trials, desc="simulate", unit="rating",
+               disable=not progress)
+    try:
+        for k, participant in enumerate(participants):
+            rng = np.random.default_rng(rater_seeds[k])
+            bias = _truncated_normal(rng, opts.bias_sd, opts.bias_limit_sd) * unit
+            sigma = float(rng.uniform(*opts.inconsistency_range)) * unit
+            raters.append(RaterTruth(participant, bias, sigma, kinds[k], rater_seeds[k],
+                                     f"{participant}{SESSION_SUFFIX}"))
+            plan = make_schedule(items, repetitions, rater_seeds[k])
+            clock = START_TIME + timedelta(days=k)
+            store = SessionStore.create(
+                out / f"{participant}{SESSION_SUFFIX}", participant=participant,
+                study_id=m.study_id, manifest_sha256=loaded.sha256, seed=rater_seeds[k],
+                app_version=f"{__version__}+simulated", plan=plan, settings=settings,
+                created_at=_iso(clock),
+            )
+            with store:
+                store.save_preflight([{"name": "simulated", "ok": True,
+                                       "message": "simulated participant: no display"}],
+                                     skipped=True)
+                store.mark_started(display={"simulated": True})
+                for trial in plan:
+                    stim = by_id[trial.stimulus]
+                    rating = _rate(rng, quality[stim.id], bias, sigma, ambiguity[stim.scene],
+                                   kinds[k], scale)
+                    result, clock = _trial_result(rng, rating, clock)
+                    store.record(trial.index, result)
+                    bar.update(1)
+                store.finish()
+    finally:
+        bar.close()
+
+    truth = {
+        "format": TRUTH_FORMAT,
+        "study_id": m.study_id,
+        "manifest_sha256": loaded.sha256,
+        "seed": opts.seed,
+        "model": ("rating = clip(Q + bias + inconsistency * N(0,1) + ambiguity(content) * "
+                  "N(0,1), scale); outliers: random = uniform on the scale, inverted = "
+                  "min + max - Q + noise"),
+        "quality_model": {
+            "formula": "Q = 100 - A * ((L + 1 - level) / L) ** gamma; hidden reference "
+                       f"{HIDDEN_REFERENCE_QUALITY}",
+            "curves": {meth: dict(zip(("A", "gamma"), QUALITY_CURVES.get(meth, DEFAULT_CURVE),
+                                      strict=True)) for meth in levels},
+        },
+        "scale": {"min": scale[0], "max": scale[1]},
+        "repetitions": repetitions,
+        "options": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(opts).items()},
+        "contents": [{"scene": c, "ambiguity": ambiguity[c]} for c in scenes],
+        "raters": [asdict(r) for r in raters],
+        "outliers": [r.participant for r in raters if r.outlier],
+        "stimuli": [
+            {"id": s.id, "reference": s.reference, "scene": s.scene, "method": s.method,
+             "level": s.level, "is_hidden_reference": s.is_hidden_reference,
+             "true_quality": quality[s.id]}
+            for s in stimuli
+        ],
+    }
+    truth_path = out / TRUTH_JSON
+    truth_path.write_text(json.dumps(truth, indent=2) + "\n", encoding="utf-8")
+    with open(out / TRUTH_CSV, "w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(truth["stimuli"][0]))
+        writer.writeheader()
+        writer.writerows(truth["stimuli"])
+    log.info("simulated %d raters (%d outliers) x %d trials into %s", opts.raters,
+             opts.outliers, n_trials, out)
+    return truth_path
+
+
+def _truncated_normal(rng: np.random.Generator, sd: float, limit_sd: float) -> float:
+    """N(0, sd) redrawn until within +-limit_sd standard deviations (the panel has no
+    accidental extreme raters: those are what the outlier option is for)."""
+    while True:
+        value = float(rng.normal(0.0, sd))
+        if sd == 0.0 or abs(value) <= limit_sd * sd:
+            return value
+
+
+def _rate(rng: np.random.Generator, q: float, bias: float, sigma: float, delta: float,
+          outlier: OutlierKind | None, scale: tuple[float, float]) -> float:
+    lo, hi = scale
+    noise = sigma * rng.standard_normal() + delta * rng.standard_normal()
+    if outlier == "random":
+        value = rng.uniform(lo, hi)
+    elif outlier == "inverted":
+        value = lo + hi - q + bias + noise
+    else:
+        value = q + bias + noise
+    return float(np.clip(value, lo, hi))
+
+
+def _trial_result(rng: np.random.Generator, rating: float,
+                  clock: datetime) -> tuple[TrialResult, datetime]:
+    """Plausible behaviour around a rating: response time, switches, viewing split."""
+    rt = float(rng.lognormal(np.log(6000.0), 0.35))
+    toggles = int(rng.poisson(3))
+    on_ref = rt * float(rng.uniform(0.3, 0.5))
+    presented = clock
+    answered = presented + timedelta(milliseconds=rt)
+    result = TrialResult(
+        rating=rating, rt_ms=rt, n_toggles=toggles, ms_on_reference=on_ref,
+        ms_on_test=rt - on_ref, presented_at=_iso(presented),
+        slider_first_move_ms=rt * float(rng.uniform(0.5, 0.9)), answered_at=_iso(answered),
+        details={"simulated": True},
+    )
+    return result, answered + timedelta(milliseconds=float(rng.uniform(400, 1500)))

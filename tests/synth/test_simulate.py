@@ -1,0 +1,125 @@
+"""Simulated participants: the generative model, the truth file and the session files."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from stimuli_manifests import parse_manifest, save_manifest
+from study_app.errors import StudyError
+from study_app.schedule import ScheduleItem, make_schedule
+from study_app.session import read_info, read_ratings, verify_session
+from study_app.simulate import SimulationOptions, simulate_panel
+
+METHODS = ("path_tracing", "vrs")
+
+
+@pytest.fixture(scope="module")
+def manifest(tmp_path_factory):
+    """2 scenes x 2 methods x 4 levels, hidden references on (videos are never read)."""
+    refs = [{"id": f"SRC0{i}", "path": f"s{i}.mkv", "scene": f"scene{i}"} for i in (1, 2)]
+    conds = [{"reference": r["id"], "path": f"{r['id']}_{m}{lv}.mkv", "method": m, "level": lv}
+             for r in refs for m in METHODS for lv in (1, 2, 3, 4)]
+    m = parse_manifest({"format": "cgvq-manifest/1", "study_id": "simtest",
+                        "references": refs, "conditions": conds})
+    return save_manifest(m, tmp_path_factory.mktemp("sim") / "manifest.json")
+
+
+def _ratings(folder, n):
+    out = {}
+    for k in range(1, n + 1):
+        rows, problems = read_ratings(folder / f"sim{k:02d}.sqlite")
+        assert not problems
+        out[f"sim{k:02d}"] = rows
+    return out
+
+
+def test_noise_free_panel_rates_the_documented_truth(manifest, tmp_path):
+    opts = SimulationOptions(raters=2, seed=1, bias_sd=0.0, inconsistency_range=(0.0, 0.0),
+                             ambiguity_range=(0.0, 0.0))
+    truth_path = simulate_panel(manifest, tmp_path, opts, progress=False)
+    truth = json.loads(truth_path.read_text())
+    q = {s["id"]: s["true_quality"] for s in truth["stimuli"]}
+    # the documented curve: Q = 100 - A * ((5 - level) / 4) ** gamma, A/gamma 75/1.3 and 40/1.4
+    assert q["SRC01_HRC01"] == pytest.approx(25.0)  # path tracing, level 1
+    assert q["SRC01_HRC04"] == pytest.approx(100 - 75 * 0.25**1.3)
+    assert q["SRC02_HRC05"] == pytest.approx(60.0)  # vrs, level 1
+    assert q["SRC01"] == q["SRC02"] == pytest.approx(97.0)  # hidden references
+    for rows in _ratings(tmp_path, 2).values():
+        assert len(rows) == 18 * 3
+        for r in rows:
+            assert r["rating"] == pytest.approx(q[r["stimulus"]])
+
+
+def test_bias_only_panel_shifts_each_rater_by_their_bias(manifest, tmp_path):
+    opts = SimulationOptions(raters=3, seed=2, bias_sd=6.0, inconsistency_range=(0.0, 0.0),
+                             ambiguity_range=(0.0, 0.0))
+    truth = json.loads(simulate_panel(manifest, tmp_path, opts, progress=False).read_text())
+    q = {s["id"]: s["true_quality"] for s in truth["stimuli"]}
+    bias = {r["participant"]: r["bias"] for r in truth["raters"]}
+    assert len(set(bias.values())) == 3
+    assert all(abs(b) <= 2 * 6.0 for b in bias.values())  # truncated at 2 sd
+    for p, rows in _ratings(tmp_path, 3).items():
+        for r in rows:
+            assert r["rating"] == pytest.approx(float(np.clip(q[r["stimulus"]] + bias[p], 0, 100)))
+
+
+def test_full_model_sessions_outliers_and_determinism(manifest, tmp_path):
+    opts = SimulationOptions(raters=6, outliers=2, outlier_kind="mixed", seed=5)
+    truth = json.loads(simulate_panel(manifest, tmp_path / "a", opts, progress=False).read_text())
+    again = json.loads(simulate_panel(manifest, tmp_path / "b", opts, progress=False).read_text())
+    assert truth == again
+    ratings = _ratings(tmp_path / "a", 6)
+    assert ratings == _ratings(tmp_path / "b", 6)  # same seed: the same sessions
+    q = {s["id"]: s["true_quality"] for s in truth["stimuli"]}
+    kinds = {r["participant"]: r["outlier"] for r in truth["raters"]}
+    assert sorted(k for k in kinds.values() if k) == ["inverted", "random"]
+    assert truth["outliers"] == [p for p, k in kinds.items() if k]
+    items = [ScheduleItem(s["id"], s["reference"], s["is_hidden_reference"])
+             for s in truth["stimuli"]]
+    for p, rows in ratings.items():
+        path = tmp_path / "a" / f"{p}.sqlite"
+        assert verify_session(path).exit_code == 0  # intact, complete, finished
+        info = read_info(path)
+        # the app's own schedule for the stored seed
+        plan = make_schedule(items, 3, info.seed)
+        assert [r["stimulus"] for r in rows] == [t.stimulus for t in plan]
+        values = np.array([r["rating"] for r in rows])
+        assert values.min() >= 0 and values.max() <= 100
+        r_q = np.corrcoef(values, [q[r["stimulus"]] for r in rows])[0, 1]
+        if kinds[p] is None:
+            assert r_q > 0.8
+        elif kinds[p] == "inverted":
+            assert r_q < -0.8
+        else:
+            assert abs(r_q) < 0.5
+    other = json.loads(simulate_panel(manifest, tmp_path / "c",
+                                      SimulationOptions(raters=6, outliers=2, seed=6),
+                                      progress=False).read_text())
+    assert other["raters"] != truth["raters"]
+
+
+def test_existing_sessions_are_not_overwritten(manifest, tmp_path):
+    opts = SimulationOptions(raters=1, seed=0)
+    simulate_panel(manifest, tmp_path, opts, progress=False)
+    with pytest.raises(StudyError, match="--overwrite"):
+        simulate_panel(manifest, tmp_path, opts, progress=False)
+    simulate_panel(manifest, tmp_path, opts, overwrite=True, progress=False)
+
+
+def test_cli(manifest, tmp_path):
+    run = [sys.executable, "-m", "study_app.cli", "simulate", "--manifest", str(manifest),
+           "--out", str(tmp_path), "--no-progress"]
+    res = subprocess.run([*run, "--raters", "2", "--outliers", "3"], capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 2 and "--outliers 3" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
+    res = subprocess.run([*run, "--raters", "2", "--outliers", "1", "--seed", "4"],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "ground_truth.json", "ground_truth_stimuli.csv", "sim01.sqlite", "sim02.sqlite"]

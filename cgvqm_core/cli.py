@@ -1,15 +1,225 @@
-"""Command line of ``cgvqm``: parses arguments, prints, sets exit codes."""
+"""Command line of ``cgvqm``: parses arguments, prints, sets exit codes.
+
+User errors (missing or corrupt video, fps mismatch, 10-bit/alpha input without
+--allow-convert, weights failing their hash check, no backbone offline) print one line on
+stderr and exit with code 2.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+import logging
 import sys
+from pathlib import Path
+from typing import Any
+
+from stimuli_manifests import StimuliError
+
+from . import __version__
+from .errors import CGVQMError
+
+
+def _add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = False) -> None:
+    if multi_variant:
+        p.add_argument("--variant", action="append", choices=("cgvqm-2", "cgvqm-5"),
+                       help="metric variant; repeat to score several into one CSV "
+                            "(default cgvqm-2)")
+    else:
+        p.add_argument("--variant", choices=("cgvqm-2", "cgvqm-5"), default="cgvqm-2",
+                       help="CGVQM-2 (stem + layer1, faster) or CGVQM-5 (all layers)")
+    p.add_argument("--weights", metavar="PATH",
+                   help="omega/alpha file (upstream pickle or cgvqm-weights JSON) instead of "
+                        "the variant's published weights; 'uniform' for a smoke test")
+    p.add_argument("--backbone", metavar="PATH",
+                   help="R3D-18 state dict file (default: $CGVQM_BACKBONE, then the torch hub "
+                        "cache, then a download)")
+    p.add_argument("--random-backbone", metavar="SEED", type=int,
+                   help="use a seeded RANDOM backbone (testing only; every output says so)")
+    p.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
+    p.add_argument("--precision", choices=("fp32", "bf16", "fp16"), default="fp32",
+                   help="CUDA autocast precision; bf16/fp16 are faster but not bit-exact")
+    p.add_argument("--patch-scale", type=int, default=4,
+                   help="patch grid: H/s x W/s pixel patches (default 4, as upstream)")
+    p.add_argument("--batch-size", type=int, default=2,
+                   help="videos per network pass (reference + tests; default 2)")
+    p.add_argument("--threads", type=int,
+                   help="CPU threads for PyTorch (default: PyTorch's choice)")
+    p.add_argument("--allow-resample", action="store_true",
+                   help="accept a test video whose fps differs from the reference's")
+    p.add_argument("--allow-convert", action="store_true",
+                   help="convert 10-bit or alpha input to 8-bit RGB (with a warning) "
+                        "instead of refusing it")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="cgvqm", description="score videos with the CGVQM metric.")
-    parser.add_subparsers(dest="command", metavar="COMMAND")
+    parser = argparse.ArgumentParser(prog="cgvqm",
+                                     description="Score videos with the CGVQM metric.")
+    parser.add_argument("--version", action="version", version=f"cgvqm {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    sc = sub.add_parser("score", help="score one test video against its reference")
+    sc.add_argument("--ref", required=True, help="reference video (file, PNG folder or .npy)")
+    sc.add_argument("--test", required=True, help="test (distorted) video")
+    sc.add_argument("--pool", choices=("max", "mean"), default="max",
+                    help="patch pooling: max (as calibrated, default) or mean (upstream demo)")
+    sc.add_argument("--fps", type=float, help="frame rate of PNG folders / .npy inputs")
+    sc.add_argument("--emap", metavar="OUT", help="write the error-map video (.mp4 or .mkv)")
+    sc.add_argument("--emap-png", metavar="DIR", help="also write the error map as PNG frames")
+    sc.add_argument("--json", action="store_true", help="print one JSON object")
+    sc.add_argument("--csv", metavar="OUT", help="append the score to a scores CSV")
+    _add_metric_options(sc)
+
+    ba = sub.add_parser("batch", help="score every stimulus of a manifest into a scores CSV")
+    ba.add_argument("--manifest", required=True, help="cgvq-manifest/1 JSON file")
+    ba.add_argument("--out", required=True, help="scores CSV (appended to; reruns resume)")
+    ba.add_argument("--pool", action="append", choices=("max", "mean"),
+                    help="pooling(s) to write (repeatable; default max)")
+    ba.add_argument("--root", help="override the manifest's video root")
+    ba.add_argument("--include-references", action="store_true",
+                    help="also score each hidden reference against itself")
+    ba.add_argument("--group-size", type=int, default=4,
+                    help="test videos scored together against one reference (default 4)")
+    _add_metric_options(ba, multi_variant=True)
+
+    we = sub.add_parser("weights", help="fetch, verify or describe the metric's weights")
+    wsub = we.add_subparsers(dest="weights_command", metavar="ACTION")
+    fe = wsub.add_parser("fetch", help="download (or copy from local files) into the caches")
+    fe.add_argument("--from", dest="source", metavar="DIR",
+                    help="folder holding cgvqm-2.pickle / cgvqm-5.pickle (offline)")
+    fe.add_argument("--backbone-file", metavar="PATH",
+                    help="local r3d_18-b3b3357e.pth to put into the torch hub cache")
+    fe.add_argument("--no-backbone", action="store_true", help="fetch omega/alpha only")
+    ve = wsub.add_parser("verify", help="check sha256 of the cached (or given) files")
+    ve.add_argument("paths", nargs="*", help="weights or backbone files (default: the caches)")
+    inf = wsub.add_parser("info", help="describe a weights file (or the cache)")
+    inf.add_argument("path", nargs="?", help="weights file")
     return parser
+
+
+def _on_conversion(args: argparse.Namespace) -> str:
+    return "warn" if args.allow_convert else "error"
+
+
+def _metrics(args: argparse.Namespace, variants: list[str]) -> list[Any]:
+    import torch
+
+    from .metric import CGVQM
+
+    if args.threads:
+        if args.threads < 1:
+            raise CGVQMError(f"--threads must be at least 1, got {args.threads}")
+        torch.set_num_threads(args.threads)
+    out = []
+    for v in variants:
+        out.append(CGVQM(v, weights=args.weights, backbone=args.backbone,
+                         random_backbone=args.random_backbone, device=args.device,
+                         precision=args.precision, patch_scale=args.patch_scale,
+                         batch_size=args.batch_size))
+        if args.weights and args.weights != "uniform":
+            break  # a weights file fixes the variant
+    return out  # random backbone / uniform weights: the library logs a warning line
+
+
+def _cmd_score(args: argparse.Namespace) -> int:
+    from .batch import Appender, read_done
+
+    (metric,) = _metrics(args, [args.variant])
+    res = metric.score(args.ref, args.test, pool=args.pool, fps=args.fps,
+                       allow_resample=args.allow_resample, emap=args.emap or False,
+                       emap_png_dir=args.emap_png, on_conversion=_on_conversion(args),
+                       progress=sys.stderr.isatty())
+    if args.json:
+        print(json.dumps(res.to_dict(patches=True)))
+    else:
+        tag = " [RANDOM BACKBONE]" if res.is_random_backbone else ""
+        print(f"{res.variant} q = {res.q:.3f} ({res.label}; {res.pool} pooling, "
+              f"{res.n_patches} patches, {res.seconds:.1f} s){tag}")
+        if args.emap:
+            print(f"error map written to {args.emap}")
+    if args.csv:
+        prov = res.provenance
+        read_done(Path(args.csv))  # refuses a file with other columns
+        app = Appender(Path(args.csv))
+        try:
+            app.write([[Path(args.test).stem, Path(args.ref).stem, res.variant,
+                        f"{res.q:.6f}", res.pool, res.n_patches, f"{res.seconds:.3f}",
+                        prov["backbone"]["label"], prov["backbone"]["sha256"],
+                        prov["weights"]["sha256"]]])
+        finally:
+            app.close()
+    return 0
+
+
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from .batch import score_manifest
+
+    variants = list(dict.fromkeys(args.variant or ["cgvqm-2"]))
+    metrics = _metrics(args, variants)
+    pools = list(dict.fromkeys(args.pool or ["max"]))
+    s = score_manifest(args.manifest, args.out, metrics, pools=pools,
+                       include_references=args.include_references, root=args.root,
+                       group_size=args.group_size, allow_resample=args.allow_resample,
+                       on_conversion=_on_conversion(args))
+    print(f"{s.scored} scored, {s.skipped} already in {args.out}, {s.rows} rows written")
+    return 0
+
+
+def _cmd_weights(args: argparse.Namespace) -> int:
+    from . import hub, weights
+
+    action = args.weights_command
+    if action == "fetch":
+        for v in weights.VARIANTS:
+            path = weights.fetch_upstream(v, source_dir=args.source)
+            print(f"{v}: {path} (sha256 verified)")
+        if not args.no_backbone:
+            path = hub.fetch_backbone(source=args.backbone_file)
+            print(f"backbone: {path}")
+        return 0
+    if action == "verify":
+        paths = [Path(p) for p in args.paths] or [
+            *(weights.cache_dir() / v.file_name for v in weights.VARIANTS.values()),
+            hub.hub_checkpoint_path()]
+        bad = 0
+        for p in paths:
+            if not p.is_file():
+                print(f"{p}: missing")
+                bad += 1
+                continue
+            if p.suffix == ".pth":
+                bb = hub.load_backbone_file(p)
+                print(f"{p}: ok (backbone, sha256 {bb.sha256})")
+            else:
+                w = weights.resolve_weights(p)
+                print(f"{p}: ok ({w.variant}, {w.kind}, sha256 {w.sha256})")
+        if bad:
+            raise CGVQMError(f"{bad} file(s) missing; run `cgvqm weights fetch` (see --help)")
+        return 0
+    if action == "info":
+        if args.path:
+            w = weights.resolve_weights(args.path)
+            a = abs(w.omega)
+            print(json.dumps({"path": args.path, "variant": w.variant, "kind": w.kind,
+                              "n_channels": int(w.omega.size), "n_levels": w.n_levels,
+                              "alpha": w.alpha, "sha256": w.sha256,
+                              "negative_fraction": float((w.omega < 0).mean()),
+                              "abs_omega_sum": float(a.sum()),
+                              "abs_omega_per_level": [float(x.sum())
+                                                      for x in w.level_weights()],
+                              "provenance": w.provenance}, indent=1))
+            return 0
+        print(f"weights cache: {weights.cache_dir()}")
+        for v in weights.VARIANTS.values():
+            p = weights.cache_dir() / v.file_name
+            print(f"  {v.name}: {'present' if p.is_file() else 'missing'} ({v.sha256[:12]}...)")
+        p = hub.hub_checkpoint_path()
+        print(f"backbone: {p} ({'present' if p.is_file() else 'missing'})")
+        print(f"published weights: IntelLabs/cgvqm@{weights.UPSTREAM_COMMIT}")
+        return 0
+    print("usage: cgvqm weights {fetch,verify,info} (see --help)", file=sys.stderr)
+    return 2
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -18,7 +228,31 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
-    return 0
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("cgvqm: %(levelname)s: %(message)s"))
+    loggers = [logging.getLogger(n) for n in ("cgvqm_core", "stimuli_manifests")]
+    saved = [(lg.level, lg.propagate) for lg in loggers]
+    for lg in loggers:
+        lg.addHandler(handler)
+        lg.setLevel(logging.INFO if args.verbose else logging.WARNING)
+        lg.propagate = False
+    try:
+        if args.command == "score":
+            return _cmd_score(args)
+        if args.command == "batch":
+            return _cmd_batch(args)
+        return _cmd_weights(args)
+    except (CGVQMError, StimuliError) as exc:
+        print(f"cgvqm: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("cgvqm: interrupted (batch runs resume where they stopped)", file=sys.stderr)
+        return 130
+    finally:
+        for lg, (level, propagate) in zip(loggers, saved, strict=True):
+            lg.removeHandler(handler)
+            lg.setLevel(level)
+            lg.propagate = propagate
 
 
 if __name__ == "__main__":

@@ -1,0 +1,13 @@
+"""The one exception type of ``cgvqm_core``.
+
+Everything a user can cause (missing or corrupt video, mismatched frame rates, weights that
+fail their hash check, no backbone available offline) is raised as :class:`CGVQMError` with a
+message that says what was wrong and what to do. The CLI turns it, and the video reader's
+``StimuliError``, into one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+
+class CGVQMError(Exception):
+    """A problem with the metric's inputs, weights or options that the user can fix."""

@@ -1,0 +1,274 @@
+"""The CGVQM metric object and its result record.
+
+``CGVQM("cgvqm-2").score(ref, test)`` returns a :class:`CGVQMResult`: the quality q on the
+0..100 impairment scale (100 - pooled patch error, unclamped as upstream), its label, the
+pooling used, per-patch, per-clip and per-frame errors and the provenance (versions, sha256
+of weights and backbone). ``score_many`` scores several test videos against one reference,
+running the reference through the network once per patch.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from . import __version__
+from .emap import EmapRecorder, EmapVideoWriter, fit_tone_curve
+from .errors import CGVQMError
+from .features import FeatureNet, PatchScorer
+from .hub import Backbone, resolve_backbone
+from .stream import (
+    StreamOutput,
+    VideoInput,
+    check_fps,
+    open_input,
+    patch_channel_msd,
+    reference_geometry,
+    run,
+)
+from .weights import FeatureWeights, resolve_weights
+
+log = logging.getLogger(__name__)
+
+Pooling = Literal["max", "mean"]
+POOLINGS: tuple[str, ...] = ("max", "mean")
+LABELS = ("very annoying", "annoying", "slightly annoying", "perceptible but not annoying",
+          "imperceptible")
+
+
+def quality_label(q: float) -> str:
+    """The impairment label of q: round(q / 25), clamped to the five labels."""
+    return LABELS[int(np.clip(np.round(q / 25.0), 0, len(LABELS) - 1))]
+
+
+def pool_errors(errors: np.ndarray, pool: str) -> float:
+    """q = 100 - max (or mean) of patch errors."""
+    if pool == "max":
+        return float(100.0 - np.max(errors))
+    if pool == "mean":
+        return float(100.0 - np.mean(errors))
+    raise CGVQMError(f"unknown pooling {pool!r}; choose max or mean")
+
+
+@dataclass
+class CGVQMResult:
+    """One test video's score against its reference."""
+
+    q: float
+    pool: str
+    variant: str
+    patch_errors: np.ndarray  # (n_clips, n_rows, n_cols)
+    frame_errors: np.ndarray  # (frames, n_rows, n_cols): per-frame patch errors
+    msd: np.ndarray  # (n_patches, N) per-channel mean squared differences
+    seconds: float
+    provenance: dict[str, Any]
+    emap: np.ndarray | None = None  # (frames, H, W) when asked for as an array
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        return quality_label(self.q)
+
+    @property
+    def n_patches(self) -> int:
+        return int(self.patch_errors.size)
+
+    def quality(self, pool: str) -> float:
+        """q under either pooling (both come from the same patch errors)."""
+        return pool_errors(self.patch_errors, pool)
+
+    @property
+    def per_clip(self) -> list[float]:
+        """q of every clip (its patches pooled the same way as q)."""
+        flat = self.patch_errors.reshape(self.patch_errors.shape[0], -1)
+        return [pool_errors(row, self.pool) for row in flat]
+
+    @property
+    def per_frame(self) -> list[float]:
+        """q of every frame, from each patch's per-frame error, pooled like q."""
+        flat = self.frame_errors.reshape(self.frame_errors.shape[0], -1)
+        return [pool_errors(row, self.pool) for row in flat]
+
+    @property
+    def is_random_backbone(self) -> bool:
+        return self.provenance.get("backbone", {}).get("random_seed") is not None
+
+    def to_dict(self, *, patches: bool = True) -> dict[str, Any]:
+        """A JSON-ready record (the CLI's --json output)."""
+        prov = self.provenance
+        out: dict[str, Any] = {
+            "q": self.q,
+            "label": self.label,
+            "variant": self.variant,
+            "pool": self.pool,
+            "q_max": self.quality("max"),
+            "q_mean": self.quality("mean"),
+            "per_clip": self.per_clip,
+            "per_frame": self.per_frame,
+            "n_patches": self.n_patches,
+            "seconds": round(self.seconds, 3),
+            "backbone": prov["backbone"]["label"],
+            "backbone_sha256": prov["backbone"]["sha256"],
+            "weights_sha256": prov["weights"]["sha256"],
+            "random_backbone": self.is_random_backbone,
+        }
+        if self.is_random_backbone:
+            out["warning"] = ("computed with a RANDOM backbone "
+                              f"({prov['backbone']['label']}): not a CGVQM score")
+        if patches:
+            out["patch_errors"] = self.patch_errors.tolist()
+        out["provenance"] = prov
+        return out
+
+
+class CGVQM:
+    """CGVQM-2 or CGVQM-5 with a backbone and feature weights, ready to score.
+
+    ``variant`` names the published weights; ``weights`` overrides them with a file (upstream
+    pickle or project JSON; the variant then follows from the file) or ``"uniform"``.
+    ``backbone`` is a state dict file or mapping (default: $CGVQM_BACKBONE, the torch hub
+    cache, a download); ``random_backbone=SEED`` uses a seeded random network and marks every
+    result. ``device="cuda"`` with ``precision="bf16"/"fp16"`` uses autocast (not bit-exact).
+    """
+
+    def __init__(
+        self,
+        variant: str = "cgvqm-2",
+        *,
+        weights: str | Path | FeatureWeights | None = None,
+        backbone: str | Path | Backbone | Mapping[str, torch.Tensor] | None = None,
+        random_backbone: int | None = None,
+        device: str = "cpu",
+        precision: str = "fp32",
+        patch_scale: int = 4,
+        batch_size: int = 2,
+        fuse_bn: bool = True,
+        channels_last: bool | None = None,
+        allow_download: bool = True,
+    ) -> None:
+        self.weights = resolve_weights(weights, variant, allow_download=allow_download)
+        self.variant = self.weights.variant
+        self.backbone = resolve_backbone(backbone, random_seed=random_backbone,
+                                         allow_download=allow_download)
+        if patch_scale < 1:
+            raise CGVQMError(f"patch scale must be at least 1, got {patch_scale}")
+        self.patch_scale = int(patch_scale)
+        self.net = FeatureNet(self.backbone, self.weights.n_levels, device=device,
+                              precision=precision, fuse_bn=fuse_bn, channels_last=channels_last)
+        self.scorer = PatchScorer(self.net, self.weights.level_weights(), self.weights.alpha,
+                                  batch_size=batch_size)
+        self._omega_abs = np.abs(self.weights.omega).astype(np.float64)
+
+    # -- provenance ---------------------------------------------------------------------
+    def provenance(self) -> dict[str, Any]:
+        bb, w = self.backbone, self.weights
+        return {
+            "metric": "cgvqm",
+            "cgvqm_core_version": __version__,
+            "torch_version": torch.__version__,
+            "numpy_version": np.__version__,
+            "variant": self.variant,
+            "n_levels": w.n_levels,
+            "patch_scale": self.patch_scale,
+            "device": str(self.net.device),
+            "precision": self.net.precision,
+            "mode": "upstream",
+            "backbone": {"arch": bb.arch, "label": bb.label, "source": bb.source,
+                         "sha256": bb.sha256, "random_seed": bb.random_seed},
+            "weights": {"kind": w.kind, "source": w.source, "sha256": w.sha256,
+                        "alpha": w.alpha, "provenance": w.provenance},
+        }
+
+    # -- scoring ------------------------------------------------------------------------
+    def score(self, ref: VideoInput, test: VideoInput, *, pool: str = "max",
+              fps: float | None = None, allow_resample: bool = False,
+              emap: bool | str | Path = False, emap_png_dir: str | Path | None = None,
+              on_conversion: str = "warn", progress: bool = False) -> CGVQMResult:
+        """Score one test video against its reference.
+
+        ``emap=True`` returns the error map as an array in the result (memory: frames x H x W
+        float32); ``emap=PATH`` writes the heat-map video (.mp4 or .mkv) streamed instead;
+        ``emap_png_dir`` also writes one PNG per frame.
+        """
+        return self.score_many(ref, [test], pool=pool, fps=fps, allow_resample=allow_resample,
+                               emap=[emap], emap_png_dirs=[emap_png_dir],
+                               on_conversion=on_conversion, progress=progress)[0]
+
+    def score_many(self, ref: VideoInput, tests: Sequence[VideoInput], *, pool: str = "max",
+                   fps: float | None = None, allow_resample: bool = False,
+                   emap: Sequence[bool | str | Path] | None = None,
+                   emap_png_dirs: Sequence[str | Path | None] | None = None,
+                   on_conversion: str = "warn", progress: bool = False) -> list[CGVQMResult]:
+        """Score several test videos that share ``ref``; its features are computed once."""
+        if pool not in POOLINGS:
+            raise CGVQMError(f"unknown pooling {pool!r}; choose max or mean")
+        t0 = time.perf_counter()
+        rsrc = open_input(ref, fps=fps, name="reference", on_conversion=on_conversion)
+        geom = reference_geometry(rsrc, self.patch_scale)
+        tsrcs = [open_input(t, fps=fps, name=f"test {i}", on_conversion=on_conversion,
+                            array_fps=geom.fps) for i, t in enumerate(tests)]
+        for t in tsrcs:
+            check_fps(rsrc, t, allow_resample)
+        emap = list(emap) if emap is not None else [False] * len(tests)
+        pngs = list(emap_png_dirs) if emap_png_dirs is not None else [None] * len(tests)
+        sinks, closers, recorders = [], [], {}
+        for i, (em, png) in enumerate(zip(emap, pngs, strict=True)):
+            if em is True:
+                recorders[i] = EmapRecorder(geom)
+                sinks.append(recorders[i])
+            elif em or png:
+                curve = fit_tone_curve(open_input(tests[i], fps=fps, array_fps=geom.fps,
+                                                  on_conversion=on_conversion), geom)
+                writer = EmapVideoWriter(em or None, png, geom.fps, curve)
+                sinks.append(writer)
+                closers.append(writer)
+            else:
+                sinks.append(None)
+        try:
+            outs = run(rsrc, tsrcs, self.scorer, geom, emap_sinks=sinks, progress=progress,
+                       desc=f"{self.variant} {Path(str(rsrc.info.path)).name}")
+        finally:
+            for w in closers:
+                w.close()
+        seconds = (time.perf_counter() - t0) / max(len(tests), 1)
+        prov = self.provenance()
+        prov["reference"] = {"path": str(rsrc.info.path), "width": geom.width,
+                             "height": geom.height, "frames": geom.frames, "fps": geom.fps}
+        prov["clip_len"], prov["grid"] = geom.clip_len, [geom.n_rows, geom.n_cols]
+        results = []
+        for i, out in enumerate(outs):
+            p = dict(prov)
+            info = tsrcs[i].info
+            p["test"] = {"path": str(info.path), "width": info.width, "height": info.height,
+                         "frames": info.frame_count, "fps": info.fps,
+                         "resized": (info.width, info.height) != (geom.width, geom.height),
+                         "resampled": info.frame_count != geom.frames}
+            res = self._result(out, pool, seconds, p)
+            if i in recorders:
+                res.emap = recorders[i].array()
+            results.append(res)
+        return results
+
+    def _result(self, out: StreamOutput, pool: str, seconds: float,
+                prov: dict[str, Any]) -> CGVQMResult:
+        g = out.geometry
+        errors = self.weights.alpha * (out.msd.astype(np.float64) @ self._omega_abs)
+        patch_errors = errors.reshape(g.n_clips, g.n_rows, g.n_cols)
+        assert out.series is not None
+        frame_errors = out.series.transpose(0, 3, 1, 2).reshape(-1, g.n_rows, g.n_cols)
+        frame_errors = frame_errors[: g.frames].astype(np.float64)
+        return CGVQMResult(pool_errors(errors, pool), pool, self.variant, patch_errors,
+                           frame_errors, out.msd, seconds, prov)
+
+    def channel_msd(self, ref: VideoInput, tests: Sequence[VideoInput], **kw: Any
+                    ) -> list[StreamOutput]:
+        """:func:`patch_channel_msd` with this metric's network and patch grid."""
+        return patch_channel_msd(ref, tests, self.net, patch_scale=self.patch_scale,
+                                 batch_size=self.scorer.batch_size, **kw)

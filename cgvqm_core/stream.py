@@ -1,0 +1,335 @@
+"""Streaming the videos through the metric clip by clip, in upstream's geometry.
+
+The test video is aligned to the reference as the authors' code does it (bilinear resize of
+uint8 frames to the reference's size, nearest-neighbour resampling in time to its frame
+count), but frame by frame. Clips of ``int(min(fps, 30))`` frames are padded at the end of T,
+H and W by replicating the last frame / row / column, cut into a grid of patches of
+``(int(H/s), int(W/s))`` pixels, and each patch is scored on its own. Peak memory depends on
+one clip, never on the video's length.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm.auto import tqdm
+
+from stimuli_manifests import StimuliError, open_video
+
+from .errors import CGVQMError
+from .features import FeatureNet, PatchScorer
+
+log = logging.getLogger(__name__)
+
+VideoInput = str | Path | np.ndarray | torch.Tensor
+DEFAULT_ARRAY_FPS = 30.0
+
+
+class FrameSource(Protocol):
+    """Anything with ``info`` (width, height, fps, frame_count, path) and ``frames()``."""
+
+    info: Any
+
+    def frames(self) -> Iterator[np.ndarray]: ...
+
+
+@dataclass(frozen=True)
+class ArrayInfo:
+    path: str
+    width: int
+    height: int
+    fps: float
+    frame_count: int
+
+
+class ArraySource:
+    """An in-memory (T, H, W, 3) uint8 video."""
+
+    def __init__(self, array: np.ndarray | torch.Tensor, fps: float, name: str) -> None:
+        arr = array.detach().cpu().numpy() if isinstance(array, torch.Tensor) else np.asarray(array)
+        if arr.ndim != 4 or arr.shape[-1] != 3 or arr.dtype != np.uint8:
+            raise CGVQMError(f"{name}: an array video must be (frames, height, width, 3) uint8, "
+                             f"got shape {arr.shape} and dtype {arr.dtype}")
+        if arr.shape[0] == 0:
+            raise CGVQMError(f"{name}: the video has no frames")
+        self.array = arr
+        self.info = ArrayInfo(name, arr.shape[2], arr.shape[1], float(fps), arr.shape[0])
+
+    def frames(self) -> Iterator[np.ndarray]:
+        yield from self.array
+
+
+def open_input(video: VideoInput | FrameSource, *, fps: float | None = None, name: str = "video",
+               on_conversion: str = "warn", array_fps: float | None = None) -> FrameSource:
+    """A streamable source for a path (video file, PNG folder, .npy), array or tensor.
+
+    ``fps`` sets the rate of PNG folders and .npy files (which carry none; video files keep
+    their own); in-memory
+    arrays take ``array_fps`` (the reference's), else ``fps``, else 30.
+    """
+    if isinstance(video, np.ndarray | torch.Tensor):
+        return ArraySource(video, array_fps or fps or DEFAULT_ARRAY_FPS, name)
+    if isinstance(video, str | Path):
+        path = Path(video)
+        rate = fps if (path.is_dir() or path.suffix.lower() == ".npy") else None
+        try:
+            return open_video(path, fps=rate, on_conversion=on_conversion)  # type: ignore[arg-type]
+        except StimuliError as exc:
+            raise CGVQMError(str(exc)) from None
+    if hasattr(video, "info") and hasattr(video, "frames"):
+        return video
+    raise CGVQMError(f"{name}: unsupported video input of type {type(video).__name__}")
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """How a reference-sized video is cut: clips x rows x columns of patches."""
+
+    frames: int
+    height: int
+    width: int
+    fps: float
+    patch_scale: int = 4
+
+    @property
+    def clip_len(self) -> int:
+        return int(min(self.fps, 30))
+
+    @property
+    def patch_h(self) -> int:
+        return int(self.height / self.patch_scale)
+
+    @property
+    def patch_w(self) -> int:
+        return int(self.width / self.patch_scale)
+
+    @property
+    def n_clips(self) -> int:
+        return math.ceil(self.frames / self.clip_len)
+
+    @property
+    def n_rows(self) -> int:
+        return math.ceil(self.height / self.patch_h)
+
+    @property
+    def n_cols(self) -> int:
+        return math.ceil(self.width / self.patch_w)
+
+    @property
+    def n_patches(self) -> int:
+        return self.n_clips * self.n_rows * self.n_cols
+
+    def check(self, name: str) -> None:
+        if self.clip_len < 1:
+            raise CGVQMError(f"{name}: frame rate {self.fps} gives clips of 0 frames; CGVQM "
+                             "needs at least 1 fps (pass the right fps for frame folders/arrays)")
+        if self.patch_h < 1 or self.patch_w < 1:
+            raise CGVQMError(f"{name}: {self.width}x{self.height} is too small for a patch "
+                             f"grid of scale {self.patch_scale}")
+
+
+def _counted(src: FrameSource, name: str) -> Iterator[np.ndarray]:
+    """Frames of a source, refusing a decoded count other than the probed one."""
+    n = 0
+    try:
+        for frame in src.frames():
+            if n == src.info.frame_count:
+                break
+            n += 1
+            yield frame
+    except StimuliError as exc:
+        raise CGVQMError(str(exc)) from None
+    if n != src.info.frame_count:
+        raise CGVQMError(f"{name}: {src.info.path} decoded {n} frames but its header promises "
+                         f"{src.info.frame_count}; remux or re-encode it")
+
+
+def time_index(n_src: int, n_dst: int) -> np.ndarray:
+    """Which source frame each of ``n_dst`` frames takes under torch's 'nearest' resampling."""
+    src = torch.arange(n_src, dtype=torch.float32).view(1, 1, n_src, 1, 1)
+    return F.interpolate(src, size=(n_dst, 1, 1), mode="nearest").view(-1).long().numpy()
+
+
+def resize_frame(frame: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Bilinear resize of a uint8 frame exactly as torch does it on uint8 (T, C, H, W)."""
+    t = torch.from_numpy(np.ascontiguousarray(frame)).permute(2, 0, 1)[None].contiguous()
+    out = F.interpolate(t, size=(height, width), mode="bilinear")
+    return out[0].permute(1, 2, 0).contiguous().numpy()
+
+
+def aligned_frames(test: FrameSource, geom: Geometry, name: str = "test") -> Iterator[np.ndarray]:
+    """The test video's frames resized and resampled in time to the reference's geometry."""
+    info = test.info
+    resize = (info.height, info.width) != (geom.height, geom.width)
+    idx = time_index(info.frame_count, geom.frames) if info.frame_count != geom.frames else None
+    if resize:
+        log.warning("%s: resizing %dx%d to the reference's %dx%d (bilinear, as upstream)",
+                    info.path, info.width, info.height, geom.width, geom.height)
+    if idx is not None:
+        log.warning("%s: resampling %d frames to the reference's %d (nearest, as upstream)",
+                    info.path, info.frame_count, geom.frames)
+    frames = _counted(test, name)
+    if idx is None:
+        for f in frames:
+            yield resize_frame(f, geom.height, geom.width) if resize else f
+        return
+    pos, cur = -1, None
+    for j in idx:
+        while pos < j:
+            cur = next(frames)
+            pos += 1
+            if resize:
+                cur = resize_frame(cur, geom.height, geom.width)
+        yield cur  # type: ignore[misc]
+    for _ in frames:  # drain so the count check runs
+        pass
+
+
+def padded_clips(frames: Iterator[np.ndarray], geom: Geometry) -> Iterator[tuple[np.ndarray, int]]:
+    """(clip, valid frames): clips of clip_len frames padded by replication to the patch grid.
+
+    One buffer is reused for every clip (memory): a consumer must be done with a clip before
+    asking for the next one, or copy it.
+    """
+    L = geom.clip_len
+    Hp, Wp = geom.n_rows * geom.patch_h, geom.n_cols * geom.patch_w
+    buf = np.empty((L, Hp, Wp, 3), dtype=np.uint8)
+    n = 0
+    for f in frames:
+        buf[n, : geom.height, : geom.width] = f
+        if Hp > geom.height:
+            buf[n, geom.height:, : geom.width] = f[-1:, :, :]
+        if Wp > geom.width:
+            buf[n, :, geom.width:] = buf[n, :, geom.width - 1: geom.width]
+        n += 1
+        if n == L:
+            yield buf, L
+            n = 0
+    if n:
+        buf[n:] = buf[n - 1]
+        yield buf, n
+
+
+@dataclass
+class StreamOutput:
+    """Per test video: the channel MSD of every patch and, with weights, per-frame errors."""
+
+    geometry: Geometry
+    msd: np.ndarray  # (n_patches, N) float32, patches in clip, row, column order
+    series: np.ndarray | None  # (n_clips, n_rows, n_cols, clip_len) per-frame patch errors
+
+    @property
+    def patch_index(self) -> np.ndarray:
+        """(n_patches, 3): clip, row, column of every row of ``msd``."""
+        g = self.geometry
+        return np.stack(np.unravel_index(np.arange(g.n_patches), (g.n_clips, g.n_rows, g.n_cols)),
+                        axis=1)
+
+
+EmapSink = Callable[[int, np.ndarray, np.ndarray], None]
+"""Called per clip with (clip index, error map (t, H, W) float32, test frames (t, H, W, 3))."""
+
+
+def reference_geometry(ref: FrameSource, patch_scale: int) -> Geometry:
+    info = ref.info
+    g = Geometry(int(info.frame_count), int(info.height), int(info.width), float(info.fps),
+                 int(patch_scale))
+    g.check(str(info.path))
+    return g
+
+
+def check_fps(ref: FrameSource, test: FrameSource, allow_resample: bool) -> None:
+    """An fps mismatch is an error unless resampling was allowed (then it is logged)."""
+    if isinstance(test, ArraySource) or isinstance(ref, ArraySource):
+        return
+    fr, ft = float(ref.info.fps), float(test.info.fps)
+    if abs(fr - ft) > 1e-3 * max(fr, ft):
+        if not allow_resample:
+            raise CGVQMError(
+                f"{test.info.path}: {ft:g} fps differs from the reference's {fr:g} fps; pass "
+                "--allow-resample (allow_resample=True) to resample it to the reference's frame "
+                "count as the authors' code does"
+            )
+        log.warning("%s: %g fps resampled to the reference's %g fps by frame count",
+                    test.info.path, ft, fr)
+
+
+def run(ref: FrameSource, tests: Sequence[FrameSource], scorer: PatchScorer, geom: Geometry, *,
+        emap_sinks: Sequence[EmapSink | None] | None = None, progress: bool = False,
+        desc: str = "cgvqm") -> list[StreamOutput]:
+    """Score every patch of every test video against the reference, clip by clip."""
+    sinks = list(emap_sinks) if emap_sinks is not None else [None] * len(tests)
+    want_emap = any(s is not None for s in sinks)
+    ref_clips = padded_clips(_counted(ref, "reference"), geom)
+    test_clips = [padded_clips(aligned_frames(t, geom, f"test {i}"), geom)
+                  for i, t in enumerate(tests)]
+    ph, pw, L = geom.patch_h, geom.patch_w, geom.clip_len
+    msd: list[list[torch.Tensor]] = [[] for _ in tests]
+    series: list[list[torch.Tensor]] = [[] for _ in tests]
+    bar = tqdm(total=geom.n_clips, desc=desc, unit="clip", disable=not progress, leave=False)
+    for ci, (rclip, valid) in enumerate(ref_clips):
+        tclips = [next(tc)[0] for tc in test_clips]
+        rt = torch.from_numpy(rclip)
+        tts = [torch.from_numpy(c) for c in tclips]
+        emaps = (np.zeros((len(tests), L, geom.n_rows * ph, geom.n_cols * pw), np.float32)
+                 if want_emap else None)
+        for r in range(geom.n_rows):
+            for c in range(geom.n_cols):
+                sl = (slice(None), slice(r * ph, (r + 1) * ph), slice(c * pw, (c + 1) * pw))
+                out = scorer(rt[sl], [t[sl] for t in tts], emap=want_emap)
+                for i in range(len(tests)):
+                    msd[i].append(out.msd[i])
+                    if out.series is not None:
+                        series[i].append(out.series[i])
+                if emaps is not None and out.emap is not None:
+                    emaps[:, :, r * ph:(r + 1) * ph, c * pw:(c + 1) * pw] = out.emap.numpy()
+        if emaps is not None:
+            for i, sink in enumerate(sinks):
+                if sink is not None:
+                    sink(ci, emaps[i, :valid, : geom.height, : geom.width],
+                         tclips[i][:valid, : geom.height, : geom.width])
+        bar.update(1)
+    bar.close()
+    for tc in test_clips:  # run the test streams to their end (frame-count checks)
+        for _ in tc:
+            pass
+    outs = []
+    for i in range(len(tests)):
+        m = torch.stack(msd[i]).numpy().astype(np.float32)
+        s = None
+        if series[i]:
+            s = torch.stack(series[i]).numpy().reshape(geom.n_clips, geom.n_rows, geom.n_cols, L)
+        outs.append(StreamOutput(geom, m, s))
+    return outs
+
+
+def patch_channel_msd(ref: VideoInput, tests: VideoInput | Sequence[VideoInput], net: FeatureNet,
+                      *, patch_scale: int = 4, fps: float | None = None,
+                      allow_resample: bool = False, batch_size: int = 2,
+                      on_conversion: str = "warn", progress: bool = False
+                      ) -> list[StreamOutput]:
+    """The per-patch, per-channel mean squared feature differences of test videos vs ``ref``.
+
+    Returns one :class:`StreamOutput` per test video; ``.msd`` is (n_patches, N) with N = 131
+    (CGVQM-2) or 1027 (CGVQM-5) columns in level order, ``.patch_index`` says which clip, row
+    and column each row is. A CGVQM patch error is ``alpha * msd @ |omega|``. This is what a
+    calibration caches: it does not depend on omega or alpha.
+    """
+    single = isinstance(tests, str | Path | np.ndarray | torch.Tensor)
+    test_list = [tests] if single else list(tests)  # type: ignore[list-item]
+    rsrc = open_input(ref, fps=fps, name="reference", on_conversion=on_conversion)
+    geom = reference_geometry(rsrc, patch_scale)
+    tsrcs = [open_input(t, fps=fps, name=f"test {i}", on_conversion=on_conversion,
+                        array_fps=geom.fps) for i, t in enumerate(test_list)]
+    for t in tsrcs:
+        check_fps(rsrc, t, allow_resample)
+    scorer = PatchScorer(net, None, batch_size=batch_size)
+    return run(rsrc, tsrcs, scorer, geom, progress=progress)

@@ -11,8 +11,10 @@ PYTEST_ARGS ?=
 
 .PHONY: demo test test-slow lint install system-deps clean
 
+DEMO_ARGS ?=
+
 demo: install
-	$(BIN)/python -m stimuli_manifests validate stimuli_manifests/cgvqd.json --structure-only
+	$(BIN)/python scripts/run_demo.py --out demo_output $(DEMO_ARGS)
 
 test: install
 	$(BIN)/python -m pytest $(PYTEST_ARGS)

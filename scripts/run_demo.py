@@ -77,6 +77,16 @@ def _pretrained_backbone_available() -> str | None:
     return str(cached) if cached.is_file() else None
 
 
+def _published_weights_available(log: list[dict]) -> bool:
+    """True when the authors' omega/alpha files are cached, local, or can be fetched now.
+
+    With CGVQM_OFFLINE=1 the fetch looks only at the cache and CGVQM_WEIGHTS_DIR.
+    """
+    res = _run("looking for the published CGVQM weights",
+               [*_cli("cgvqm_core.cli"), "weights", "fetch", "--no-backbone"], log)
+    return res.returncode == 0
+
+
 def _cli(module: str) -> list[str]:
     return [sys.executable, "-m", module]
 
@@ -92,6 +102,14 @@ def _score(args, manifest: Path, out: Path, log: list[dict]) -> tuple[Path, list
         extra = list(args.cgvqm_arg or [])
         if not backbone:
             extra += ["--random-backbone", str(args.seed)]
+        if not any(a.startswith("--weights") for a in extra) and not (
+            _published_weights_available(log)
+        ):
+            extra += ["--weights", "uniform"]
+            notes.append("The published CGVQM feature weights (omega, alpha) could not be "
+                         "fetched offline, so CGVQM ran with UNIFORM feature weights (metric "
+                         "names end in '-uniform'); put the two weight files in "
+                         "CGVQM_WEIGHTS_DIR or run 'cgvqm weights fetch' to use them.")
         ran: list[str] = []
         for variant in VARIANTS:
             csv_path = out / f"scores_{variant}.csv"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,9 +18,13 @@ def test_reduced_demo_finds_the_outlier_and_orders_levels(egl, tmp_path):
     cmd = [sys.executable, str(REPO / "scripts" / "run_demo.py"), "--out", str(out),
            "--size", "32", "--seconds", "0.2", "--scenes", "lattice",
            "--methods", "path_tracing,upscaling,frame_interpolation,vrs", "--raters", "10",
-           "--outliers", "1", "--seed", "11", "--bootstrap", "100", "--splits", "100",
-           "--no-cgvqm"]
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+           "--outliers", "1", "--seed", "11", "--bootstrap", "100", "--splits", "100"]
+    # offline, as in CI: an untrained backbone and uniform feature weights, both flagged
+    env = {**os.environ, "CGVQM_OFFLINE": "1", "CGVQM_CACHE": str(tmp_path / "no-cache"),
+           "TORCH_HOME": str(tmp_path / "no-torch-home")}
+    env.pop("CGVQM_BACKBONE", None)
+    env.pop("CGVQM_WEIGHTS_DIR", None)
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
 
     truth = json.loads((out / "study" / "sessions" / "ground_truth.json").read_text())
@@ -42,7 +47,11 @@ def test_reduced_demo_finds_the_outlier_and_orders_levels(egl, tmp_path):
     html = (out / "report" / "report.html").read_text()
     assert "SIMULATED DATA" in html
     scores = pd.read_csv(out / "scores.csv")
-    assert set(scores["metric"]) == {"PSNR", "SSIM"}
-    assert set(scores["stimulus"]) == set(cond["stimulus"])
+    assert set(scores["metric"]) == {"PSNR", "SSIM", "cgvqm-2-uniform", "cgvqm-5-uniform"}
+    cgvqm = scores[scores["metric"].str.startswith("cgvqm")]
+    assert set(cgvqm["backbone"]) == {"random-seed-11"}
+    for _, per_metric in scores.groupby("metric"):
+        assert set(per_metric["stimulus"]) == set(cond["stimulus"])
+    assert "UNTRAINED" in html and "UNIFORM" in html
     demo = json.loads((out / "demo_summary.json").read_text())
     assert demo["outliers_found"] and demo["series"] == 4

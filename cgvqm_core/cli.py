@@ -95,6 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
     ve.add_argument("paths", nargs="*", help="weights or backbone files (default: the caches)")
     inf = wsub.add_parser("info", help="describe a weights file (or the cache)")
     inf.add_argument("path", nargs="?", help="weights file")
+    from .calibration import cli as calibration_cli  # light: pandas/scipy load on use
+
+    calibration_cli.register(sub)
     return parser
 
 
@@ -241,6 +244,10 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_score(args)
         if args.command == "batch":
             return _cmd_batch(args)
+        if args.command == "calibrate":
+            from .calibration import cli as calibration_cli
+
+            return calibration_cli.run(args)
         return _cmd_weights(args)
     except (CGVQMError, StimuliError) as exc:
         print(f"cgvqm: error: {exc}", file=sys.stderr)

@@ -1,0 +1,219 @@
+"""``cgvqm calibrate``: the command line of the calibration (parse, print, exit codes).
+
+Hooked into ``cgvqm_core.cli`` with ``register(subparsers)`` and ``run(args)``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from stimuli_manifests import StimuliError
+
+from ..errors import CGVQMError
+from .arguments import (
+    ANCHOR_METHODS,
+    DMOS_SCALES,
+    OBJECTIVES,
+    POOLINGS,
+    SELECTIONS,
+    DatasetSpec,
+)
+
+if TYPE_CHECKING:
+    from .pipeline import CalibrationOutcome
+
+
+def default_cache() -> Path:
+    """$CGVQM_FEATURE_CACHE, else the metric's cache folder + /features."""
+    env = os.environ.get("CGVQM_FEATURE_CACHE")
+    if env:
+        return Path(env).expanduser()
+    from ..weights import cache_dir
+
+    return cache_dir() / "features"
+
+
+def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add the ``calibrate`` subcommand to the ``cgvqm`` parser."""
+    p = subparsers.add_parser(
+        "calibrate", help="fit the feature weights (omega, alpha) to human scores",
+        description="Fit CGVQM's channel weights to DMOS of one or more studies: features "
+                    "are cached once (resumable), the fit is validated on repeated "
+                    "scene-disjoint splits, then fitted on all scenes, anchored to the 0..100 "
+                    "scale and saved as a cgvqm-weights/1 file for `cgvqm score --weights`.")
+    p.add_argument("--dataset", action="append", required=True, metavar="NAME=MANIFEST:DMOS_CSV",
+                   help="a study: its manifest and its DMOS CSV (repeatable)")
+    p.add_argument("--variant", choices=("cgvqm-2", "cgvqm-5"), default="cgvqm-2")
+    p.add_argument("--out", required=True, metavar="W", help="weights file to write (.json)")
+    p.add_argument("--cache", metavar="DIR",
+                   help="feature cache folder (default $CGVQM_FEATURE_CACHE or "
+                        "~/.cache/cgvqm/features); reruns reuse it")
+    p.add_argument("--features-only", action="store_true",
+                   help="fill the feature cache and stop")
+    p.add_argument("--dmos-scale", choices=DMOS_SCALES, default="quality",
+                   help="quality: DMOS 100 = like the reference (this toolkit, ITU-T P.910; "
+                        "default); impairment: larger = worse (target = 100 - DMOS)")
+    p.add_argument("--include-references", action="store_true",
+                   help="also fit on hidden references (zero error) when the DMOS CSV has them")
+    g = p.add_argument_group("fit")
+    g.add_argument("--steps", type=int, default=100_000, help="Adam steps (default 100000)")
+    g.add_argument("--lr-omega", type=float, default=1e-6, help="default 1e-6 (upstream)")
+    g.add_argument("--lr-alpha", type=float, default=1.0, help="default 1.0 (upstream)")
+    g.add_argument("--alpha-init", type=float, default=1000.0, help="default 1000 (upstream)")
+    g.add_argument("--objective", choices=OBJECTIVES, default="plcc",
+                   help="plcc: sum of 1 - |PLCC| over datasets (upstream, default; blind to "
+                        "the sign); plcc-signed: 1 - PLCC(q, DMOS), only the right direction "
+                        "counts; nmse: squared error of q against the DMOS over its variance")
+    g.add_argument("--pool", choices=POOLINGS, default="max",
+                   help="patch pooling the weights are fitted for (default max, as upstream)")
+    g.add_argument("--select", choices=SELECTIONS, default="train",
+                   help="which step's weights to keep: lowest training loss (default, as "
+                        "upstream), lowest loss on held-out validation scenes, or the last")
+    g.add_argument("--val-ratio", type=float, default=0.25,
+                   help="share of training scenes held out for --select val (default 0.25)")
+    g.add_argument("--seed", type=int, default=0,
+                   help="seed of omega's random start and of the first split (default 0)")
+    v = p.add_argument_group("validation")
+    v.add_argument("--train-ratio", type=float, action="append", metavar="R",
+                   help="share of each dataset's scenes used for training (repeatable; "
+                        "default 0.2, the paper's 20:80)")
+    v.add_argument("--repeats", type=int, default=10,
+                   help="splits per train ratio, seeds SEED..SEED+n-1 (default 10)")
+    v.add_argument("--no-validation", action="store_true",
+                   help="skip the repeated splits (only the final fit)")
+    v.add_argument("--report", metavar="PATH",
+                   help="write the validation per split as CSV (PATH) and its summary "
+                        "(PATH with .summary.csv)")
+    p.add_argument("--anchor", choices=(*ANCHOR_METHODS, "none"), default="logistic",
+                   help="monotone map of q onto the 0..100 scale (default logistic)")
+    f = p.add_argument_group("features (the metric's network)")
+    f.add_argument("--backbone", metavar="PATH",
+                   help="R3D-18 state dict file (default: $CGVQM_BACKBONE, the torch hub cache, "
+                        "a download)")
+    f.add_argument("--random-backbone", metavar="SEED", type=int,
+                   help="a seeded RANDOM backbone (testing only; the weights file says so)")
+    f.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
+    f.add_argument("--precision", choices=("fp32", "bf16", "fp16"), default="fp32")
+    f.add_argument("--patch-scale", type=int, default=4, help="default 4 (upstream)")
+    f.add_argument("--batch-size", type=int, default=2, help="videos per network pass")
+    f.add_argument("--allow-resample", action="store_true",
+                   help="accept test videos whose fps differs from the reference's")
+    f.add_argument("--allow-convert", action="store_true",
+                   help="convert 10-bit or alpha input to 8-bit RGB instead of refusing it")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    return p
+
+
+def _check(args: argparse.Namespace) -> None:
+    ratios = args.train_ratio or [0.2]
+    for r in ratios:
+        if not 0.0 < r < 1.0:
+            raise CGVQMError(f"--train-ratio {r}: must be between 0 and 1 (exclusive)")
+    if args.steps < 1:
+        raise CGVQMError("--steps must be at least 1")
+    if args.repeats < 1:
+        raise CGVQMError("--repeats must be at least 1")
+    if not 0.0 < args.val_ratio < 1.0:
+        raise CGVQMError("--val-ratio must be between 0 and 1 (exclusive)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Execute ``cgvqm calibrate``; returns the exit code (2 for user errors)."""
+    try:
+        return _run(args)
+    except (CGVQMError, StimuliError) as exc:
+        print(f"cgvqm: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("cgvqm: interrupted; features computed so far are cached, rerun to continue",
+              file=sys.stderr)
+        return 130
+
+
+def _run(args: argparse.Namespace) -> int:
+    from .data import load_datasets
+    from .fitting import FitConfig
+    from .pipeline import build_data, calibrate, metric_features
+
+    _check(args)
+    specs = [DatasetSpec.parse(t) for t in args.dataset]
+    show = not args.quiet
+    # the studies first: their mistakes show before the network is built
+    items = load_datasets(specs, dmos_scale=args.dmos_scale,
+                          include_references=args.include_references)
+    source = metric_features(args.variant, backbone=args.backbone,
+                             random_backbone=args.random_backbone, device=args.device,
+                             precision=args.precision, patch_scale=args.patch_scale,
+                             batch_size=args.batch_size, allow_resample=args.allow_resample,
+                             on_conversion="warn" if args.allow_convert else "error")
+    if source.backbone.get("random_seed") is not None:
+        print(f"cgvqm: warning: RANDOM backbone (seed {source.backbone['random_seed']}): the "
+              "fitted weights are for testing only, and the weights file says so",
+              file=sys.stderr)
+    cache_root = Path(args.cache) if args.cache else default_cache()
+    data = build_data(items, source, cache_root, show_progress=show)
+    n_scenes = data.items.groupby("dataset")["scene"].nunique()
+    print(f"{len(data.items)} videos, {data.M.shape[1]} patches at most, "
+          f"{data.M.shape[2]} channels; scenes per dataset: "
+          + ", ".join(f"{k} {v}" for k, v in n_scenes.items()))
+    print(f"feature cache: {cache_root}")
+    if args.features_only:
+        return 0
+    config = FitConfig(steps=args.steps, lr_omega=args.lr_omega, lr_alpha=args.lr_alpha,
+                       alpha_init=args.alpha_init, objective=args.objective,
+                       pooling=args.pool, select=args.select, seed=args.seed,
+                       show_progress=show)
+    outcome = calibrate(
+        data, args.variant, config, train_ratios=args.train_ratio or [0.2],
+        repeats=args.repeats, seed=args.seed, val_ratio=args.val_ratio, anchor=args.anchor,
+        validation=not args.no_validation, datasets=specs, dmos_scale=args.dmos_scale,
+        feature_settings=source.settings, backbone=source.backbone, out=args.out)
+    _print_outcome(outcome, args)
+    return 0
+
+
+def _print_outcome(outcome: CalibrationOutcome, args: argparse.Namespace) -> None:
+    from .validation import format_summary
+
+    prov = outcome.weights.provenance
+    if outcome.validation is not None:
+        print()
+        print(f"validation: {args.repeats} scene-disjoint split(s) per train ratio, "
+              "mean and 95% interval of the mean over splits")
+        print(format_summary(outcome.validation.summary))
+        for note in outcome.validation.notes:
+            print(f"note: {note}")
+        if args.report:
+            rep = Path(args.report)
+            outcome.validation.per_split.to_csv(rep, index=False)
+            outcome.validation.summary.to_csv(rep.with_suffix(".summary.csv"), index=False)
+            print(f"wrote {rep} and {rep.with_suffix('.summary.csv')}")
+    ff = prov["final_fit"]
+    print()
+    print(f"final fit on {ff['scenes']}: {ff['videos']} videos; {prov['selection']}: step "
+          f"{ff['best_step']}; alpha refitted to {outcome.weights.alpha:.6g}")
+    for d, c in ff["correlations_on_fitted_videos"].items():
+        extra = f", RMSE after anchoring {c['rmse_anchored']:.2f}" if "rmse_anchored" in c else ""
+        print(f"  {d}: on its own fitted videos (optimistic) PLCC {c['plcc']:.3f}, "
+              f"SRCC {c['srcc']:.3f}, KRCC {c['krcc']:.3f}{extra}")
+    if prov.get("warning"):
+        print(f"warning: {prov['warning']}")
+    print(f"wrote {outcome.path} (use: cgvqm score --weights {outcome.path} ...)")
+    if args.report is None and outcome.validation is not None:
+        print("(add --report PATH for the per-split table)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone entry (``python -m cgvqm_core.calibration.cli``) until hooked into cgvqm."""
+    parser = argparse.ArgumentParser(prog="cgvqm")
+    sub = parser.add_subparsers(dest="command", required=True)
+    register(sub)
+    return run(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -18,6 +18,7 @@ from stimuli_manifests import StimuliError
 
 from . import __version__
 from .errors import CGVQMError
+from .metric import quality_label
 
 
 def _add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = False) -> None:
@@ -139,6 +140,9 @@ def _cmd_score(args: argparse.Namespace) -> int:
         tag = " [RANDOM BACKBONE]" if res.is_random_backbone else ""
         print(f"{res.variant} q = {res.q:.3f} ({res.label}; {res.pool} pooling, "
               f"{res.n_patches} patches, {res.seconds:.1f} s){tag}")
+        if res.q_anchored is not None:
+            print(f"calibrated to the study scale: {res.q_anchored:.2f} "
+                  f"({quality_label(res.q_anchored)})")
         if args.emap:
             print(f"error map written to {args.emap}")
     if args.csv:

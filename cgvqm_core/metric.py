@@ -97,6 +97,16 @@ class CGVQMResult:
         return [pool_errors(row, self.pool) for row in flat]
 
     @property
+    def q_anchored(self) -> float | None:
+        """q on the study's 0..100 scale, when the weights carry a calibration anchoring
+        fitted for this pooling (``cgvqm calibrate``); otherwise None."""
+        from .calibration.anchoring import anchoring_for, apply_anchor
+
+        weights_prov = self.provenance.get("weights", {}).get("provenance")
+        anchor = anchoring_for(weights_prov, self.pool)
+        return None if anchor is None else float(apply_anchor(anchor, self.q))
+
+    @property
     def is_random_backbone(self) -> bool:
         return self.provenance.get("backbone", {}).get("random_seed") is not None
 
@@ -119,6 +129,10 @@ class CGVQMResult:
             "weights_sha256": prov["weights"]["sha256"],
             "random_backbone": self.is_random_backbone,
         }
+        anchored = self.q_anchored
+        if anchored is not None:
+            out["q_anchored"] = anchored
+            out["label_anchored"] = quality_label(anchored)
         if self.is_random_backbone:
             out["warning"] = ("computed with a RANDOM backbone "
                               f"({prov['backbone']['label']}): not a CGVQM score")

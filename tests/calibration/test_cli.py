@@ -95,7 +95,16 @@ def test_calibrate_writes_weights_the_metric_scores_with(study, tmp_path, capsys
                        "--test", str(study / "videos" / "SRC02_HRC03.mkv"),
                        "--weights", str(tmp_path / "w.json"), "--random-backbone", "0",
                        "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["q"] == pytest.approx(res.q, abs=1e-6)
+    scored = json.loads(capsys.readouterr().out)
+    assert scored["q"] == pytest.approx(res.q, abs=1e-6)
+    # the stored anchoring puts q on the study's 0..100 scale (logistic written out here)
+    anchor = doc["provenance"]["anchoring"]
+    assert anchor["kind"] == "logistic" and anchor["pool"] == "max"
+    expected = anchor["lo"] + (anchor["hi"] - anchor["lo"]) / (
+        1 + np.exp(-(res.q - anchor["center"]) / anchor["scale"]))
+    assert scored["q_anchored"] == pytest.approx(expected, abs=1e-6)
+    assert 0 <= scored["q_anchored"] <= 100
+    assert res.q_anchored == pytest.approx(expected, abs=1e-6)
 
 
 def test_user_errors_exit_2_with_one_line(study, tmp_path, capsys):

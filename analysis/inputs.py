@@ -71,14 +71,10 @@ def session_files(paths: Sequence[str | Path]) -> list[Path]:
 
 
 def _frame_from_sessions(paths: Sequence[str | Path]) -> tuple[pd.DataFrame, list[InputProblem]]:
-    try:
-        from study_app.session import read_ratings
+    try:  # the one allowed arrow into the study app: its session-store module
+        from study_app.session import StudyError, read_ratings
     except ImportError as exc:  # pragma: no cover - the study app ships with the toolkit
         raise AnalysisError(f"session files need study_app.session ({exc})") from None
-    try:
-        from study_app.errors import StudyError
-    except ImportError:  # pragma: no cover
-        StudyError = Exception
 
     problems: list[InputProblem] = []
     frames = []

@@ -589,12 +589,13 @@ class App:
         min_view = proto.min_view_seconds if proto.min_view_seconds is not None else loop_s
         blank_n = blank_refreshes(proto.blank_seconds, d.refresh_hz)
         st = TrialState(stats=FlipStats(d.period), blank_target_refreshes=blank_n)
-        w, h = d.window_size
+        w = d.window_size[0]
         slider = self._make_slider()
         submit_rect = (w / 2 - 90, slider.y + 110, 180, 50)
         phase = "view"
         notice_until = 0.0
         prefix = "Practice: " if self._practice_mode else ""
+        self._warm_up(gpu, f"{prefix}Trial {k} of {total}", min_view)
         if d.pacer is not None:
             d.pacer.reset()
         self._state("viewing", trial=trial.index, practice=int(self._practice_mode))
@@ -674,18 +675,9 @@ class App:
                     st.showing = st.blank_target or st.showing
                     st.blank_until = None
                 content = "blank" if st.blank_until is not None else st.showing
-                vx, vy, vw, _ = r.video_rect(gpu.width, gpu.height)
-                if content != "blank":
-                    idx = frame_index(st.n, gpu.fps, d.refresh_hz, frames, loop=proto.loop)
-                    r.draw_video(gpu.tex[content], idx)
-                    label = LABEL_TEST if content == "test" else LABEL_REFERENCE
-                    self._draw_label(label, vx, vy, vw)
-                r.text(progress, w - 20, 16, px=26, color=GREY_TEXT, anchor="topright")
-                if now < notice_until:
-                    hint = f"Please watch for at least {min_view:.1f} s before rating"
-                else:
-                    hint = "Space: switch test / reference    Enter: rate    P: pause"
-                r.text(hint, w / 2, h - 36, px=26, color=GREY_TEXT, anchor="center")
+                idx = frame_index(st.n, gpu.fps, d.refresh_hz, frames, loop=proto.loop)
+                self._draw_view(gpu, content, idx, progress, notice=now < notice_until,
+                                min_view=min_view)
                 shot = self._shot(("practice-" if self._practice_mode else "")
                                   + ("blank" if content == "blank" else f"viewing-{content}"))
                 t = d.flip()
@@ -723,6 +715,38 @@ class App:
                 d.flip()
                 st.flips += 1
                 st.last_content = None
+
+    def _draw_view(self, gpu: OnGpu, content: str, idx: int, progress: str, *, notice: bool,
+                   min_view: float) -> None:
+        """One refresh of the viewing screen: a video frame (or the blank), its label, hints."""
+        r = self.display.renderer
+        w, h = self.display.window_size
+        if content != "blank":
+            vx, vy, vw, _ = r.video_rect(gpu.width, gpu.height)
+            r.draw_video(gpu.tex[content], idx)
+            self._draw_label(LABEL_TEST if content == "test" else LABEL_REFERENCE, vx, vy, vw)
+        r.text(progress, w - 20, 16, px=26, color=GREY_TEXT, anchor="topright")
+        if notice:
+            hint = f"Please watch for at least {min_view:.1f} s before rating"
+        else:
+            hint = "Space: switch test / reference    Enter: rate    P: pause"
+        r.text(hint, w / 2, h - 36, px=26, color=GREY_TEXT, anchor="center")
+
+    def _warm_up(self, gpu: OnGpu, progress: str, min_view: float) -> None:
+        """Draw every variant of the viewing screen once into the back buffer, unshown.
+
+        Drivers compile shader variants and upload text textures on first use (Mesa's
+        llvmpipe spends 10-50 ms per variant); doing it here keeps that out of the timed
+        presentation, where it showed up as dropped frames.
+        """
+        r = self.display.renderer
+        for content in ("test", "reference", "blank"):
+            for notice in (False, True):
+                r.clear()
+                self._draw_view(gpu, content, gpu.frames - 1, progress, notice=notice,
+                                min_view=min_view)
+        self.display.ctx.finish()
+        r.clear()
 
     def _draw_label(self, label: str, vx: int, vy: int, vw: int) -> None:
         r = self.display.renderer

@@ -17,7 +17,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -41,6 +41,9 @@ from .schedule import make_schedule, participant_seed, pick_practice
 from .session import PlannedTrial, SessionStore, TrialResult, utc_now
 from .slider import Slider
 from .study import Study
+
+if TYPE_CHECKING:
+    from .render import Renderer
 
 log = logging.getLogger(__name__)
 
@@ -595,7 +598,7 @@ class App:
         phase = "view"
         notice_until = 0.0
         prefix = "Practice: " if self._practice_mode else ""
-        self._warm_up(gpu, f"{prefix}Trial {k} of {total}", min_view)
+        warm_up_viewing(r, d.window_size, gpu, f"{prefix}Trial {k} of {total}", min_view)
         if d.pacer is not None:
             d.pacer.reset()
         self._state("viewing", trial=trial.index, practice=int(self._practice_mode))
@@ -676,8 +679,8 @@ class App:
                     st.blank_until = None
                 content = "blank" if st.blank_until is not None else st.showing
                 idx = frame_index(st.n, gpu.fps, d.refresh_hz, frames, loop=proto.loop)
-                self._draw_view(gpu, content, idx, progress, notice=now < notice_until,
-                                min_view=min_view)
+                draw_viewing(r, d.window_size, gpu, content, idx, progress,
+                             notice=now < notice_until, min_view=min_view)
                 shot = self._shot(("practice-" if self._practice_mode else "")
                                   + ("blank" if content == "blank" else f"viewing-{content}"))
                 t = d.flip()
@@ -715,48 +718,6 @@ class App:
                 d.flip()
                 st.flips += 1
                 st.last_content = None
-
-    def _draw_view(self, gpu: OnGpu, content: str, idx: int, progress: str, *, notice: bool,
-                   min_view: float) -> None:
-        """One refresh of the viewing screen: a video frame (or the blank), its label, hints."""
-        r = self.display.renderer
-        w, h = self.display.window_size
-        if content != "blank":
-            vx, vy, vw, _ = r.video_rect(gpu.width, gpu.height)
-            r.draw_video(gpu.tex[content], idx)
-            self._draw_label(LABEL_TEST if content == "test" else LABEL_REFERENCE, vx, vy, vw)
-        r.text(progress, w - 20, 16, px=26, color=GREY_TEXT, anchor="topright")
-        if notice:
-            hint = f"Please watch for at least {min_view:.1f} s before rating"
-        else:
-            hint = "Space: switch test / reference    Enter: rate    P: pause"
-        r.text(hint, w / 2, h - 36, px=26, color=GREY_TEXT, anchor="center")
-
-    def _warm_up(self, gpu: OnGpu, progress: str, min_view: float) -> None:
-        """Draw every variant of the viewing screen once into the back buffer, unshown.
-
-        Drivers compile shader variants and upload text textures on first use (Mesa's
-        llvmpipe spends 10-50 ms per variant); doing it here keeps that out of the timed
-        presentation, where it showed up as dropped frames.
-        """
-        r = self.display.renderer
-        for content in ("test", "reference", "blank"):
-            for notice in (False, True):
-                r.clear()
-                self._draw_view(gpu, content, gpu.frames - 1, progress, notice=notice,
-                                min_view=min_view)
-        self.display.ctx.finish()
-        r.clear()
-
-    def _draw_label(self, label: str, vx: int, vy: int, vw: int) -> None:
-        r = self.display.renderer
-        tw, th = r.text_size(label, 30)
-        if vx >= tw + 24:  # room left of the video
-            r.text(label, vx - 16, vy, px=30, color=ACCENT, anchor="topright")
-        elif vy >= th + 8:
-            r.text(label, vx, vy - th - 6, px=30, color=ACCENT)
-        else:
-            r.text(label, 12, 12, px=30, color=ACCENT)
 
     def _make_slider(self) -> Slider:
         w, h = self.display.window_size
@@ -829,6 +790,50 @@ class App:
             },
         )
 
+
+
+# -- the viewing screen -------------------------------------------------------------------
+def draw_viewing(r: Renderer, size: tuple[int, int], gpu: OnGpu, content: str, idx: int,
+                 progress: str, *, notice: bool, min_view: float) -> None:
+    """One refresh of the viewing screen: a video frame (or the blank), its label, hints."""
+    w, h = size
+    if content != "blank":
+        vx, vy, _, _ = r.video_rect(gpu.width, gpu.height)
+        r.draw_video(gpu.tex[content], idx)
+        _draw_label(r, LABEL_TEST if content == "test" else LABEL_REFERENCE, vx, vy)
+    r.text(progress, w - 20, 16, px=26, color=GREY_TEXT, anchor="topright")
+    if notice:
+        hint = f"Please watch for at least {min_view:.1f} s before rating"
+    else:
+        hint = "Space: switch test / reference    Enter: rate    P: pause"
+    r.text(hint, w / 2, h - 36, px=26, color=GREY_TEXT, anchor="center")
+
+
+def warm_up_viewing(r: Renderer, size: tuple[int, int], gpu: OnGpu, progress: str,
+                    min_view: float) -> None:
+    """Draw every variant of the viewing screen once into the back buffer, unshown.
+
+    Drivers compile shader variants and make text textures on first use (Mesa's llvmpipe
+    spends 10-50 ms per variant); doing it before the trial's first flip keeps that out of
+    the timed presentation, where it showed up as dropped frames.
+    """
+    for content in ("test", "reference", "blank"):
+        for notice in (False, True):
+            r.clear()
+            draw_viewing(r, size, gpu, content, gpu.frames - 1, progress, notice=notice,
+                         min_view=min_view)
+    r.ctx.finish()
+    r.clear()
+
+
+def _draw_label(r: Renderer, label: str, vx: int, vy: int) -> None:
+    tw, th = r.text_size(label, 30)
+    if vx >= tw + 24:  # room left of the video
+        r.text(label, vx - 16, vy, px=30, color=ACCENT, anchor="topright")
+    elif vy >= th + 8:
+        r.text(label, vx, vy - th - 6, px=30, color=ACCENT)
+    else:
+        r.text(label, 12, 12, px=30, color=ACCENT)
 
 def needs_requeue(dropped_frames: int, limit: int, trial: PlannedTrial) -> bool:
     """Re-queue a trial (once) when more than ``limit`` frames dropped; ``limit < 0`` never."""

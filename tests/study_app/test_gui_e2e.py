@@ -302,3 +302,35 @@ def test_gui_preflight_failure_says_what_to_change(tmp_path, xdisplay, study_fac
     with SessionStore.open(study / "sessions" / "P02.sqlite") as store:
         failed = [c["name"] for c in store.info.preflight if not c["ok"]]
     assert failed == ["screen_size"]
+
+
+WARM_UP_PROBE = """
+import numpy as np
+from study_app.app import Display, OnGpu, draw_viewing, warm_up_viewing
+d = Display(windowed=True, window_size=(640, 480), refresh_hz=60, force_pacer=True)
+r = d.renderer
+frames = np.zeros((3, 64, 64, 3), np.uint8)
+gpu = OnGpu("S", {"test": r.upload_video(frames), "reference": r.upload_video(frames)},
+            64, 64, 3, 30.0, 0.0)
+before = len(r._text_cache)
+warm_up_viewing(r, d.window_size, gpu, "Trial 1 of 2", 1.0)
+warmed = len(r._text_cache)
+for content in ("test", "blank", "reference"):
+    for notice in (False, True):
+        for idx in range(3):
+            draw_viewing(r, d.window_size, gpu, content, idx, "Trial 1 of 2", notice=notice,
+                         min_view=1.0)
+print(before, warmed, len(r._text_cache))
+"""
+
+
+def test_warm_up_makes_every_viewing_texture_before_the_first_flip(xdisplay):
+    """A text texture made mid-trial costs a shader compile on Mesa (measured 45 ms): the
+    warm-up must leave nothing new for the timed loop to create."""
+    out = subprocess.run([sys.executable, "-c", WARM_UP_PROBE],
+                         env={**xdisplay, "PYTHONPATH": str(REPO)}, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    before, warmed, after = (int(v) for v in out.stdout.split()[-3:])
+    assert warmed - before >= 5  # two labels, the progress line, two hints
+    assert after == warmed

@@ -334,3 +334,33 @@ def test_warm_up_makes_every_viewing_texture_before_the_first_flip(xdisplay):
     before, warmed, after = (int(v) for v in out.stdout.split()[-3:])
     assert warmed - before >= 5  # two labels, the progress line, two hints
     assert after == warmed
+
+
+ONE_TO_ONE_PROBE = """
+import numpy as np
+from study_app.app import Display
+d = Display(windowed=True, window_size=(637, 479), refresh_hz=60, force_pacer=True)
+r, ctx = d.renderer, d.ctx
+W, H = d.window_size
+for h, w in ((333, 501), (1, 3), (479, 637)):
+    frames = np.random.default_rng(h).integers(0, 256, (3, h, w, 3), dtype=np.uint8)
+    video = r.upload_video(frames)
+    r.clear()
+    x, y = r.draw_video(video, 2)
+    ctx.finish()
+    shown = np.frombuffer(ctx.screen.read(viewport=(x, H - y - h, w, h), components=3,
+                                          alignment=1), np.uint8).reshape(h, w, 3)[::-1]
+    print(h, w, int(np.array_equal(shown, frames[2])))
+    video.release()
+"""
+
+
+def test_video_frames_are_drawn_one_to_one_at_odd_sizes(xdisplay):
+    """Every texel lands on exactly one pixel, unfiltered, for sizes that are not powers of
+    two and in an odd-sized window (the read-back must equal the decoded frame bit for bit)."""
+    out = subprocess.run([sys.executable, "-c", ONE_TO_ONE_PROBE],
+                         env={**xdisplay, "PYTHONPATH": str(REPO)}, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    rows = [line.split() for line in out.stdout.strip().splitlines()[-3:]]
+    assert [r[2] for r in rows] == ["1", "1", "1"], rows

@@ -37,13 +37,16 @@ class BatchSummary:
 
 
 def metric_name(metric: CGVQM) -> str:
-    """``cgvqm-2`` / ``cgvqm-5`` for the published weights; other weights get a suffix."""
+    """``cgvqm-2`` / ``cgvqm-5`` for the published weights; other weights get a suffix, and
+    seamless tiling (not upstream-identical) adds ``-seamless``."""
     w = metric.weights
     if w.kind == "upstream-pickle":
-        return metric.variant
-    if w.kind == "uniform":
-        return f"{metric.variant}-uniform"
-    return f"{metric.variant}-{Path(w.source).stem}"
+        name = metric.variant
+    elif w.kind == "uniform":
+        name = f"{metric.variant}-uniform"
+    else:
+        name = f"{metric.variant}-{Path(w.source).stem}"
+    return f"{name}-seamless" if metric.seamless else name
 
 
 def read_done(path: Path) -> set[tuple[str, str, str]]:

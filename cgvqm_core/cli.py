@@ -42,6 +42,9 @@ def _add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = Fal
                    help="CUDA autocast precision; bf16/fp16 are faster but not bit-exact")
     p.add_argument("--patch-scale", type=int, default=4,
                    help="patch grid: H/s x W/s pixel patches (default 4, as upstream)")
+    p.add_argument("--seamless", action="store_true",
+                   help="patches with a halo so features do not depend on the patch grid "
+                        "(NOT upstream-identical; no error maps)")
     p.add_argument("--batch-size", type=int, default=2,
                    help="videos per network pass (reference + tests; default 2)")
     p.add_argument("--threads", type=int,
@@ -120,7 +123,7 @@ def _metrics(args: argparse.Namespace, variants: list[str]) -> list[Any]:
         out.append(CGVQM(v, weights=args.weights, backbone=args.backbone,
                          random_backbone=args.random_backbone, device=args.device,
                          precision=args.precision, patch_scale=args.patch_scale,
-                         batch_size=args.batch_size))
+                         batch_size=args.batch_size, seamless=args.seamless))
         if args.weights and args.weights != "uniform":
             break  # a weights file fixes the variant
     return out  # random backbone / uniform weights: the library logs a warning line
@@ -138,6 +141,8 @@ def _cmd_score(args: argparse.Namespace) -> int:
         print(json.dumps(res.to_dict(patches=True)))
     else:
         tag = " [RANDOM BACKBONE]" if res.is_random_backbone else ""
+        if metric.seamless:
+            tag += " [SEAMLESS: not upstream-identical]"
         print(f"{res.variant} q = {res.q:.3f} ({res.label}; {res.pool} pooling, "
               f"{res.n_patches} patches, {res.seconds:.1f} s){tag}")
         if res.q_anchored is not None:

@@ -170,10 +170,17 @@ class PatchScorer:
                       for w in level_weights]
 
     def __call__(self, ref: torch.Tensor, tests: list[torch.Tensor], *,
-                 emap: bool = False) -> PatchDiff:
-        """``ref`` and each test: (T, h, w, 3) uint8 patches."""
+                 emap: bool = False,
+                 cores: tuple[tuple[slice, slice], ...] | None = None) -> PatchDiff:
+        """``ref`` and each test: (T, h, w, 3) uint8 patches.
+
+        ``cores`` (seamless tiling) keeps, per level, only that (rows, columns) part of the
+        features: the input was a crop around the patch and the rest is its halo.
+        """
         if emap and self.w is None:
             raise CGVQMError("an error map needs feature weights")
+        if emap and cores is not None:
+            raise CGVQMError("error maps are not offered in seamless mode")
         T, h, w = ref.shape[:3]
         k = len(tests)
         chunks: list[list[torch.Tensor]] = []
@@ -190,6 +197,8 @@ class PatchScorer:
             x = self.net.to_input(torch.stack(chunk))
             msd_l, series, em = [], None, None
             for li, a in enumerate(self.net.levels(x)):
+                if cores is not None:
+                    a = a[..., cores[li][0], cores[li][1]]
                 if ci == 0:
                     r, t = a[:1], a[1:]
                     if keep_ref:

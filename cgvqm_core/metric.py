@@ -133,6 +133,8 @@ class CGVQMResult:
         if anchored is not None:
             out["q_anchored"] = anchored
             out["label_anchored"] = quality_label(anchored)
+        if prov.get("mode") == "seamless":
+            out["mode"] = "seamless (not upstream-identical)"
         if self.is_random_backbone:
             out["warning"] = ("computed with a RANDOM backbone "
                               f"({prov['backbone']['label']}): not a CGVQM score")
@@ -150,6 +152,8 @@ class CGVQM:
     ``backbone`` is a state dict file or mapping (default: $CGVQM_BACKBONE, the torch hub
     cache, a download); ``random_backbone=SEED`` uses a seeded random network and marks every
     result. ``device="cuda"`` with ``precision="bf16"/"fp16"`` uses autocast (not bit-exact).
+    ``seamless=True`` runs patches with a halo so features do not depend on the patch grid
+    (:mod:`.seamless`; not upstream-identical, marked ``mode: seamless``, no error maps).
     """
 
     def __init__(
@@ -166,6 +170,7 @@ class CGVQM:
         fuse_bn: bool = True,
         channels_last: bool | None = None,
         allow_download: bool = True,
+        seamless: bool = False,
     ) -> None:
         self.weights = resolve_weights(weights, variant, allow_download=allow_download)
         self.variant = self.weights.variant
@@ -174,6 +179,7 @@ class CGVQM:
         if patch_scale < 1:
             raise CGVQMError(f"patch scale must be at least 1, got {patch_scale}")
         self.patch_scale = int(patch_scale)
+        self.seamless = bool(seamless)
         self.net = FeatureNet(self.backbone, self.weights.n_levels, device=device,
                               precision=precision, fuse_bn=fuse_bn, channels_last=channels_last)
         self.scorer = PatchScorer(self.net, self.weights.level_weights(), self.weights.alpha,
@@ -193,7 +199,7 @@ class CGVQM:
             "patch_scale": self.patch_scale,
             "device": str(self.net.device),
             "precision": self.net.precision,
-            "mode": "upstream",
+            "mode": "seamless" if self.seamless else "upstream",
             "backbone": {"arch": bb.arch, "label": bb.label, "source": bb.source,
                          "sha256": bb.sha256, "random_seed": bb.random_seed},
             "weights": {"kind": w.kind, "source": w.source, "sha256": w.sha256,
@@ -232,6 +238,8 @@ class CGVQM:
             check_fps(rsrc, t, allow_resample)
         emap = list(emap) if emap is not None else [False] * len(tests)
         pngs = list(emap_png_dirs) if emap_png_dirs is not None else [None] * len(tests)
+        if self.seamless and (any(emap) or any(pngs)):
+            raise CGVQMError("error maps are not offered in seamless mode")
         sinks, closers, recorders = [], [], {}
         for i, (em, png) in enumerate(zip(emap, pngs, strict=True)):
             if em is True:
@@ -247,7 +255,8 @@ class CGVQM:
                 sinks.append(None)
         try:
             outs = run(rsrc, tsrcs, self.scorer, geom, emap_sinks=sinks, progress=progress,
-                       desc=f"{self.variant} {Path(str(rsrc.info.path)).name}")
+                       desc=f"{self.variant} {Path(str(rsrc.info.path)).name}",
+                       seamless=self.seamless)
         finally:
             for w in closers:
                 w.close()
@@ -285,4 +294,5 @@ class CGVQM:
                     ) -> list[StreamOutput]:
         """:func:`patch_channel_msd` with this metric's network and patch grid."""
         return patch_channel_msd(ref, tests, self.net, patch_scale=self.patch_scale,
-                                 batch_size=self.scorer.batch_size, **kw)
+                                 batch_size=self.scorer.batch_size, seamless=self.seamless,
+                                 **kw)

@@ -26,6 +26,7 @@ from stimuli_manifests import StimuliError, open_video
 
 from .errors import CGVQMError
 from .features import FeatureNet, PatchScorer
+from .seamless import network_halo, tile
 
 log = logging.getLogger(__name__)
 
@@ -264,10 +265,17 @@ def check_fps(ref: FrameSource, test: FrameSource, allow_resample: bool) -> None
 
 def run(ref: FrameSource, tests: Sequence[FrameSource], scorer: PatchScorer, geom: Geometry, *,
         emap_sinks: Sequence[EmapSink | None] | None = None, progress: bool = False,
-        desc: str = "cgvqm") -> list[StreamOutput]:
-    """Score every patch of every test video against the reference, clip by clip."""
+        desc: str = "cgvqm", seamless: bool = False) -> list[StreamOutput]:
+    """Score every patch of every test video against the reference, clip by clip.
+
+    ``seamless`` runs each patch on a crop with a halo and keeps its core's features
+    (:mod:`.seamless`; not upstream-identical).
+    """
     sinks = list(emap_sinks) if emap_sinks is not None else [None] * len(tests)
     want_emap = any(s is not None for s in sinks)
+    halo = network_halo(scorer.net.model, scorer.net.n_levels) if seamless else None
+    if halo is not None and want_emap:
+        raise CGVQMError("error maps are not offered in seamless mode")
     ref_clips = padded_clips(_counted(ref, "reference"), geom)
     test_clips = [padded_clips(aligned_frames(t, geom, f"test {i}"), geom)
                   for i, t in enumerate(tests)]
@@ -283,8 +291,13 @@ def run(ref: FrameSource, tests: Sequence[FrameSource], scorer: PatchScorer, geo
                  if want_emap else None)
         for r in range(geom.n_rows):
             for c in range(geom.n_cols):
-                sl = (slice(None), slice(r * ph, (r + 1) * ph), slice(c * pw, (c + 1) * pw))
-                out = scorer(rt[sl], [t[sl] for t in tts], emap=want_emap)
+                cores = None
+                if halo is None:
+                    sl = (slice(None), slice(r * ph, (r + 1) * ph), slice(c * pw, (c + 1) * pw))
+                else:
+                    tl = tile(r, c, ph, pw, geom.height, geom.width, halo)
+                    sl, cores = (slice(None), tl.crop_h, tl.crop_w), tl.cores
+                out = scorer(rt[sl], [t[sl] for t in tts], emap=want_emap, cores=cores)
                 for i in range(len(tests)):
                     msd[i].append(out.msd[i])
                     if out.series is not None:
@@ -314,8 +327,8 @@ def run(ref: FrameSource, tests: Sequence[FrameSource], scorer: PatchScorer, geo
 def patch_channel_msd(ref: VideoInput, tests: VideoInput | Sequence[VideoInput], net: FeatureNet,
                       *, patch_scale: int = 4, fps: float | None = None,
                       allow_resample: bool = False, batch_size: int = 2,
-                      on_conversion: str = "warn", progress: bool = False
-                      ) -> list[StreamOutput]:
+                      on_conversion: str = "warn", progress: bool = False,
+                      seamless: bool = False) -> list[StreamOutput]:
     """The per-patch, per-channel mean squared feature differences of test videos vs ``ref``.
 
     Returns one :class:`StreamOutput` per test video; ``.msd`` is (n_patches, N) with N = 131
@@ -332,4 +345,4 @@ def patch_channel_msd(ref: VideoInput, tests: VideoInput | Sequence[VideoInput],
     for t in tsrcs:
         check_fps(rsrc, t, allow_resample)
     scorer = PatchScorer(net, None, batch_size=batch_size)
-    return run(rsrc, tsrcs, scorer, geom, progress=progress)
+    return run(rsrc, tsrcs, scorer, geom, progress=progress, seamless=seamless)

@@ -184,3 +184,19 @@ def test_weights_commands(capsys, weights_file, upstream_dir, backbone_file):
     assert rc == 2 and "is not the one of r3d_18-b3b3357e.pth" in err
     rc, out, err = _run(capsys, "weights", "verify", backbone_file)
     assert rc == 0 and "ok (backbone" in out
+
+
+def test_seamless_score_is_marked_and_equals_api(capsys, pair, weights_file, backbone_file):
+    ref, test = pair
+    rc, out, err = _run(capsys, "score", "--ref", ref, "--test", test, "--weights", weights_file,
+                        "--backbone", backbone_file, "--seamless", "--json")
+    assert rc == 0, err
+    doc = json.loads(out)
+    assert doc["mode"].startswith("seamless") and doc["provenance"]["mode"] == "seamless"
+    api = CGVQM(weights=weights_file, backbone=backbone_file, seamless=True).score(ref, test)
+    assert doc["q"] == pytest.approx(api.q, abs=1e-9)
+    upstream = CGVQM(weights=weights_file, backbone=backbone_file).score(ref, test)
+    assert abs(api.q - upstream.q) > 1e-6
+    rc, _, err = _run(capsys, "score", "--ref", ref, "--test", test, "--weights", weights_file,
+                      "--backbone", backbone_file, "--seamless", "--emap", "x.mkv")
+    assert rc == 2 and "seamless" in err

@@ -274,8 +274,6 @@ def run(ref: FrameSource, tests: Sequence[FrameSource], scorer: PatchScorer, geo
     sinks = list(emap_sinks) if emap_sinks is not None else [None] * len(tests)
     want_emap = any(s is not None for s in sinks)
     halo = network_halo(scorer.net.model, scorer.net.n_levels) if seamless else None
-    if halo is not None and want_emap:
-        raise CGVQMError("error maps are not offered in seamless mode")
     ref_clips = padded_clips(_counted(ref, "reference"), geom)
     test_clips = [padded_clips(aligned_frames(t, geom, f"test {i}"), geom)
                   for i, t in enumerate(tests)]

@@ -6,7 +6,14 @@ video input/output. Imports no other package of the toolkit.
 """
 
 from .checksums import ChecksumMismatch, sha256_file, sha256_path
-from .errors import ManifestError, StimuliError, VideoError
+from .errors import (
+    ManifestError,
+    MissingExtraError,
+    StimuliError,
+    TableError,
+    ToolkitError,
+    VideoError,
+)
 from .ids import pvs_id, src_id
 from .manifest_io import (
     LoadedManifest,
@@ -51,12 +58,15 @@ __all__ = [
     "LoadedManifest",
     "Manifest",
     "ManifestError",
+    "MissingExtraError",
     "Protocol",
     "RatingScale",
     "Reference",
     "ScaleLabel",
     "StimuliError",
     "Stimulus",
+    "TableError",
+    "ToolkitError",
     "ValidationReport",
     "VideoError",
     "VideoInfo",

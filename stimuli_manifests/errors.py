@@ -1,14 +1,23 @@
-"""The one exception type of ``stimuli_manifests``.
+"""The toolkit's error base and the one exception type of ``stimuli_manifests``.
 
-Every error a user can cause (bad manifest, path escaping the root, checksum mismatch, corrupt
-or unsupported video) is raised as :class:`StimuliError` or a subclass, with a message that
-names the file or field and says what to do. CLIs turn it into one line and exit code 2.
+Every error a user can cause anywhere in the toolkit derives from :class:`ToolkitError`; each
+package has its own subclass (``StimuliError`` here, ``StudyError``, ``AnalysisError``,
+``CGVQMError``) whose message names the file or field and says what to do. The three CLIs
+share one runner (:mod:`stimuli_manifests.cli_runner`) that prints it as one line and exits 2.
 """
 
 from __future__ import annotations
 
 
-class StimuliError(Exception):
+class ToolkitError(Exception):
+    """A problem the user can fix; the message says what was wrong and what to do."""
+
+
+class MissingExtraError(ToolkitError):
+    """A command needs an optional part of the toolkit (an install extra) that is absent."""
+
+
+class StimuliError(ToolkitError):
     """A problem with a manifest or a stimulus file that the user can fix."""
 
 
@@ -18,3 +27,7 @@ class ManifestError(StimuliError):
 
 class VideoError(StimuliError):
     """A video (or frame folder / .npy array) is missing, corrupt, empty or unsupported."""
+
+
+class TableError(StimuliError):
+    """A CSV table (ratings, scores, DMOS) lacks columns or has an unsupported format version."""

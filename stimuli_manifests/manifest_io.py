@@ -19,7 +19,7 @@ from tqdm.auto import tqdm
 
 from .checksums import ChecksumMismatch, sha256_path
 from .errors import ManifestError, StimuliError
-from .model import Manifest
+from .model import STUDY_TEXT_FILES, Manifest
 from .paths import check_relative, resolve_inside
 
 log = logging.getLogger(__name__)
@@ -44,6 +44,10 @@ class LoadedManifest:
 
     def reference_path(self, ref_id: str) -> Path:
         return self.resolve(self.manifest.reference_by_id(ref_id).path, field=f"reference {ref_id}")
+
+    def text_path(self, name: str) -> Path | None:
+        """A study text (``briefing.md``, ``consent.md``) beside the manifest file."""
+        return self.source.parent / name if self.source is not None else None
 
 
 def _format_validation_error(exc: ValidationError, source: str) -> str:
@@ -161,6 +165,7 @@ def validate_manifest(
     if not loaded.root.is_dir():
         report.errors.append(f"root folder {loaded.root} does not exist")
         return report
+    _validate_texts(loaded, report, verify_checksums)
     for stim_id, rel, expected in tqdm(
         entries, desc="checking stimuli", unit="file", disable=not progress, leave=False
     ):
@@ -194,6 +199,29 @@ def validate_manifest(
     return report
 
 
+def _validate_texts(loaded: LoadedManifest, report: ValidationReport, verify: bool) -> None:
+    """The study texts beside the manifest: present when recorded, matching their sha256."""
+    if loaded.source is None:
+        return
+    recorded = loaded.manifest.texts
+    for name in STUDY_TEXT_FILES:
+        path = loaded.text_path(name)
+        expected = recorded.get(name)
+        if path is None or not path.is_file():
+            if expected is not None:
+                report.errors.append(f"{name}: recorded in the manifest but missing beside it")
+            continue
+        report.checked_files += 1
+        if not verify:
+            continue
+        if expected is None:
+            report.warnings.append(f"{name}: no sha256 recorded in the manifest")
+            continue
+        actual = sha256_path(path)
+        if actual != expected:
+            report.mismatches.append(ChecksumMismatch(name, path, expected, actual))
+
+
 def fill_checksums(loaded: LoadedManifest, *, progress: bool = False) -> Manifest:
     """Return a copy of the manifest with every sha256 computed from the files on disk."""
     manifest = loaded.manifest.model_copy(deep=True)
@@ -203,4 +231,10 @@ def fill_checksums(loaded: LoadedManifest, *, progress: bool = False) -> Manifes
         if not path.exists():
             raise ManifestError(f"{item.id}: file {path} does not exist; cannot compute sha256")
         item.sha256 = sha256_path(path)
+    texts = {}
+    for name in STUDY_TEXT_FILES:
+        path = loaded.text_path(name)
+        if path is not None and path.is_file():
+            texts[name] = sha256_path(path)
+    manifest.texts = texts
     return manifest

@@ -17,6 +17,9 @@ FORMAT = "cgvq-manifest/1"
 FORMAT_NAME, FORMAT_MAJOR = "cgvq-manifest", 1
 
 _ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
+# Participant-facing texts a study folder may hold beside its manifest; their sha256 go into
+# ``Manifest.texts`` like the videos' (the participant consents to exactly this text).
+STUDY_TEXT_FILES = ("briefing.md", "consent.md")
 
 
 class _Strict(BaseModel):
@@ -26,7 +29,7 @@ class _Strict(BaseModel):
 class ScaleLabel(_Strict):
     """One anchor label on the rating scale."""
 
-    position: float
+    position: float = Field(allow_inf_nan=False)
     text: str = Field(min_length=1)
 
 
@@ -46,8 +49,9 @@ def _default_labels() -> list[ScaleLabel]:
 class RatingScale(_Strict):
     """A continuous rating scale; by default 0..100 with the five impairment labels."""
 
-    min: float = 0.0
-    max: float = 100.0
+    # Finite only: an infinite bound (JSON 1e400 reads as inf) would turn every DMOS into inf.
+    min: float = Field(default=0.0, allow_inf_nan=False)
+    max: float = Field(default=100.0, allow_inf_nan=False)
     direction: Literal["higher_is_better", "lower_is_better"] = "higher_is_better"
     labels: list[ScaleLabel] = Field(default_factory=_default_labels)
 
@@ -161,7 +165,18 @@ class Manifest(_Strict):
     display: DisplayRequirements = Field(default_factory=DisplayRequirements)
     references: list[Reference] = Field(min_length=1)
     conditions: list[Condition] = Field(default_factory=list)
+    texts: dict[str, str] = Field(
+        default_factory=dict,
+        description="sha256 of the texts beside the manifest (briefing.md, consent.md)")
     metadata: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("texts")
+    @classmethod
+    def _check_texts(cls, value: dict[str, str]) -> dict[str, str]:
+        for name in value:
+            if name not in STUDY_TEXT_FILES:
+                raise ValueError(f"texts: {name!r} is not one of {', '.join(STUDY_TEXT_FILES)}")
+        return {name: _valid_sha(sha) for name, sha in value.items()}
 
     @field_validator("format")
     @classmethod

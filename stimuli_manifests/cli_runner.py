@@ -1,0 +1,53 @@
+"""The one runner of the toolkit's CLIs: user errors become one line on stderr and exit 2.
+
+``cgvq-study``, ``cgvq-analyze`` and ``cgvqm`` parse their arguments, then call
+:func:`run_command` with the work to do. Anything derived from :class:`ToolkitError`, an
+optional library that is not installed, or an operating-system error on a path the user gave
+(a folder where a file was expected, a name too long, no permission) is printed as
+``<prog>: error: <message>`` on one line; Ctrl-C exits 130. Programming errors still raise.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+
+from .errors import ToolkitError
+from .extras import explain_missing
+
+EXIT_USER_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+def one_line(message: object) -> str:
+    """The message folded onto one line (newlines and runs of blanks become one space)."""
+    return " ".join(str(message).split())
+
+
+def _os_error_text(exc: OSError) -> str:
+    reason = exc.strerror or str(exc)
+    if exc.filename is not None:
+        target = exc.filename if exc.filename2 is None else f"{exc.filename} -> {exc.filename2}"
+        return f"{reason}: {target}"
+    return reason
+
+
+def run_command(prog: str, work: Callable[[], int], *, extra: str | None = None,
+                interrupted: str = "interrupted") -> int:
+    """Run ``work`` and return its exit code, or 2 / 130 as described in the module doc."""
+    try:
+        return int(work())
+    except ToolkitError as exc:
+        message = one_line(exc)
+    except ModuleNotFoundError as exc:
+        missing = explain_missing(exc, what="this command", extra=extra)
+        if missing is None:
+            raise
+        message = one_line(missing)
+    except OSError as exc:
+        message = one_line(_os_error_text(exc))
+    except KeyboardInterrupt:
+        print(f"{prog}: {interrupted}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    return EXIT_USER_ERROR

@@ -12,6 +12,7 @@ Target: zero dropped frames, blank within one refresh of 0.5 s.
 from __future__ import annotations
 
 import argparse
+import itertools
 import logging
 import os
 import re
@@ -27,6 +28,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
 
 
 def make_study(folder: Path, fps: int, size: int, seconds: float) -> Path:
@@ -68,12 +70,14 @@ class StateWatcher(logging.Handler):
     def __init__(self) -> None:
         super().__init__(logging.DEBUG)
         self.states: list[str] = []
+        self.times: dict[str, float] = {}  # first time each state was seen
         self.cond = threading.Condition()
 
     def emit(self, record: logging.LogRecord) -> None:
         msg = record.getMessage()
         if msg.startswith("state:"):
             with self.cond:
+                self.times.setdefault(msg, time.perf_counter())
                 self.states.append(msg)
                 self.cond.notify_all()
 
@@ -103,8 +107,15 @@ def script(watch: StateWatcher, seconds: float, errors: list[BaseException]) -> 
             key(pygame.K_SPACE)
             time.sleep(2.0)
         time.sleep(max(0.0, t_end - time.monotonic()))
-        key(pygame.K_RETURN)
-        watch.wait("rating")
+        for _ in range(100):  # Enter opens the rating once a loop was presented (not in a blank)
+            key(pygame.K_RETURN)
+            try:
+                watch.wait("rating", timeout=0.3)
+                break
+            except TimeoutError:
+                continue
+        else:
+            raise TimeoutError("the rating screen never opened")
         key(pygame.K_RIGHT)
         time.sleep(0.1)
         key(pygame.K_RETURN)
@@ -112,16 +123,28 @@ def script(watch: StateWatcher, seconds: float, errors: list[BaseException]) -> 
         key(pygame.K_p)
         watch.wait("pause")
         key(pygame.K_q)
+        watch.wait("confirm-quit")  # quitting asks first
+        key(pygame.K_y)
     except BaseException as exc:  # reported by the main thread
         errors.append(exc)
 
 
-def run_one(fps: int, seconds: float, size: int, workdir: Path) -> dict:
+def run_one(fps: int, seconds: float, size: int, workdir: Path, *, harden: bool = True
+            ) -> dict:
+    from flip_probe import Canary, FlipProbe
+
+    from study_app import realtime
     from study_app.app import RunOptions, run_study
     from study_app.session import SessionStore
     from study_app.study import load_study
 
     study = load_study(make_study(workdir / f"study{fps}", fps, size, 3.0))
+    probe = FlipProbe().install()
+    canary = Canary(workdir)
+    saved = realtime.presentation_guard, realtime.raise_priority
+    if not harden:  # the player as it was before the hardening, for comparison
+        realtime.presentation_guard = realtime.unguarded
+        realtime.raise_priority = lambda: "not attempted (benchmark: --no-hardening)"
     watch = StateWatcher()
     logging.getLogger("study_app").addHandler(watch)
     logging.getLogger("study_app").setLevel(logging.DEBUG)
@@ -133,6 +156,9 @@ def run_one(fps: int, seconds: float, size: int, workdir: Path) -> dict:
                                     skip_preflight=True, seed=1))
     finally:
         logging.getLogger("study_app").removeHandler(watch)
+        probe.uninstall()
+        canary.stop()
+        realtime.presentation_guard, realtime.raise_priority = saved
     thread.join(timeout=5)
     if errors:
         raise errors[0]
@@ -140,7 +166,26 @@ def run_one(fps: int, seconds: float, size: int, workdir: Path) -> dict:
         log0 = next(p for p in store.presentations() if p["trial"] == 0)
         display = store.info.display
     period_ms = 1000.0 / display["refresh_hz"]
-    return {"fps": fps, "display": display, "log": log0, "period_ms": period_ms}
+    t0 = next(t for m, t in watch.times.items() if m.startswith("state: viewing trial=0"))
+    t1 = next(t for m, t in watch.times.items() if m.startswith("state: rating"))
+    flips = [r for r in probe.records if t0 <= r.t <= t1]
+    return {"fps": fps, "display": display, "log": log0, "period_ms": period_ms,
+            "flips": flips, "canary": canary}
+
+
+def stall_lines(res: dict) -> list[tuple[float, str]]:
+    """(interval in periods, cause) of every stall of the viewing phase."""
+    from flip_probe import attribute, stalls
+
+    period = res["period_ms"] / 1000
+    out = []
+    for iv, rec in stalls(res["flips"], period):
+        cause = attribute(iv, rec, period)
+        held = res["canary"].overlap(rec.t - iv, rec.t)
+        if held > 0.5 * (iv - period):
+            cause = f"machine (a sleeping process was held up {1000 * held:.0f} ms too)"
+        out.append((iv / period, cause))
+    return out
 
 
 def report(res: dict) -> bool:
@@ -167,9 +212,29 @@ def report(res: dict) -> bool:
     if lat.size:
         print(f"  switch latency          mean {lat.mean():.1f} ms, max {lat.max():.1f} ms "
               f"(blank + {(lat.max() - 500) / period:.2f} refreshes at most)")
+    for periods, cause in stall_lines(res):
+        print(f"  stall                   {periods:.1f} refreshes: {cause}")
+    print(f"  scheduling              {res['display'].get('priority', 'unknown')}")
+    print(f"  hypervisor steal        {res['canary'].steal * 10} ms during the run; canary "
+          f"late (> 6 ms) {len(res['canary'].gaps)} times")
     ok = log["dropped_frames"] == 0 and (not blanks.size or np.abs(blanks - 500).max() <= period)
     print(f"  target (0 dropped, blank within 1 refresh): {'MET' if ok else 'NOT MET'}")
     return bool(ok)
+
+
+def print_histogram(all_stalls: list[tuple[float, str]]) -> None:
+    """Stalls by length (in refresh periods) and by cause."""
+    edges = [1.5, 2.5, 3.5, 6.5, float("inf")]
+    names = ["1.5-2.5", "2.5-3.5", "3.5-6.5", ">6.5"]
+    counts = [sum(lo < p <= hi for p, _ in all_stalls) for lo, hi in itertools.pairwise(edges)]
+    print(f"  stalls: {len(all_stalls)} in all; by length (refreshes) "
+          + ", ".join(f"{n}: {c}" for n, c in zip(names, counts, strict=True)))
+    causes: dict[str, int] = {}
+    for _, cause in all_stalls:
+        causes[cause] = causes.get(cause, 0) + 1
+    if causes:
+        print("  by cause: " + ", ".join(f"{c}: {n}" for c, n in
+                                         sorted(causes.items(), key=lambda kv: -kv[1])))
 
 
 def main() -> int:
@@ -182,6 +247,9 @@ def main() -> int:
     ap.add_argument("--screen", default="1920x1200", help="Xvfb screen size")
     ap.add_argument("--use-display", action="store_true",
                     help="use $DISPLAY instead of starting a private Xvfb")
+    ap.add_argument("--no-hardening", action="store_true",
+                    help="run the player without its presentation hardening (no GC pause "
+                         "control, no priority change), to compare")
     args = ap.parse_args()
     xvfb = None
     if not args.use_display:
@@ -198,17 +266,22 @@ def main() -> int:
     try:
         met: dict[int, list[bool]] = {fps: [] for fps in args.fps}
         drops: dict[int, list[int]] = {fps: [] for fps in args.fps}
+        all_stalls: list[tuple[float, str]] = []
         for _ in range(args.runs):
             with tempfile.TemporaryDirectory() as tmp:
                 for fps in args.fps:
-                    res = run_one(fps, args.seconds, args.size, Path(tmp))
+                    res = run_one(fps, args.seconds, args.size, Path(tmp),
+                                  harden=not args.no_hardening)
                     met[fps].append(report(res))
                     drops[fps].append(res["log"]["dropped_frames"])
-        if args.runs > 1:
-            print(f"\nover {args.runs} runs (load average now {os.getloadavg()[0]:.1f}):")
-            for fps in args.fps:
-                print(f"  {fps} fps: target met in {sum(met[fps])} of {args.runs} runs, "
-                      f"dropped frames per run {drops[fps]}")
+                    all_stalls += stall_lines(res)
+        print(f"\nover {args.runs} run(s), hardening "
+              f"{'off' if args.no_hardening else 'on'} (load average now "
+              f"{os.getloadavg()[0]:.1f}):")
+        for fps in args.fps:
+            print(f"  {fps} fps: target met in {sum(met[fps])} of {args.runs} runs, "
+                  f"dropped frames per run {drops[fps]}")
+        print_histogram(all_stalls)
     finally:
         if xvfb is not None:
             xvfb.terminate()

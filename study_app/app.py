@@ -1,34 +1,42 @@
-"""The participant's app: window, screens, trials, rating, and the session around them.
+"""The participant's app: the order of screens around the trials (orchestration only).
 
-One loop per screen: handle input, draw, flip, measure the flip. With vsync the driver paces
-the flips; without it (e.g. a virtual X display) :class:`~study_app.clock.FlipPacer` paces
-them on the monotonic clock at the configured refresh rate and the session records
-``vsync: false``. Videos are uploaded to textures before a trial starts; the next trial's pair
-is decoded in the background while the participant rates.
+Flow of a new session: the display check (pre-flight) on the participant's screen, a short
+"your display passed" screen with the figures and the expected duration, the briefing, the
+consent; only then the session file is created (with the pre-flight results and a consent
+event carrying the sha256 of both texts), then practice and the rated trials with breaks. A
+failed pre-flight or a declined consent stores nothing. A resumed session repeats the display
+check and says where it continues.
+
+What each part does lives elsewhere: :mod:`.display` (window, DPI, vsync'd flips),
+:mod:`.vsync` (refresh estimate), :mod:`.preflight` (the checks), :mod:`.trial` (one trial as a
+state machine), :mod:`.layout` and :mod:`.screens` (what goes where, what screens say),
+:mod:`.keys` (keyboard layouts), :mod:`.run_lock` (one run per participant).
 """
 
 from __future__ import annotations
 
-import itertools
+import contextlib
 import logging
+import math
 import os
 import time
-import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
-
-import numpy as np
+from typing import Any
 
 from stimuli_manifests import StimuliError, probe_video
 
-from . import __version__
-from .clock import FlipPacer, FlipStats, blank_refreshes, frame_index, refreshes_elapsed
+from . import __version__, realtime
 from .decode import DecodedPair, Prefetcher, decode_pair, pair_bytes
+from .display import MIN_WINDOW, PACED_PILOT, Display
+from .duration import describe_duration
 from .errors import StudyError
+from .keys import RATING, SCROLL, VIEWING, Keymap, merge
+from .layout import RatingLayout, ViewingLayout, rating_layout, text_screen_layout, viewing_layout
 from .preflight import (
     Check,
+    PixelGeometry,
     available_memory_bytes,
     check_checksums,
     check_decode_speed,
@@ -37,23 +45,33 @@ from .preflight import (
     check_refresh,
     check_screen,
 )
+from .render import VideoTexture
+from .reveal import reveal_in_file_manager
+from .run_lock import RunLock
 from .schedule import make_schedule, participant_seed, pick_practice
-from .session import PlannedTrial, SessionStore, TrialResult, utc_now
+from .screens import content
+from .screens.draw import (
+    LABEL_REFERENCE,
+    LABEL_TEST,
+    draw_rating,
+    draw_text_screen,
+    draw_viewing,
+    warm_up_viewing,
+)
+from .screens.markdown import parse_markdown
+from .screens.text_state import TextScreenState
+from .screens.textflow import flow_blocks
+from .session import PlannedTrial, SessionStore, TrialResult
 from .slider import Slider
-from .study import Study
+from .study import BRIEFING_NAME, CONSENT_NAME, Study
+from .trial import RATE, VIEW, Command, TrialMachine
 
-if TYPE_CHECKING:
-    from .render import Renderer
+__all__ = ["Display", "OnGpu", "RunOptions", "RunOutcome", "draw_viewing", "needs_requeue",
+           "run_study", "warm_up_viewing"]
 
 log = logging.getLogger(__name__)
 
-# Without vsync, a median flip interval below this means the driver is not waiting for the
-# display (no real monitor refreshes faster than 250 Hz).
-_MIN_VSYNC_INTERVAL_S = 1 / 250
-LABEL_TEST = "Test video"
-LABEL_REFERENCE = "Reference"
-GREY_TEXT = (0.85, 0.85, 0.85, 1.0)
-ACCENT = (0.98, 0.80, 0.20, 1.0)
+QUESTION = "Rate the quality of distortions in the shown video with respect to its reference"
 
 
 @dataclass
@@ -72,11 +90,46 @@ class RunOptions:
     window_size: tuple[int, int] | None = None
     screenshots: Path | None = None
     force_pacer: bool = False
+    pilot_no_vsync: bool = False
+    upload_report: Callable[[], tuple[bool, str]] | None = None
+    """With a study server: waits for the last uploads and says (everything arrived, the
+    sentence for the end screen); the end screen then shows it."""
+
+    @property
+    def pilot_allowed(self) -> bool:
+        """Flips may be paced without vsync (an experimenter's pilot or test run)."""
+        return self.pilot_no_vsync or self.force_pacer or self.skip_preflight
+
+    def validate(self) -> None:
+        """Refuse invalid options before anything is created (one-line errors)."""
+        if self.window_size is not None:
+            w, h = self.window_size
+            if w < MIN_WINDOW[0] or h < MIN_WINDOW[1]:
+                raise StudyError(f"--window-size {w}x{h} is too small: the study's screens "
+                                 f"need at least {MIN_WINDOW[0]}x{MIN_WINDOW[1]}")
+            if w > 16384 or h > 16384:
+                raise StudyError(f"--window-size {w}x{h} is larger than any screen")
+        if self.refresh_hz is not None:
+            if not math.isfinite(self.refresh_hz) or not 20 <= self.refresh_hz <= 500:
+                raise StudyError(f"--refresh-hz must be between 20 and 500, got "
+                                 f"{self.refresh_hz:g}")
+            if not (self.pilot_no_vsync or self.force_pacer):
+                raise StudyError("--refresh-hz sets the pacing rate of the pilot mode without "
+                                 "vsync; add --pilot-no-vsync (with vsync the refresh rate is "
+                                 "measured)")
+        if self.practice < 0:
+            raise StudyError(f"--practice must be 0 or more, got {self.practice}")
+        if self.break_every < 0:
+            raise StudyError(f"--break-every must be 0 (never) or more, got {self.break_every}")
+        if self.max_dropped_frames < -1:
+            raise StudyError("--max-dropped-frames must be -1 (never re-queue) or more, got "
+                             f"{self.max_dropped_frames}")
 
 
 @dataclass
 class RunOutcome:
-    """How a run ended: ``finished``, ``quit`` (resumable) or ``declined`` (no consent)."""
+    """How a run ended: ``finished``, ``quit`` (resumable), ``withdrawn``, ``declined`` (no
+    consent) or ``closed`` (the window closed before the session started)."""
 
     status: str
     session_path: Path | None
@@ -85,148 +138,15 @@ class RunOutcome:
 
 
 class _QuitRequestedError(Exception):
-    """The participant closed the window or chose to quit."""
+    """The participant confirmed that they stop now (and may continue later)."""
 
 
-# -- the window ---------------------------------------------------------------------------
-class Display:
-    """A Pygame OpenGL window with a ModernGL context and measured flips."""
-
-    def __init__(self, *, windowed: bool, window_size: tuple[int, int] | None,
-                 refresh_hz: float | None, force_pacer: bool = False,
-                 min_window: tuple[int, int] = (800, 600)) -> None:
-        os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
-        import moderngl
-        import pygame
-
-        from .render import Renderer
-
-        self.pg = pygame
-        os.environ.setdefault("SDL_VIDEO_MINIMIZE_ON_FOCUS_LOSS", "0")
-        pygame.display.init()
-        for attr, value in ((pygame.GL_CONTEXT_MAJOR_VERSION, 3),
-                            (pygame.GL_CONTEXT_MINOR_VERSION, 3),
-                            (pygame.GL_CONTEXT_PROFILE_MASK, pygame.GL_CONTEXT_PROFILE_CORE),
-                            (pygame.GL_DOUBLEBUFFER, 1)):
-            pygame.display.gl_set_attribute(attr, value)
-        sizes = pygame.display.get_desktop_sizes()
-        self.screen_size = tuple(sizes[0]) if sizes else (0, 0)
-        flags = pygame.OPENGL | pygame.DOUBLEBUF
-        if windowed:
-            w, h = window_size or min_window
-            size = (min(w, self.screen_size[0] or w), min(h, self.screen_size[1] or h))
-        else:
-            flags |= pygame.FULLSCREEN
-            size = self.screen_size
-        self.vsync_requested = not force_pacer
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            try:
-                pygame.display.set_mode(size, flags, vsync=0 if force_pacer else 1)
-            except pygame.error:
-                pygame.display.set_mode(size, flags)
-                self.vsync_requested = False
-        if any("vsync" in str(w.message).lower() for w in caught):
-            self.vsync_requested = False
-        pygame.display.set_caption("cgvq-study")
-        pygame.mouse.set_visible(True)
-        try:
-            self.ctx = moderngl.create_context(require=330)
-        except Exception as exc:
-            raise StudyError(f"OpenGL 3.3 is not available ({exc}); update the graphics "
-                             "driver") from None
-        self.window_size = tuple(pygame.display.get_window_size())
-        self.drawable_size = tuple(self.ctx.screen.viewport[2:])
-        self.renderer = Renderer(self.ctx, self.window_size)
-        self.configured_hz = refresh_hz
-        self.vsync = False
-        self.refresh_hz = refresh_hz or 60.0
-        self.pacer: FlipPacer | None = None
-        self.measured_intervals: list[float] = []
-
-    @property
-    def period(self) -> float:
-        return 1.0 / self.refresh_hz
-
-    def measure_refresh(self, n: int = 60) -> None:
-        """Flip ``n`` times; decide whether vsync works and what the refresh rate is."""
-        times = []
-        for _ in range(n):
-            self.renderer.clear()
-            self.renderer.text("Checking the display...", self.window_size[0] / 2,
-                               self.window_size[1] / 2, anchor="center")
-            self.pg.display.flip()
-            self.ctx.finish()
-            times.append(time.perf_counter())
-            self.pg.event.pump()
-        intervals = [b - a for a, b in itertools.pairwise(times)]
-        self.measured_intervals = intervals
-        median = float(np.median(intervals)) if intervals else 0.0
-        self.vsync = self.vsync_requested and median >= _MIN_VSYNC_INTERVAL_S
-        if self.vsync:
-            self.refresh_hz = self.configured_hz or 1.0 / median
-            self.pacer = None
-        else:
-            self.refresh_hz = self.configured_hz or 60.0
-            self.pacer = FlipPacer(self.refresh_hz)
-        log.info("display %dx%d, window %dx%d, vsync %s, refresh %.2f Hz (%s)",
-                 *self.screen_size, *self.window_size, self.vsync, self.refresh_hz,
-                 "measured" if self.vsync and not self.configured_hz else "configured")
-
-    def flip(self) -> float:
-        """Show the back buffer at the next refresh; returns the flip's monotonic time."""
-        if self.pacer is not None:
-            # Rasterise now (software renderers defer it to the swap), so the swap itself is
-            # a short copy that lands right on the paced slot.
-            self.ctx.finish()
-            self.pacer.wait()
-        self.pg.display.flip()
-        if self.vsync:
-            self.ctx.finish()
-        return time.perf_counter()
-
-    def info(self) -> dict[str, Any]:
-        return {
-            "screen": list(self.screen_size), "window": list(self.window_size),
-            "drawable": list(self.drawable_size), "vsync": self.vsync,
-            "refresh_hz": round(self.refresh_hz, 3),
-            "refresh_source": "measured" if self.vsync and not self.configured_hz
-            else "configured",
-            "gl_renderer": self.ctx.info.get("GL_RENDERER"),
-            "gl_version": self.ctx.info.get("GL_VERSION"),
-            "video_driver": self.pg.display.get_driver(),
-        }
-
-    def close(self) -> None:
-        self.pg.display.quit()
+class _WithdrawnError(Exception):
+    """The participant confirmed that they withdraw from the study."""
 
 
-# -- one trial ----------------------------------------------------------------------------
-@dataclass
-class TrialState:
-    """Everything measured while one trial is on screen."""
-
-    stats: FlipStats
-    showing: str = "test"
-    n: int = 0
-    blank_until: int | None = None
-    blank_target: str | None = None
-    switch_key_t: float | None = None
-    t_start: float | None = None
-    presented_at: str | None = None
-    n_toggles: int = 0
-    switch_latencies_ms: list[float] = field(default_factory=list)
-    blank_durations_ms: list[float] = field(default_factory=list)
-    blank_started_t: float | None = None
-    blank_started_n: int = 0
-    blank_refreshes: list[int] = field(default_factory=list)
-    blank_target_refreshes: int = 0
-    cpu_start: float = 0.0
-    flips: int = 0
-    toggle_times_ms: list[float] = field(default_factory=list)
-    ms_on: dict[str, float] = field(default_factory=lambda: {"test": 0.0, "reference": 0.0})
-    viewing_s: float = 0.0
-    last_content: str | None = None
+class _ClosedError(Exception):
+    """The window was closed before a session existed (nothing recorded)."""
 
 
 @dataclass
@@ -234,7 +154,7 @@ class OnGpu:
     """A trial's two videos uploaded to textures (the decoded arrays are freed)."""
 
     stimulus: str
-    tex: dict[str, Any]
+    tex: dict[str, VideoTexture]
     width: int
     height: int
     frames: int
@@ -244,6 +164,11 @@ class OnGpu:
     def release(self) -> None:
         for t in self.tex.values():
             t.release()
+
+
+def needs_requeue(dropped_frames: int, limit: int, trial: PlannedTrial) -> bool:
+    """Re-queue a trial (once) when more than ``limit`` frames dropped; ``limit < 0`` never."""
+    return 0 <= limit < dropped_frames and trial.requeue_of is None
 
 
 class App:
@@ -260,10 +185,11 @@ class App:
         self._shots_done: set[str] = set()
         self._practice_mode = False
         self._first_pair: DecodedPair | None = None
+        self._loop_s = 1.0
 
     # -- utilities --------------------------------------------------------------------
     def _state(self, name: str, **kw: Any) -> None:
-        """Log a screen change (the end-to-end test follows these lines)."""
+        """Log a screen change (the end-to-end tests follow these lines)."""
         extra = "".join(f" {k}={v}" for k, v in kw.items())
         log.debug("state: %s%s", name, extra)
 
@@ -283,40 +209,79 @@ class App:
         return (self.study.loaded.stimulus_path(trial.stimulus),
                 self.study.loaded.reference_path(trial.reference))
 
+    def _name_keys(self, keys: Keymap, action: str) -> str:
+        from . import sdl
+
+        def layout_name(scancode: int) -> str | None:
+            return sdl.layout_key_name(scancode)
+
+        return keys.label(action, layout_name)
+
     # -- entry point ------------------------------------------------------------------
     def run(self) -> RunOutcome:
-        new = not self.session_path.exists()
-        if not new:
-            with SessionStore.open(self.session_path) as store:
-                info = store.info
-                if info.finished_at is not None:
-                    raise StudyError(
-                        f"the session of participant {self.opts.participant} is already "
-                        f"finished ({self.session_path}); nothing left to do: send that file "
-                        "to the experimenter")
-                if info.manifest_sha256 and info.manifest_sha256 != self.study.loaded.sha256:
-                    raise StudyError(
-                        f"the study's manifest changed since this session started "
-                        f"({self.session_path}); resume with the original study folder")
-        self.display = Display(
-            windowed=self.opts.windowed, window_size=self.opts.window_size or self._window_for(),
-            refresh_hz=self.opts.refresh_hz, force_pacer=self.opts.force_pacer)
+        self.opts.validate()
+        folder = self.session_path.parent
+        created_folder = not folder.exists()
+        folder.mkdir(parents=True, exist_ok=True)
+        lock = RunLock(self.session_path, self.opts.participant)
         try:
-            return self._run(new)
-        except _QuitRequestedError:
-            answered, total = self.store.progress() if self.store else (0, 0)
-            if self.store:
-                self.store.log_event("quit", answered=answered)
-            return RunOutcome("quit", self.session_path if self.store else None,
-                              answered, total)
+            lock.acquire()
+            if lock.took_over:
+                log.info("took over the lock of an ended run (process %s)",
+                         lock.took_over.get("pid"))
+            resume = self._check_existing()
+            self.display = Display(
+                windowed=self.opts.windowed or self.opts.window_size is not None,
+                window_size=self.opts.window_size or self._window_for(),
+                refresh_hz=self.opts.refresh_hz, force_pacer=self.opts.force_pacer)
+            self.display.priority = realtime.raise_priority()
+            try:
+                return self._run(resume)
+            except _QuitRequestedError:
+                answered, total = self.store.progress() if self.store else (0, 0)
+                if self.store:
+                    self.store.log_event("quit", answered=answered)
+                return RunOutcome("quit", self.session_path if self.store else None,
+                                  answered, total)
+            except _ClosedError:
+                return RunOutcome("closed", None)
         finally:
             self.prefetch.close()
             if self.store is not None:
                 self.store.close()
-            self.display.close()
+            if self.display is not None:
+                self.display.close()
+            lock.release()
+            if created_folder and not self.session_path.exists():
+                with contextlib.suppress(OSError):
+                    folder.rmdir()
+
+    def _check_existing(self) -> bool:
+        """True when the participant's session exists and can be resumed."""
+        if not self.session_path.exists():
+            return False
+        with SessionStore.open(self.session_path) as store:
+            info = store.info
+        if info.withdrawn:
+            raise StudyError(
+                f"participant {self.opts.participant} withdrew from this study "
+                f"({self.session_path}); nothing left to do: send that file to the experimenter")
+        if info.finished_at is not None:
+            raise StudyError(
+                f"the session of participant {self.opts.participant} is already finished "
+                f"({self.session_path}); nothing left to do: send that file to the experimenter")
+        if info.manifest_sha256 and info.manifest_sha256 != self.study.loaded.sha256:
+            raise StudyError(
+                f"the study's manifest changed since this session started "
+                f"({self.session_path}); resume with the original study folder")
+        return True
 
     def _window_for(self) -> tuple[int, int]:
         """Windowed mode: room for the largest reference video plus labels and hints."""
+        w, h = self._largest_video()
+        return max(MIN_WINDOW[0], w + 640), max(MIN_WINDOW[1], h + 120)
+
+    def _largest_video(self) -> tuple[int, int]:
         w = h = 0
         for ref in self.m.references:
             if ref.width and ref.height:
@@ -327,163 +292,219 @@ class App:
                 except StimuliError:
                     continue
                 w, h = max(w, info.width), max(h, info.height)
-        return max(800, w + 320), max(600, h + 160)
+        return w, h
 
-    def _run(self, new: bool) -> RunOutcome:
+    # -- the session ------------------------------------------------------------------
+    def _run(self, resume: bool) -> RunOutcome:
         d = self.display
-        d.measure_refresh()
-        if new:
-            if self.study.briefing:
-                self._text_screen("briefing", "Welcome", self.study.briefing.splitlines(),
-                                  {"continue": "Press Space to continue"})
-            if self.study.consent is not None:
-                choice = self._text_screen(
-                    "consent", "Consent", self.study.consent.splitlines(),
-                    {"accept": "Press A to accept and take part",
-                     "decline": "Press Esc to decline (nothing is recorded)"})
-                if choice == "decline":
-                    return RunOutcome("declined", None)
-            self.store = self._create_session()
+        self._state("checking-display")
+        d.measure_refresh(draw=self._draw_checking)
+        timing = d.set_timing(pilot_allowed=self.opts.pilot_allowed)
+        plan: list[PlannedTrial] | None = None
+        if resume:
+            with SessionStore.open(self.session_path) as store:
+                first = store.next_trial()
+                answered, total = store.progress()
+                settings = store.info.settings
+            started = settings.get("timing_mode")
+            if started == "vsync" and timing == PACED_PILOT:
+                raise StudyError(
+                    f"this session was started with vsync timing; it cannot continue in the "
+                    f"pilot mode without vsync ({self.session_path})")
+            n_left = total - answered
         else:
+            seed = self._seed()
+            plan = make_schedule(self.study.schedule_items(), self.m.protocol.repetitions, seed)
+            first = plan[0]
+            answered, total, n_left = 0, len(plan), len(plan)
+        checks, geom = self._preflight(first)
+        duration = describe_duration(n_left, self._loop_s, self.m.protocol.blank_seconds)
+        failed = [c for c in checks if not c.ok]
+        for c in checks:
+            log.info("pre-flight %s: %s: %s", c.name, "ok" if c.ok else "FAILED", c.message)
+        if failed and not self.opts.skip_preflight:
+            self._screen(content.preflight_failed(failed, self._name_keys))
+            raise StudyError("pre-flight failed: " + " | ".join(
+                f"{c.name}: {c.message}" for c in failed))
+        if not self.opts.skip_preflight:
+            self._screen(content.preflight_passed(checks, duration, resume, self._name_keys))
+        results = [c.as_dict() for c in checks]
+        if resume:
             self.store = SessionStore.open(self.session_path)
+            self._screen(content.welcome_back(answered, total, self._name_keys))
+            self.store.save_preflight(results, skipped=self.opts.skip_preflight)
+            self.store.log_event("resume", pid=os.getpid(), timing_mode=timing)
+        else:
+            # Without a briefing the duration was on the "display passed" screen already.
+            if self.study.briefing is not None:
+                self._screen(content.welcome(self.study.briefing, duration, self._name_keys))
+            if self.study.consent is not None:
+                choice = self._screen(content.consent(self.study.consent, self._name_keys))
+                if choice != "accept":
+                    return RunOutcome("declined", None)
+            self.store = self._create_session(plan, results)
+        if failed:
+            self.store.log_event("preflight_skipped", failed=[c.name for c in failed])
+        self.store.mark_started(display=d.info(geom))
+        try:
+            if not resume and self.opts.practice > 0:
+                self._practice()
+            return self._main_loop()
+        except _WithdrawnError:
+            self.store.withdraw()
             answered, total = self.store.progress()
-            self._text_screen("welcome-back", "Welcome back",
-                              [f"Your answers so far are saved. You continue at trial "
-                               f"{answered + 1} of {total}."],
-                              {"continue": "Press Space to continue"})
-        self.store.log_event("resume" if not new else "created", pid=os.getpid())
-        first = self.store.next_trial()
-        self._first_pair = self._preflight(first)
-        self.store.mark_started(display=d.info())
-        if new and self.opts.practice > 0:
-            self._practice()
-        return self._main_loop()
+            self._state("end", withdrawn=1)
+            self._end_screen(total, withdrawn=True)
+            return RunOutcome("withdrawn", self.session_path, answered, total)
 
-    def _create_session(self) -> SessionStore:
-        seed = self.opts.seed
-        if seed is None:
-            seed = participant_seed(self.m.study_id, self.opts.participant)
-        plan = make_schedule(self.study.schedule_items(), self.m.protocol.repetitions, seed)
+    def _seed(self) -> int:
+        if self.opts.seed is not None:
+            return self.opts.seed
+        return participant_seed(self.m.study_id, self.opts.participant)
+
+    def _create_session(self, plan: list[PlannedTrial], preflight: list[dict[str, Any]]
+                        ) -> SessionStore:
+        d = self.display
         settings = {
             "protocol": self.m.protocol.model_dump(mode="json"),
             "display_requirements": self.m.display.model_dump(mode="json"),
             "scale": self.m.scale.model_dump(mode="json"),
             "practice_trials": self.opts.practice,
             "max_dropped_frames": self.opts.max_dropped_frames,
+            "break_every": self.opts.break_every,
             "seed_source": "option" if self.opts.seed is not None else "participant",
+            "timing_mode": d.timing_mode,
         }
-        return SessionStore.create(
+        store = SessionStore.create(
             self.session_path, participant=self.opts.participant, study_id=self.m.study_id,
-            manifest_sha256=self.study.loaded.sha256, seed=seed, app_version=__version__,
-            plan=plan, settings=settings)
+            manifest_sha256=self.study.loaded.sha256, seed=self._seed(),
+            app_version=__version__, plan=plan, settings=settings)
+        store.save_preflight(preflight, skipped=self.opts.skip_preflight)
+        store.log_event("consent", consent_sha256=self.study.text_sha256(CONSENT_NAME),
+                        briefing_sha256=self.study.text_sha256(BRIEFING_NAME),
+                        asked=self.study.consent is not None)
+        store.log_event("created", pid=os.getpid())
+        return store
 
     # -- pre-flight -------------------------------------------------------------------
-    def _preflight(self, first: PlannedTrial | None) -> DecodedPair | None:
+    def _draw_checking(self, i: int) -> None:
+        d = self.display
+        r = d.renderer
+        r.clear((0.14, 0.15, 0.17, 1.0))
+        px = 24 if d.size[1] >= 900 else 20
+        r.text("Checking your display...", d.size[0] / 2, d.size[1] / 2 - px, px=px,
+               anchor="center")
+
+    def _preflight(self, first: PlannedTrial | None
+                   ) -> tuple[list[Check], PixelGeometry]:
         d = self.display
         req = self.m.display
+        geom = d.geometry()
+        mon = geom.monitor()
         checks: list[Check] = [
-            check_screen(*d.screen_size, req),
-            check_refresh(d.measured_intervals, req, vsync=d.vsync, paced_hz=d.refresh_hz),
+            check_screen(*d.monitor_pixels(geom), req, monitor=mon.name if mon else None),
+            check_refresh(d.estimate, req, paced_pilot=d.timing_mode == PACED_PILOT,
+                          paced_hz=d.refresh_hz),
         ]
-        big = (0, 0, 0)
+        w, h = self._largest_video()
+        frames = max((ref.frames or 0) for ref in self.m.references)
         pair: DecodedPair | None = None
         if first is not None:
             self._state("preflight")
-            job = self._background(lambda: decode_pair(first.stimulus, *self._paths(first)),
-                                   "Preparing the videos...")
-            pair = job
-            t, h, w = pair.test.shape[:3]
-            big = (w, h, t)
-        for ref in self.m.references:
-            if ref.width and ref.height:
-                big = (max(big[0], ref.width), max(big[1], ref.height),
-                       max(big[2], ref.frames or big[2]))
-        checks.append(check_pixel_mapping(d.window_size, d.drawable_size, big[:2]))
-        checks.append(check_memory(2 * pair_bytes(*big), available_memory_bytes()))
+            pair = self._background(lambda: decode_pair(first.stimulus, *self._paths(first)),
+                                    "Preparing the videos...")
+            t, ph, pw = pair.test.shape[:3]
+            w, h, frames = max(w, pw), max(h, ph), max(frames, t)
+            self._loop_s = t / pair.fps
+        lay = self._viewing_layout((w, h), "Trial 1 of 1", 1.0)
+        checks.append(check_pixel_mapping(geom, (w, h), fits_with_label=lay.label is not None))
+        checks.append(check_memory(2 * pair_bytes(w, h, frames), available_memory_bytes()))
         if pair is not None:
             checks.append(check_decode_speed(pair.seconds))
         if not self.opts.skip_preflight:
             checks.append(self._background(lambda: check_checksums(self.study),
                                            "Checking the study files..."))
-        results = [c.as_dict() for c in checks]
-        self.store.save_preflight(results, skipped=self.opts.skip_preflight)
-        failed = [c for c in checks if not c.ok]
-        for c in checks:
-            log.info("pre-flight %s: %s: %s", c.name, "ok" if c.ok else "FAILED", c.message)
-        if failed and not self.opts.skip_preflight:
-            lines = [f"- {c.message}" for c in failed]
-            self._text_screen("preflight-failed", "This computer cannot run the study yet",
-                              [*lines, "", "Nothing was rated. Fix the above and start again."],
-                              {"close": "Press Esc to close"})
-            raise StudyError("pre-flight failed: " + " | ".join(
-                f"{c.name}: {c.message}" for c in failed))
-        if failed:
-            self.store.log_event("preflight_skipped", failed=[c.name for c in failed])
-        return pair
+        self._first_pair = pair
+        return checks, geom
 
     def _background(self, fn: Callable[[], Any], message: str) -> Any:
         """Run ``fn`` in a worker thread while a waiting screen keeps the window alive."""
         from concurrent.futures import ThreadPoolExecutor
 
+        d = self.display
         with ThreadPoolExecutor(max_workers=1) as pool:
             job = pool.submit(fn)
             while not job.done():
-                self._poll_quit()
-                r = self.display.renderer
-                r.clear()
-                r.text(message, self.display.window_size[0] / 2,
-                       self.display.window_size[1] / 2, anchor="center")
-                self.display.flip()
+                for event in d.pg.event.get():
+                    if event.type == d.pg.QUIT:
+                        self._on_close()
+                r = d.renderer
+                r.clear((0.14, 0.15, 0.17, 1.0))
+                r.text(message, d.size[0] / 2, d.size[1] / 2 - 12, px=22, anchor="center")
+                d.flip()
             return job.result()
 
-    def _poll_quit(self) -> None:
-        pg = self.display.pg
-        for event in pg.event.get():
-            if event.type == pg.QUIT:
-                raise _QuitRequestedError
+    def _on_close(self) -> None:
+        """The window's close button outside a text screen: confirm, or nothing stored yet."""
+        if self.store is None:
+            raise _ClosedError
+        answered, total = self.store.progress()
+        if self._screen(content.confirm_quit(answered, total, self._name_keys)) == "yes":
+            raise _QuitRequestedError
 
     # -- text screens -----------------------------------------------------------------
-    def _text_screen(self, name: str, title: str, lines: list[str],
-                     choices: dict[str, str]) -> str:
-        """A screen of text; returns the key of ``choices`` the participant picked."""
-        pg = self.display.pg
-        keymap = {"continue": (pg.K_SPACE, pg.K_RETURN, pg.K_KP_ENTER), "accept": (pg.K_a,),
-                  "decline": (pg.K_ESCAPE, pg.K_n), "close": (pg.K_ESCAPE, pg.K_RETURN),
-                  "quit": (pg.K_q,), "resume": (pg.K_SPACE, pg.K_RETURN, pg.K_KP_ENTER)}
-        self._state(name)
-        r = self.display.renderer
-        w, h = self.display.window_size
-        width = min(1000, w - 80)
-        x = (w - width) / 2
-        cleaned = [ln.lstrip("#").strip() if ln.startswith("#") else ln for ln in lines]
+    def _screen(self, spec: content.ScreenSpec) -> str:
+        """Show a text screen until one of its actions is chosen; returns the action."""
+        d = self.display
+        pg, r, fonts = d.pg, d.renderer, d.fonts
+        lay = text_screen_layout(d.size, fonts, title=spec.title, buttons=spec.buttons)
+        flow = flow_blocks(parse_markdown(spec.body), lay.column.w, fonts, px=lay.px)
+        st = TextScreenState(spec, flow, lay.column.h)
+        keys = merge(spec.keys, SCROLL)
+        hover = None
+        self._state(spec.name)
+        if d.pacer is not None:
+            d.pacer.reset()
         while True:
             for event in pg.event.get():
+                action = None
+                if event.type == pg.QUIT and spec.close_action == "quit":
+                    self._on_close()  # stops the run (confirmed) or returns to this screen
+                    self._state(spec.name)
+                    continue
                 if event.type == pg.QUIT:
-                    if "decline" in choices:
-                        return "decline"
-                    raise _QuitRequestedError
-                if event.type == pg.KEYDOWN:
-                    for choice in choices:
-                        if event.key in keymap[choice]:
-                            self._state(f"{name}-done", choice=choice)
-                            return choice
-            r.clear((0.2, 0.2, 0.2, 1.0))
-            r.text(title, w / 2, 40, px=44, anchor="center")
-            y = r.paragraph(cleaned, x, 110, width, px=28, color=GREY_TEXT)
-            y = max(y + 20, 0)
-            for hint in choices.values():
-                r.text(hint, w / 2, min(y, h - 60), px=30, color=ACCENT, anchor="center")
-                y += 40
-            self._shot(name)
-            self.display.flip()
+                    action = spec.close_action
+                elif event.type == pg.KEYDOWN:
+                    action = keys.action(event.key, event.scancode)
+                elif event.type == pg.MOUSEWHEEL:
+                    st.wheel(int(event.y))
+                elif event.type in (pg.MOUSEMOTION, pg.MOUSEBUTTONDOWN):
+                    x, y = d.to_pixels(event.pos)
+                    under = next((b.action for b in lay.buttons
+                                  if b.rect.contains_point(x, y)), None)
+                    if event.type == pg.MOUSEMOTION:
+                        hover = under
+                    elif event.button == 1:
+                        action = under
+                refused = len(st.refusals)
+                outcome = st.handle(action)
+                if len(st.refusals) > refused:
+                    self._state(f"{spec.name}-scroll", reason="read-to-end")
+                if outcome is not None:
+                    self._state(f"{spec.name}-done", choice=outcome)
+                    return outcome
+            draw_text_screen(r, lay, flow, st.offset, primary=spec.primary,
+                             disabled=st.disabled, hover=hover, scroll_hint=st.hint())
+            self._shot(spec.name)
+            d.flip()
 
     # -- practice and main loop -------------------------------------------------------
     def _practice(self) -> None:
         items = pick_practice(self.study.schedule_items(), self.opts.practice,
                               self.store.info.seed)
-        self._text_screen("practice-intro", "Practice",
-                          [f"First {len(items)} practice trial(s) to get to know the controls. "
-                           "They are not recorded."], {"continue": "Press Space to start"})
+        min_view = self._min_view()
+        self._screen(content.practice_intro(len(items), VIEWING, RATING, min_view,
+                                            self._name_keys))
         self._practice_mode = True
         try:
             for k, item in enumerate(items):
@@ -495,14 +516,41 @@ class App:
                 gpu = self._upload(pair)
                 del pair
                 try:
-                    while self._trial_loop(trial, gpu, k + 1, len(items)) == "pause":
-                        self._pause()
+                    while True:
+                        outcome = self._trial_loop(trial, gpu, k + 1, len(items))
+                        if isinstance(outcome, TrialResult):
+                            break
+                        self._interrupt(outcome)
                 finally:
                     gpu.release()
         finally:
             self._practice_mode = False
-        self._text_screen("practice-done", "Practice done",
-                          ["The real trials start now."], {"continue": "Press Space to start"})
+        self._screen(content.practice_done(self._name_keys))
+
+    def _min_view(self) -> float:
+        mv = self.m.protocol.min_view_seconds
+        return mv if mv is not None else self._loop_s
+
+    def _interrupt(self, outcome: str) -> None:
+        """A trial was left for the pause screen (``pause``) or by closing the window."""
+        if outcome == "close":
+            self._on_close()
+            return
+        answered, total = self.store.progress()
+        self.store.log_event("pause", answered=answered)
+        self._pause_menu(content.pause(answered, total, self._name_keys))
+
+    def _pause_menu(self, spec: content.ScreenSpec) -> None:
+        """Pause or break: continue, stop (confirmed) or withdraw (confirmed)."""
+        while True:
+            choice = self._screen(spec)
+            if choice == "resume":
+                return
+            answered, total = self.store.progress()
+            confirm = (content.confirm_quit(answered, total, self._name_keys) if choice == "quit"
+                       else content.confirm_withdraw(self._name_keys))
+            if self._screen(confirm) == "yes":
+                raise _QuitRequestedError if choice == "quit" else _WithdrawnError
 
     def _main_loop(self) -> RunOutcome:
         store = self.store
@@ -518,9 +566,10 @@ class App:
             gpu = self._upload(pair)
             pair = None  # the frames live in textures now; free the decoded arrays
             try:
-                while (outcome := self._trial_loop(trial, gpu, answered + 1, total)) == "pause":
-                    store.log_event("pause", trial=trial.index)
-                    self._pause()
+                while not isinstance(
+                        outcome := self._trial_loop(trial, gpu, answered + 1, total),
+                        TrialResult):
+                    self._interrupt(outcome)
             finally:
                 gpu.release()
             result: TrialResult = outcome
@@ -539,28 +588,23 @@ class App:
                     and store.next_trial() is not None):
                 since_break = 0
                 answered, total = store.progress()
-                self._pause(title="Time for a break",
-                            text=f"{answered} of {total} trials done. Rest your eyes.")
+                store.log_event("break", answered=answered)
+                self._pause_menu(content.break_screen(answered, total, self._name_keys))
         store.finish()
         answered, total = store.progress()
         self._state("end", answered=answered)
-        self._text_screen(
-            "end", "Thank you!",
-            [f"All {total} trials are done.", "",
-             "Your result file is:", str(self.session_path.resolve()), "",
-             "Please send this file to the experimenter (or the .zip made by "
-             f"'cgvq-study export {self.session_path}')."],
-            {"close": "Press Enter or Esc to close"})
+        self._end_screen(total, withdrawn=False)
         return RunOutcome("finished", self.session_path, answered, total)
 
-    def _pause(self, title: str = "Paused", text: str | None = None) -> None:
-        choice = self._text_screen(
-            "pause", title,
-            [text or "Your answers so far are saved.",
-             "If you continue, the current trial starts again."],
-            {"resume": "Press Space to continue", "quit": "Press Q to quit and continue later"})
-        if choice == "quit":
-            raise _QuitRequestedError
+    def _end_screen(self, total: int, *, withdrawn: bool) -> None:
+        upload = None
+        if self.opts.upload_report is not None:
+            upload = self._background(self.opts.upload_report,
+                                      "Sending your last answers to the study server...")
+            self._state("uploaded", arrived=int(upload[0]))
+        spec = content.end(self.session_path, total, withdrawn, self._name_keys, upload=upload)
+        while self._screen(spec) == "show":
+            reveal_in_file_manager(self.session_path)
 
     def _prefetch_following(self, trial: PlannedTrial) -> None:
         if self._practice_mode or self.store is None:
@@ -580,273 +624,143 @@ class App:
         self.display.ctx.finish()
         return OnGpu(pair.stimulus, tex, w, h, t, pair.fps, pair.seconds)
 
+    def _viewing_layout(self, video: tuple[int, int], progress: str, min_view: float
+                        ) -> ViewingLayout:
+        d = self.display
+        k = self._name_keys
+        hints = [f"{k(VIEWING, 'switch')}: switch test / reference",
+                 f"{k(VIEWING, 'rate')}: rate", f"{k(VIEWING, 'pause')}: pause"]
+        notice = ["Please watch for at least", f"{min_view:.1f} s before rating"]
+        return viewing_layout(d.size, video, d.fonts, labels=[LABEL_TEST, LABEL_REFERENCE],
+                              progress=progress, hints=hints, notice=notice)
+
+    def _rating_layout(self, progress: str) -> RatingLayout:
+        d = self.display
+        k = self._name_keys
+        scale = self.m.scale
+        span = scale.max - scale.min
+        labels = [((lab.position - scale.min) / span, lab.text) for lab in scale.labels]
+        hints = [f"Click the scale or use {k(RATING, 'left')} {k(RATING, 'right')} "
+                 "(with Shift: bigger steps)", f"{k(RATING, 'submit')}: submit",
+                 f"{k(RATING, 'back')}: back to the videos", f"{k(RATING, 'pause')}: pause"]
+        return rating_layout(d.size, d.fonts, question=QUESTION, labels=labels,
+                             progress=progress, hints=hints,
+                             notice=f"Please watch for at least {self._min_view():.1f} s",
+                             buttons=[("back", "Back to the videos"), ("submit", "Submit")])
+
     def _trial_loop(self, trial: PlannedTrial, gpu: OnGpu, k: int, total: int
                     ) -> TrialResult | str:
-        """Show one trial until the rating is submitted; returns it, or ``"pause"``."""
+        """Show one trial until its rating is submitted; returns it, ``pause`` or
+        ``close``. No garbage-collector pause interrupts it (see :mod:`.realtime`)."""
+        with realtime.presentation_guard():
+            return self._present_trial(trial, gpu, k, total)
+
+    def _present_trial(self, trial: PlannedTrial, gpu: OnGpu, k: int, total: int
+                       ) -> TrialResult | str:
         d = self.display
-        pg = d.pg
-        r = d.renderer
+        pg, r = d.pg, d.renderer
         proto = self.m.protocol
-        frames = gpu.frames
-        loop_s = frames / gpu.fps
-        min_view = proto.min_view_seconds if proto.min_view_seconds is not None else loop_s
-        blank_n = blank_refreshes(proto.blank_seconds, d.refresh_hz)
-        st = TrialState(stats=FlipStats(d.period), blank_target_refreshes=blank_n)
-        w = d.window_size[0]
-        slider = self._make_slider()
-        submit_rect = (w / 2 - 90, slider.y + 110, 180, 50)
-        phase = "view"
-        notice_until = 0.0
-        prefix = "Practice: " if self._practice_mode else ""
-        warm_up_viewing(r, d.window_size, gpu, f"{prefix}Trial {k} of {total}", min_view)
+        min_view = proto.min_view_seconds if proto.min_view_seconds is not None else (
+            gpu.frames / gpu.fps)
+        progress = f"{'Practice: ' if self._practice_mode else ''}Trial {k} of {total}"
+        vlay = self._viewing_layout((gpu.width, gpu.height), progress, min_view)
+        rlay = self._rating_layout(progress)
+        scale = self.m.scale
+        slider = Slider(x0=rlay.track_x0, x1=rlay.track_x1, y=rlay.track_y, vmin=scale.min,
+                        vmax=scale.max, labels=[(lab.position, lab.text) for lab in scale.labels],
+                        fine_step=(scale.max - scale.min) / 100,
+                        coarse_step=(scale.max - scale.min) / 10)
+        m = TrialMachine(fps=gpu.fps, refresh_hz=d.refresh_hz, frames=gpu.frames,
+                         slider=slider, blank_seconds=proto.blank_seconds, loop=proto.loop,
+                         min_view_s=min_view, vsync=d.vsync,
+                         details={"decode_seconds": gpu.decode_seconds,
+                                  "timing_mode": d.timing_mode})
+        warm_up_viewing(r, vlay, gpu.tex)
         if d.pacer is not None:
             d.pacer.reset()
-        self._state("viewing", trial=trial.index, practice=int(self._practice_mode))
-
-        def submit_ready() -> bool:
-            return slider.is_set and st.viewing_s >= min_view
-
+        practice = int(self._practice_mode)
+        self._state("viewing", trial=trial.index, practice=practice)
+        hover = None
+        ratio = d.pixel_ratio
         while True:
             now = time.perf_counter()
             for event in pg.event.get():
                 if event.type == pg.QUIT:
-                    raise _QuitRequestedError
-                if event.type == pg.KEYDOWN:
-                    key = event.key
-                    if key in (pg.K_p, pg.K_ESCAPE):
+                    return "close"
+                if event.type == pg.MOUSEMOTION and m.phase == RATE:
+                    x, y = d.to_pixels(event.pos)
+                    hover = next((b.action for b in rlay.buttons
+                                  if b.rect.contains_point(x, y)), None)
+                cmd = self._command(event, m.phase, rlay)
+                if cmd is None:
+                    continue
+                for action in m.command(cmd, now):
+                    if action.name == "log":
+                        info = dict(action.info)
+                        self._state(info.pop("state"), **info)
+                    elif action.name == "pause":
                         self._state("pause-request", trial=trial.index)
                         return "pause"
-                    if phase == "view":
-                        if key == pg.K_SPACE and st.blank_until is None:
-                            target = "reference" if st.showing == "test" else "test"
-                            st.n_toggles += 1
-                            st.switch_key_t = now
-                            if st.t_start is not None:
-                                st.toggle_times_ms.append(1000 * (now - st.t_start))
-                            if blank_n > 0:
-                                st.blank_until = st.n + blank_n
-                                st.blank_target = target
-                            else:
-                                st.showing = target
-                            self._state("switch", to=target)
-                        elif key in (pg.K_RETURN, pg.K_KP_ENTER):
-                            if st.viewing_s >= min_view and st.blank_until is None:
-                                phase = "rate"
-                                st.stats.break_chain()
-                                self._prefetch_following(trial)
-                                x0, x1 = slider.x0, slider.x1
-                                self._state("rating", trial=trial.index,
-                                            slider=f"{x0:.0f},{x1:.0f},{slider.y:.0f}",
-                                            submit=",".join(f"{v:.0f}" for v in submit_rect))
-                            else:
-                                notice_until = now + 2.0
-                    else:
-                        if key == pg.K_SPACE:
-                            phase = "view"
-                            if d.pacer is not None:
-                                d.pacer.reset()
-                            self._state("viewing", trial=trial.index, back=1)
-                        elif key in (pg.K_LEFT, pg.K_RIGHT):
-                            coarse = bool(event.mod & (pg.KMOD_SHIFT | pg.KMOD_CTRL))
-                            slider.key_step(-1 if key == pg.K_LEFT else 1, coarse, now)
-                            self._state("slider", value=f"{slider.value:.3f}")
-                        elif key in (pg.K_PAGEUP, pg.K_PAGEDOWN):
-                            slider.key_step(1 if key == pg.K_PAGEUP else -1, True, now)
-                        elif key in (pg.K_RETURN, pg.K_KP_ENTER):
-                            if submit_ready():
-                                return self._result(st, slider, now, gpu, d)
-                            notice_until = now + 2.0
-                elif phase == "rate" and event.type == pg.MOUSEBUTTONDOWN and event.button == 1:
-                    x, y = event.pos
-                    if slider.press(x, y, now):
-                        self._state("slider", value=f"{slider.value:.3f}")
-                    elif _inside(submit_rect, x, y):
-                        if submit_ready():
-                            return self._result(st, slider, now, gpu, d)
-                        notice_until = now + 2.0
-                elif phase == "rate" and event.type == pg.MOUSEMOTION and slider.dragging:
-                    slider.drag(event.pos[0])
-                elif event.type == pg.MOUSEBUTTONUP and event.button == 1:
-                    if slider.dragging:
-                        self._state("slider", value=f"{slider.value:.3f}")
-                    slider.release()
-
-            r.clear()
-            progress = f"{prefix}Trial {k} of {total}"
-            if phase == "view":
-                if st.blank_until is not None and st.n >= st.blank_until:
-                    st.showing = st.blank_target or st.showing
-                    st.blank_until = None
-                content = "blank" if st.blank_until is not None else st.showing
-                idx = frame_index(st.n, gpu.fps, d.refresh_hz, frames, loop=proto.loop)
-                draw_viewing(r, d.window_size, gpu, content, idx, progress,
-                             notice=now < notice_until, min_view=min_view)
-                shot = self._shot(("practice-" if self._practice_mode else "")
-                                  + ("blank" if content == "blank" else f"viewing-{content}"))
-                t = d.flip()
-                if shot:
-                    st.stats.break_chain()
-                interval = st.stats.add(t)
-                st.flips += 1
-                if st.t_start is None:
-                    st.t_start = t
-                    st.cpu_start = time.process_time()
-                    st.presented_at = utc_now()
-                if interval is not None and st.last_content is not None:
-                    if st.last_content != "blank":
-                        st.ms_on[st.last_content] += 1000 * interval
-                    st.viewing_s += interval
-                if content == "blank" and st.last_content != "blank":
-                    st.blank_started_t = t
-                    st.blank_started_n = st.n
-                if content != "blank" and st.switch_key_t is not None and st.blank_until is None:
-                    st.switch_latencies_ms.append(1000 * (t - st.switch_key_t))
-                    if st.blank_started_t is not None:
-                        st.blank_durations_ms.append(1000 * (t - st.blank_started_t))
-                        st.blank_refreshes.append(st.n - st.blank_started_n)
-                        st.blank_started_t = None
-                    st.switch_key_t = None
-                st.last_content = content
-                st.n += refreshes_elapsed(interval, d.period) if interval is not None else 1
+                    elif action.name == "rating_opened":
+                        self._prefetch_following(trial)
+                        sb = rlay.button("submit").rect
+                        self._state(
+                            "rating", trial=trial.index,
+                            slider=f"{rlay.track_x0 / ratio:.0f},{rlay.track_x1 / ratio:.0f},"
+                                   f"{rlay.track_y / ratio:.0f}",
+                            submit=",".join(f"{v / ratio:.0f}" for v in sb.as_tuple()))
+                    elif action.name == "viewing_resumed":
+                        if d.pacer is not None:
+                            d.pacer.reset()
+                        self._state("viewing", trial=trial.index, practice=practice, back=1)
+                    elif action.name == "submitted":
+                        self._state("submitted", value=f"{slider.value:.3f}")
+                        return action.result
+            notice = m.notice_active(now)
+            if m.phase == VIEW:
+                content_now, idx = m.next_frame()
+                r.clear()
+                draw_viewing(r, vlay, gpu.tex.get(content_now), content_now, idx,
+                             notice=notice)
+                name = content_now if not self._practice_mode else "practice-trial"
+                shot = self._shot(name)
             else:
-                self._draw_rating(slider, submit_rect, submit_ready(), progress,
-                                  notice=now < notice_until, min_view=min_view)
-                if slider.is_set and not self._practice_mode:
-                    self._shot("rating")
-                elif not self._practice_mode:
-                    self._shot("rating-unset")
-                d.flip()
-                st.flips += 1
-                st.last_content = None
+                value_x = slider.x_of(slider.value) if slider.is_set else None
+                draw_rating(r, rlay, value_x, ready=m.may_submit,
+                            notice=m.notice_text() if notice else None, hover=hover)
+                shot = False if self._practice_mode else self._shot(
+                    "rating-after-click" if slider.is_set else "rating-before-click")
+            m.flipped(d.flip(), chained=not shot)
 
-    def _make_slider(self) -> Slider:
-        w, h = self.display.window_size
-        scale = self.m.scale
-        labels = [(lab.position, lab.text) for lab in scale.labels]
-        half = min(600, (w - 160) / 2)
-        return Slider(x0=w / 2 - half, x1=w / 2 + half, y=h / 2, vmin=scale.min,
-                      vmax=scale.max, labels=labels,
-                      fine_step=(scale.max - scale.min) / 100,
-                      coarse_step=(scale.max - scale.min) / 10)
-
-    def _draw_rating(self, slider: Slider, submit_rect: tuple[float, ...], ready: bool,
-                     progress: str, *, notice: bool, min_view: float) -> None:
-        r = self.display.renderer
-        w, h = self.display.window_size
-        r.text(progress, w - 20, 16, px=26, color=GREY_TEXT, anchor="topright")
-        r.text("Rate the quality of distortions in the shown video", w / 2, slider.y - 150,
-               px=34, anchor="center")
-        r.text("with respect to its reference", w / 2, slider.y - 115, px=34, anchor="center")
-        r.rect(slider.x0, slider.y - 3, slider.x1 - slider.x0, 6, (0.15, 0.15, 0.15, 1.0))
-        for i, (x, text) in enumerate(slider.label_positions()):
-            r.rect(x - 1, slider.y - 14, 2, 28, (0.15, 0.15, 0.15, 1.0))
-            y = slider.y + 22 + (i % 2) * 26  # alternate rows so long labels never overlap
-            r.text(text, x, y, px=24, color=(0.05, 0.05, 0.05, 1.0), anchor="center")
-        if slider.value is not None:
-            mx = slider.x_of(slider.value)
-            r.rect(mx - 7, slider.y - 18, 14, 36, (0.85, 0.1, 0.1, 1.0))
-        x, y, bw, bh = submit_rect
-        r.rect(x, y, bw, bh, (0.2, 0.45, 0.2, 1.0) if ready else (0.4, 0.4, 0.4, 1.0))
-        r.text("Submit", x + bw / 2, y + 14, px=30,
-               color=_submit_text_color(ready), anchor="center")
-        if notice:
-            hint = ("Set the slider first" if slider.value is None
-                    else f"Please watch for at least {min_view:.1f} s")
-        else:
-            hint = ("Click or use the arrow keys (Shift: big steps)    Enter: submit    "
-                    "Space: back to the videos    P: pause")
-        r.text(hint, w / 2, h - 36, px=26, color=(0.1, 0.1, 0.1, 1.0), anchor="center")
-
-    def _result(self, st: TrialState, slider: Slider, now: float, gpu: OnGpu,
-                d: Display) -> TrialResult:
-        t0 = st.t_start if st.t_start is not None else now
-        stats = st.stats
-        self._state("submitted", value=f"{slider.value:.3f}")
-        return TrialResult(
-            rating=float(slider.value),
-            rt_ms=1000 * (now - t0),
-            n_toggles=st.n_toggles,
-            ms_on_reference=st.ms_on["reference"],
-            ms_on_test=st.ms_on["test"],
-            presented_at=st.presented_at or utc_now(),
-            slider_first_move_ms=(1000 * (slider.first_touch - t0)
-                                  if slider.first_touch is not None else None),
-            frames_presented=stats.frames_presented,
-            dropped_frames=stats.dropped_frames,
-            max_flip_interval_ms=stats.max_interval_ms,
-            switch_latencies_ms=st.switch_latencies_ms,
-            details={
-                "vsync": d.vsync, "refresh_hz": d.refresh_hz, "fps": gpu.fps,
-                "p99_flip_interval_ms": stats.percentile_interval_ms(99),
-                "blank_durations_ms": st.blank_durations_ms,
-                "blank_refreshes": st.blank_refreshes,
-                "blank_target_refreshes": st.blank_target_refreshes,
-                "toggle_times_ms": st.toggle_times_ms, "viewing_ms": 1000 * st.viewing_s,
-                "decode_seconds": gpu.decode_seconds,
-                # CPU time of the whole process (all threads) per flip: what the machine needs
-                # to keep up, independent of how loaded it was.
-                "cpu_ms_per_flip": 1000 * (time.process_time() - st.cpu_start)
-                / max(1, st.flips - 1),
-            },
-        )
-
-
-
-# -- the viewing screen -------------------------------------------------------------------
-def draw_viewing(r: Renderer, size: tuple[int, int], gpu: OnGpu, content: str, idx: int,
-                 progress: str, *, notice: bool, min_view: float) -> None:
-    """One refresh of the viewing screen: a video frame (or the blank), its label, hints."""
-    w, h = size
-    if content != "blank":
-        vx, vy, _, _ = r.video_rect(gpu.width, gpu.height)
-        r.draw_video(gpu.tex[content], idx)
-        _draw_label(r, LABEL_TEST if content == "test" else LABEL_REFERENCE, vx, vy)
-    r.text(progress, w - 20, 16, px=26, color=GREY_TEXT, anchor="topright")
-    if notice:
-        hint = f"Please watch for at least {min_view:.1f} s before rating"
-    else:
-        hint = "Space: switch test / reference    Enter: rate    P: pause"
-    r.text(hint, w / 2, h - 36, px=26, color=GREY_TEXT, anchor="center")
-
-
-def warm_up_viewing(r: Renderer, size: tuple[int, int], gpu: OnGpu, progress: str,
-                    min_view: float) -> None:
-    """Draw every variant of the viewing screen once into the back buffer, unshown.
-
-    Drivers compile shader variants and make text textures on first use (Mesa's llvmpipe
-    spends 10-50 ms per variant); doing it before the trial's first flip keeps that out of
-    the timed presentation, where it showed up as dropped frames.
-    """
-    for content in ("test", "reference", "blank"):
-        for notice in (False, True):
-            r.clear()
-            draw_viewing(r, size, gpu, content, gpu.frames - 1, progress, notice=notice,
-                         min_view=min_view)
-    r.ctx.finish()
-    r.clear()
-
-
-def _draw_label(r: Renderer, label: str, vx: int, vy: int) -> None:
-    tw, th = r.text_size(label, 30)
-    if vx >= tw + 24:  # room left of the video
-        r.text(label, vx - 16, vy, px=30, color=ACCENT, anchor="topright")
-    elif vy >= th + 8:
-        r.text(label, vx, vy - th - 6, px=30, color=ACCENT)
-    else:
-        r.text(label, 12, 12, px=30, color=ACCENT)
-
-def needs_requeue(dropped_frames: int, limit: int, trial: PlannedTrial) -> bool:
-    """Re-queue a trial (once) when more than ``limit`` frames dropped; ``limit < 0`` never."""
-    return 0 <= limit < dropped_frames and trial.requeue_of is None
-
-
-def _submit_text_color(ready: bool) -> tuple[float, float, float, float]:
-    return (1.0, 1.0, 1.0, 1.0) if ready else (0.75, 0.75, 0.75, 1.0)
-
-
-def _inside(rect: tuple[float, ...], x: float, y: float) -> bool:
-    rx, ry, rw, rh = rect
-    return rx <= x <= rx + rw and ry <= y <= ry + rh
+    def _command(self, event: Any, phase: str, rlay: RatingLayout) -> Command | None:
+        """An input event as a trial command (keys of any layout, mouse on slider/buttons)."""
+        d = self.display
+        pg = d.pg
+        if event.type == pg.KEYDOWN:
+            keys = VIEWING if phase == VIEW else RATING
+            action = keys.action(event.key, event.scancode)
+            if action is None:
+                return None
+            if action in ("left", "right", "up_coarse", "down_coarse"):
+                coarse = action.endswith("coarse") or bool(
+                    event.mod & (pg.KMOD_SHIFT | pg.KMOD_CTRL))
+                direction = -1 if action in ("left", "down_coarse") else 1
+                return Command("step", direction=direction, coarse=coarse)
+            return Command(action)
+        if phase != RATE:
+            return None
+        if event.type == pg.MOUSEBUTTONDOWN and event.button == 1:
+            x, y = d.to_pixels(event.pos)
+            for b in rlay.buttons:
+                if b.rect.contains_point(x, y):
+                    return Command(b.action)
+            return Command("press", x=x, y=y)  # the slider takes it when it hits the track
+        if event.type == pg.MOUSEMOTION:
+            x, _ = d.to_pixels(event.pos)
+            return Command("drag", x=x)
+        if event.type == pg.MOUSEBUTTONUP and event.button == 1:
+            return Command("release")
+        return None
 
 
 def run_study(study: Study, opts: RunOptions) -> RunOutcome:

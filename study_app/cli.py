@@ -1,8 +1,9 @@
 """Command line of ``cgvq-study``: parses arguments, prints, sets exit codes.
 
 Each subcommand lives in its own module under ``study_app.commands``; this module only wires
-them together and turns the package's :class:`StudyError` (and the manifest package's
-:class:`StimuliError`) into one line on stderr and exit code 2.
+them together. The toolkit's one CLI runner turns every user error (``ToolkitError``, a
+missing install extra, a bad path) into one line on stderr and exit code 2. A command module
+may set ``EXTRA`` to the install extra it needs (named in the message when it is missing).
 """
 
 from __future__ import annotations
@@ -13,10 +14,9 @@ import logging
 import sys
 from types import ModuleType
 
-from stimuli_manifests import StimuliError
+from stimuli_manifests.cli_runner import run_command
 
 from .commands import COMMANDS
-from .errors import StudyError
 
 
 def _command_modules() -> list[ModuleType]:
@@ -53,14 +53,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
-    try:
-        return int(handlers[args.command].run(args))
-    except (StudyError, StimuliError) as exc:
-        print(f"cgvq-study {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"cgvq-study {args.command}: interrupted", file=sys.stderr)
-        return 130
+    module = handlers[args.command]
+    return run_command(f"cgvq-study {args.command}", lambda: module.run(args),
+                       extra=getattr(module, "EXTRA", None))
 
 
 if __name__ == "__main__":

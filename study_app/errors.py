@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from stimuli_manifests.errors import ToolkitError
 
-class StudyError(Exception):
+
+class StudyError(ToolkitError):
     """A study folder, session file or display problem, with a message that says what to do."""

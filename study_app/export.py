@@ -1,8 +1,11 @@
 """One file to send back: a zip holding a consistent copy of the session file and its sha256.
 
-The copy is made with SQLite's backup API (so it is consistent even while the WAL holds
-uncommitted pages) and switched to a single-file journal, so the returned file needs no side
-files. :func:`verify_file` accepts the zip or a bare session file.
+The copy is made with SQLite's backup API (so it holds everything committed, the WAL
+included) and switched to a single-file journal, so the returned file needs no side files.
+Names are unique per participant and session, file and member alike
+(``<participant>_<session>.zip`` holding ``<participant>_<session>.sqlite``), so twenty returns
+unzipped into one folder never overwrite each other. :func:`verify_file` accepts the zip or a
+bare session file.
 """
 
 from __future__ import annotations
@@ -11,14 +14,23 @@ import hashlib
 import sqlite3
 import tempfile
 import zipfile
+from dataclasses import replace
 from pathlib import Path
 
 from .errors import StudyError
-from .session import VerifyReport, read_info, read_ratings, verify_session, write_ratings_csv
+from .session import (
+    SessionProblem,
+    VerifyReport,
+    check_participant_id,
+    read_session,
+    session_sources,
+    verify_record,
+    verify_session,
+    write_ratings_csv,
+)
+from .session.sources import CHECKSUM_MEMBER
 
-SESSION_MEMBER = "session.sqlite"
-CHECKSUM_MEMBER = "SHA256SUMS"
-CSV_MEMBER = "ratings.csv"
+CSV_SUFFIX = "_ratings.csv"
 
 
 def _snapshot(src: Path, dest: Path) -> None:
@@ -33,57 +45,89 @@ def _snapshot(src: Path, dest: Path) -> None:
         source.close()
 
 
+def export_name(path: str | Path) -> str:
+    """``<participant>_<session>`` of a session file; refuses ids that are not valid ids
+    (a file edited outside the app must not choose where its export is written)."""
+    info = read_session(path).info
+    try:
+        check_participant_id(info.participant)
+    except StudyError as exc:
+        raise StudyError(f"{path}: {exc}; this file was not written by cgvq-study as it "
+                         "is") from None
+    session = "".join(c for c in info.session_id if c.isalnum())[:32] or "session"
+    return f"{info.participant}_{session}"
+
+
 def export_session(path: str | Path, out: str | Path | None = None) -> Path:
-    """Write ``<participant>_<session>.zip`` (session copy, ratings CSV, SHA256SUMS)."""
+    """Write ``<participant>_<session>.zip`` (session copy, ratings CSV, SHA256SUMS) to
+    ``out``: a path ending in .zip, or a folder (made if needed; default the current one)."""
     path = Path(path)
-    info = read_info(path)
+    stem = export_name(path)
     if out is None:
-        out = path.with_name(f"{info.participant}_{info.session_id}.zip")
+        out = Path.cwd() / f"{stem}.zip"
     out = Path(out)
+    if out.is_dir() or out.suffix.lower() != ".zip":  # a folder, made if need be
+        out = out / f"{stem}.zip"
+    if out.parent.exists() and not out.parent.is_dir():
+        raise StudyError(f"--out {out}: {out.parent} is a file, not a folder")
     out.parent.mkdir(parents=True, exist_ok=True)
+    member = f"{stem}.sqlite"
     with tempfile.TemporaryDirectory() as tmp:
-        copy = Path(tmp) / SESSION_MEMBER
+        copy = Path(tmp) / member
         _snapshot(path, copy)
-        rows, _ = read_ratings(copy)
-        csv_path = write_ratings_csv(rows, Path(tmp) / CSV_MEMBER)
+        csv_path = write_ratings_csv(read_session(copy).ratings, Path(tmp) / f"{stem}{CSV_SUFFIX}")
         sums = "".join(f"{hashlib.sha256(p.read_bytes()).hexdigest()}  {p.name}\n"
                        for p in (copy, csv_path))
         part = out.with_name(out.name + ".part")
         with zipfile.ZipFile(part, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-            zf.write(copy, SESSION_MEMBER)
-            zf.write(csv_path, CSV_MEMBER)
+            zf.write(copy, member)
+            zf.write(csv_path, csv_path.name)
             zf.writestr(CHECKSUM_MEMBER, sums)
         part.replace(out)
     return out
 
 
 def verify_file(path: str | Path) -> VerifyReport:
-    """Verify a returned file: an exported zip (checksums first) or a session file."""
+    """Verify one returned file: an exported zip (checksums first) or a session file."""
     path = Path(path)
     if not path.is_file():
         raise StudyError(f"file not found: {path}")
     if not zipfile.is_zipfile(path):
         return verify_session(path)
-    with zipfile.ZipFile(path) as zf, tempfile.TemporaryDirectory() as tmp:
-        names = set(zf.namelist())
-        if SESSION_MEMBER not in names or CHECKSUM_MEMBER not in names:
-            raise StudyError(f"{path} is not an exported session (it lacks {SESSION_MEMBER} "
-                             f"or {CHECKSUM_MEMBER}); send the file made by 'cgvq-study export'")
-        expected = {}
-        for line in zf.read(CHECKSUM_MEMBER).decode("utf-8", "replace").splitlines():
-            digest, _, name = line.partition("  ")
-            expected[name.strip()] = digest.strip()
-        bad = [name for name, digest in expected.items()
-               if name not in names or hashlib.sha256(zf.read(name)).hexdigest() != digest]
-        zf.extract(SESSION_MEMBER, tmp)
-        report = verify_session(Path(tmp) / SESSION_MEMBER)
-        report.path = path
-        if bad:
-            from .session import SessionProblem
+    reports = verify_many([path])
+    if len(reports) != 1:
+        raise StudyError(f"{path} holds {len(reports)} session files; verify lists each")
+    return reports[0]
 
-            report.problems.insert(0, SessionProblem(
-                path, None, f"checksum mismatch for {', '.join(bad)}: the file was altered or "
-                "damaged in transit"))
-            report.intact = False
-            report.complete = False
-        return report
+
+def verify_many(paths: list[str | Path]) -> list[VerifyReport]:
+    """Verify every session file in ``paths`` (files, folders, zips); one report each, the
+    problems of unusable inputs as damaged reports of their own."""
+    reports: list[VerifyReport] = []
+    with session_sources(paths) as (sources, problems):
+        for problem in problems:
+            reports.append(VerifyReport(problem.path, False, False, 0, 0, False, [problem]))
+        for source in sources:
+            try:
+                report = verify_session(source.path)
+            except StudyError as exc:
+                reports.append(VerifyReport(Path(source.origin), False, False, 0, 0, False,
+                                            [SessionProblem(Path(source.origin), None,
+                                                            str(exc))]))
+                continue
+            if source.origin != str(source.path):  # a zip member: name it as the user does
+                origin = Path(source.origin)
+                report.problems = [replace(q, path=origin) if q.path == source.path else q
+                                   for q in report.problems]
+                report.warnings = [w.replace(str(source.path), source.origin)
+                                   for w in report.warnings]
+                report.path = origin
+            report.warnings[:0] = source.warnings
+            if source.problems:
+                report.problems[:0] = source.problems
+                report.intact = report.complete = False
+            reports.append(report)
+    return reports
+
+
+__all__ = ["export_name", "export_session", "verify_file", "verify_many", "verify_record"]

@@ -8,7 +8,6 @@ measures (window size, flip intervals, decode time) and stores every result in t
 from __future__ import annotations
 
 import os
-import statistics
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -17,12 +16,15 @@ from typing import Any
 from stimuli_manifests import DisplayRequirements, validate_manifest
 
 from .errors import StudyError
+from .vsync import RefreshEstimate
 
 # Decoding one stimulus pair must fit comfortably into the time a participant spends rating,
 # so that the background prefetch is ready when the next trial starts.
 MAX_PAIR_DECODE_S = 10.0
 # Refresh intervals may scatter this much (relative std) before the display counts as unstable.
 MAX_REFRESH_JITTER = 0.10
+# Share of refreshes the pre-flight's own flips may miss before the computer counts as busy.
+MAX_PREFLIGHT_DROPPED_SHARE = 0.05
 
 
 @dataclass
@@ -39,63 +41,181 @@ class Check:
         return asdict(self)
 
 
-def check_screen(width: int, height: int, req: DisplayRequirements) -> Check:
+def _on(monitor: str | None) -> str:
+    """" (DELL U2720Q)": the monitor's name where the system gives a real one."""
+    generic = monitor is None or monitor.strip().lower() in ("", "screen", "display")
+    return "" if generic else f" ({monitor})"
+
+
+def check_screen(width: int, height: int, req: DisplayRequirements, *,
+                 monitor: str | None = None) -> Check:
+    """The monitor the window is on has at least the study's minimum resolution (pixels)."""
     ok = width >= req.min_width and height >= req.min_height
-    msg = (f"screen {width}x{height} (study needs at least {req.min_width}x{req.min_height})"
-           if ok else
-           f"the screen is {width}x{height} pixels but this study needs at least "
-           f"{req.min_width}x{req.min_height}: use a larger or higher-resolution monitor, set "
-           "it to its native resolution, and set display scaling to 100%")
-    return Check("screen_size", ok, msg, {"width": width, "height": height})
+    msg = (f"{width}x{height} pixels{_on(monitor)}; the study needs at least "
+           f"{req.min_width}x{req.min_height}" if ok else
+           f"the screen{_on(monitor)} shows {width}x{height} pixels but this study needs at "
+           f"least {req.min_width}x{req.min_height}: set the screen to its highest "
+           "(native) resolution in the display settings, set display scaling to 100%, or use "
+           "a larger monitor")
+    return Check("screen_size", ok, msg, {"width": width, "height": height,
+                                          "monitor": monitor})
 
 
-def check_refresh(intervals_s: Sequence[float], req: DisplayRequirements, *, vsync: bool,
-                  paced_hz: float | None = None) -> Check:
-    """Refresh rate from measured flip intervals; without vsync, the pacing rate is reported."""
-    if not vsync:
+def check_refresh(est: RefreshEstimate | None, req: DisplayRequirements, *,
+                  paced_pilot: bool, paced_hz: float | None = None) -> Check:
+    """The refresh rate measured from vsync'd flips; without vsync only a pilot may run.
+
+    ``paced_pilot`` is the experimenter's explicit pilot/test mode (flips paced on the
+    monotonic clock at ``paced_hz``): it passes with a warning and is recorded as such.
+    """
+    if paced_pilot:
         hz = float(paced_hz or 0.0)
-        ok = hz >= req.min_refresh_hz
-        msg = (f"vsync is not available (e.g. a virtual display): flips are paced by the "
-               f"monotonic clock at {hz:g} Hz" if ok else
-               f"vsync is not available and the pacing rate {hz:g} Hz is below the study's "
-               f"minimum {req.min_refresh_hz:g} Hz: pass --refresh-hz with your monitor's rate")
-        return Check("refresh_rate", ok, msg, {"vsync": False, "hz": hz}, warning=True)
-    if len(intervals_s) < 10:
-        return Check("refresh_rate", False, "too few flips measured to know the refresh rate; "
-                     "close other programs and try again", {"vsync": True})
-    med = statistics.median(intervals_s)
-    hz = 1.0 / med if med > 0 else 0.0
-    jitter = statistics.pstdev(intervals_s) / med if med > 0 else float("inf")
-    value = {"vsync": True, "hz": round(hz, 3), "jitter": round(jitter, 4),
-             "n": len(intervals_s)}
-    if hz < req.min_refresh_hz:
+        value = {"vsync": False, "hz": hz, "timing_mode": "paced-pilot",
+                 "measured": est.as_dict() if est is not None else None}
+        return Check("refresh_rate", hz > 0, f"pilot/test mode without vsync: flips paced by "
+                     f"the clock at {hz:g} Hz (not valid for participant data)", value,
+                     warning=True)
+    if est is None or est.n_intervals < 10:
+        return Check("refresh_rate", False, "the screen's refresh could not be measured: "
+                     "close other programs and start again", {"vsync": None})
+    value = {"timing_mode": "vsync", **est.as_dict()}
+    if not est.vsync:
+        return Check(
+            "refresh_rate", False,
+            "this computer does not wait for the screen's refresh when it shows a picture "
+            "(vertical sync is off), so video timing would be wrong: turn on vertical sync "
+            "(\"wait for vertical refresh\", \"V-Sync\") in the graphics driver's settings or "
+            "update the graphics driver, close screen-recording or remote-desktop programs, "
+            "and start again", value)
+    if est.hz < req.min_refresh_hz - 0.5:
         return Check("refresh_rate", False,
-                     f"the display refreshes at {hz:.1f} Hz but this study needs at least "
-                     f"{req.min_refresh_hz:g} Hz: set the monitor to {req.min_refresh_hz:g} Hz "
-                     "or more in the display settings", value)
-    if jitter > MAX_REFRESH_JITTER:
+                     f"the screen refreshes at {est.hz:.1f} Hz but this study needs at least "
+                     f"{req.min_refresh_hz:g} Hz: set the refresh rate to "
+                     f"{max(60, round(req.min_refresh_hz)):g} Hz or more in the display "
+                     "settings", value)
+    if est.variable or est.jitter > MAX_REFRESH_JITTER:
         return Check("refresh_rate", False,
-                     f"the refresh timing is unstable ({100 * jitter:.0f}% variation): close "
-                     "other programs, plug in the laptop, disable power saving, and try again",
+                     "the screen's refresh is irregular: turn off variable refresh rate "
+                     "(G-SYNC, FreeSync, Adaptive-Sync, ProMotion) in the display settings, "
+                     "close other programs, plug in the laptop's charger, and start again",
                      value)
-    return Check("refresh_rate", True, f"refresh {hz:.2f} Hz, stable ({100 * jitter:.1f}% "
-                 "variation)", value)
+    if est.dropped > MAX_PREFLIGHT_DROPPED_SHARE * est.n_intervals:
+        return Check("refresh_rate", False,
+                     f"the computer missed {est.dropped} of {est.n_intervals} screen refreshes "
+                     "while testing: close other programs (browsers, video calls, games), "
+                     "plug in the laptop's charger, and start again", value)
+    return Check("refresh_rate", True, f"refresh {est.hz:.2f} Hz, steady "
+                 f"({100 * est.jitter:.1f}% variation)", value)
 
 
-def check_pixel_mapping(window: tuple[int, int], drawable: tuple[int, int],
-                        video: tuple[int, int]) -> Check:
-    value = {"window": list(window), "drawable": list(drawable), "video": list(video)}
-    if tuple(window) != tuple(drawable):
+@dataclass(frozen=True)
+class Monitor:
+    """One monitor: its SDL display index, name and bounds in the OS's window units."""
+
+    index: int
+    name: str
+    bounds: tuple[int, int, int, int]
+
+
+@dataclass(frozen=True)
+class PixelGeometry:
+    """How the window's pixels reach the monitor.
+
+    ``window`` is in the OS's window units, ``drawable`` in framebuffer pixels (twice the
+    window on a macOS Retina screen). ``os_scale`` is the OS display scaling of the window's
+    monitor (1.25 = 125 %) where known; ``os_stretches`` says the OS resamples the window
+    (a process without DPI awareness on a scaled Windows monitor).
+    """
+
+    window: tuple[int, int]
+    drawable: tuple[int, int]
+    monitors: tuple[Monitor, ...] = ()
+    window_pos: tuple[int, int] | None = None
+    monitor_index: int | None = None
+    os_scale: float | None = None
+    os_stretches: bool = False
+
+    @property
+    def pixel_ratio(self) -> float:
+        return self.drawable[0] / self.window[0] if self.window[0] else 1.0
+
+    def monitor(self) -> Monitor | None:
+        """The monitor the window is on (by SDL's index, else by the largest overlap)."""
+        if self.monitor_index is not None:
+            for mon in self.monitors:
+                if mon.index == self.monitor_index:
+                    return mon
+        if self.window_pos is None or not self.monitors:
+            return self.monitors[0] if self.monitors else None
+        return max(self.monitors, key=lambda m: _overlap(self._window_rect(), m.bounds))
+
+    def _window_rect(self) -> tuple[int, int, int, int]:
+        assert self.window_pos is not None
+        return (*self.window_pos, *self.window)
+
+    def spans_monitors(self) -> bool:
+        if self.window_pos is None or len(self.monitors) < 2:
+            return False
+        rect = self._window_rect()
+        return sum(1 for m in self.monitors if _overlap(rect, m.bounds) > 0) > 1
+
+
+def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> int:
+    w = min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0])
+    h = min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1])
+    return max(0, w) * max(0, h)
+
+
+def _percent(scale: float) -> str:
+    return f"{round(100 * scale)}%"
+
+
+def check_pixel_mapping(geom: PixelGeometry, video: tuple[int, int], *,
+                        fits_with_label: bool = True) -> Check:
+    """One video pixel is one physical pixel of the monitor the window is on."""
+    mon = geom.monitor()
+    name = mon.name if mon else None
+    value = {"window": list(geom.window), "drawable": list(geom.drawable),
+             "video": list(video), "monitor": name, "monitor_index": mon.index if mon else None,
+             "monitors": len(geom.monitors), "os_scale": geom.os_scale,
+             "os_stretches": geom.os_stretches, "pixel_ratio": geom.pixel_ratio}
+    rx = geom.drawable[0] / geom.window[0] if geom.window[0] else 0
+    ry = geom.drawable[1] / geom.window[1] if geom.window[1] else 0
+    if abs(rx - ry) > 1e-6 or abs(rx - round(rx)) > 1e-6 or round(rx) < 1:
         return Check("pixel_mapping", False,
-                     f"the drawing surface is {drawable[0]}x{drawable[1]} for a "
-                     f"{window[0]}x{window[1]} window, so videos would be rescaled: set "
-                     "display scaling to 100% (no HiDPI scaling) and restart", value)
-    if video[0] > window[0] or video[1] > window[1]:
+                     f"display scaling is {_percent(rx)}{_on(name)}, so videos would be "
+                     "resampled: set display scaling (\"Scale\", \"Resolution: scaled\") to 100% "
+                     "in the display settings and start again", value)
+    if geom.os_stretches and geom.os_scale is not None and abs(geom.os_scale - 1) > 1e-3:
         return Check("pixel_mapping", False,
-                     f"the videos ({video[0]}x{video[1]}) do not fit the window "
-                     f"({window[0]}x{window[1]}) at 1:1 pixels: run full screen on a larger "
+                     f"display scaling is {_percent(geom.os_scale)}{_on(name)}, so the system "
+                     "would enlarge the videos: set display scaling to 100% in the display "
+                     "settings and start again", value)
+    if geom.spans_monitors():
+        return Check("pixel_mapping", False,
+                     "the study window lies across two monitors: move it entirely onto the "
+                     "main monitor (or disconnect the other monitor) and start again", value)
+    if len(geom.monitors) > 1 and mon is not None and mon.index != 0:
+        return Check("pixel_mapping", False,
+                     f"the study opened on a second monitor ({mon.name}), where its timing "
+                     "cannot be trusted: make the monitor you want to use the main display "
+                     "in the display settings (or disconnect the other monitors) and start "
+                     "again", value)
+    drawable = geom.drawable
+    if video[0] > drawable[0] or video[1] > drawable[1]:
+        return Check("pixel_mapping", False,
+                     f"the videos ({video[0]}x{video[1]} pixels) do not fit on the screen "
+                     f"({drawable[0]}x{drawable[1]}){_on(name)}: set the screen to its "
+                     "highest resolution and display scaling to 100%, or use a larger "
                      "monitor", value)
-    return Check("pixel_mapping", True, "1:1 pixel mapping", value)
+    if not fits_with_label:
+        return Check("pixel_mapping", False,
+                     f"the screen ({drawable[0]}x{drawable[1]}){_on(name)} leaves no room "
+                     "beside the videos for their labels: set the screen to a higher "
+                     "resolution or use a larger monitor", value)
+    scale = f", display scaling {_percent(geom.os_scale)}" if geom.os_scale else ""
+    return Check("pixel_mapping", True,
+                 f"1:1 pixels on {name or 'the screen'}{scale}", value)
 
 
 def available_memory_bytes() -> int | None:
@@ -113,17 +233,20 @@ def available_memory_bytes() -> int | None:
         return None
 
 
+def _size(n: int) -> str:
+    return f"{n / 1024**3:.1f} GiB" if n >= 1024**3 else f"{max(1, round(n / 1024**2))} MiB"
+
+
 def check_memory(needed_bytes: int, available_bytes: int | None) -> Check:
-    gib = 1024**3
     value = {"needed": needed_bytes, "available": available_bytes}
     if available_bytes is None:
         return Check("memory", True, "available memory unknown on this system", value,
                      warning=True)
     ok = available_bytes >= needed_bytes
-    msg = (f"{available_bytes / gib:.1f} GiB available, {needed_bytes / gib:.1f} GiB needed"
+    msg = (f"{_size(available_bytes)} available, {_size(needed_bytes)} needed"
            if ok else
-           f"only {available_bytes / gib:.1f} GiB of memory is free but the decoded videos "
-           f"need {needed_bytes / gib:.1f} GiB: close other programs (browsers, games) or use "
+           f"only {_size(available_bytes)} of memory is free but the decoded videos "
+           f"need {_size(needed_bytes)}: close other programs (browsers, games) or use "
            "a computer with more memory")
     return Check("memory", ok, msg, value)
 
@@ -160,5 +283,4 @@ def raise_for_failures(checks: Sequence[Check]) -> None:
     if failed:
         raise StudyError(
             "pre-flight failed: " + " | ".join(f"{c.name}: {c.message}" for c in failed)
-            + " (experimenters: --skip-preflight runs anyway and records it)"
         )

@@ -10,7 +10,6 @@ bench_player: CPU per refresh fell from 12-14 ms to ~8 ms against a texelFetch f
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import moderngl
@@ -18,6 +17,8 @@ import numpy as np
 import pygame
 
 from shaders import shader_source
+
+from .fonts import Fonts
 
 Color = tuple[float, float, float, float]
 MID_GREY: Color = (0.5, 0.5, 0.5, 1.0)
@@ -46,8 +47,10 @@ class VideoTexture:
 class Renderer:
     """The player's GL programs and a text cache."""
 
-    def __init__(self, ctx: moderngl.Context, size: tuple[int, int]) -> None:
+    def __init__(self, ctx: moderngl.Context, size: tuple[int, int],
+                 fonts: Fonts | None = None) -> None:
         self.ctx = ctx
+        self.fonts = fonts or Fonts()
         self.size = size
         vert = shader_source("player_quad.vert")
         self.solid = ctx.program(vertex_shader=vert,
@@ -66,9 +69,7 @@ class Renderer:
             prog["u_viewport"].value = size
         self.video["u_tex"].value = 0
         self.text_prog["u_tex"].value = 0
-        pygame.font.init()
-        self._fonts: dict[int, pygame.font.Font] = {}
-        self._text_cache: dict[tuple[str, int, bool], tuple[moderngl.Texture, int, int]] = {}
+        self._text_cache: dict[tuple[str, int, str], tuple[moderngl.Texture, int, int]] = {}
         ctx.enable(moderngl.BLEND)
         ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
 
@@ -93,9 +94,13 @@ class Renderer:
             textures.append(tex)
         return VideoTexture(textures, w, h)
 
-    def draw_video(self, video: VideoTexture, frame: int) -> tuple[int, int]:
-        """Draw one frame centred at 1:1 pixels; returns its top-left corner."""
-        x, y, w, h = self.video_rect(video.width, video.height)
+    def draw_video(self, video: VideoTexture, frame: int, x: int | None = None,
+                   y: int | None = None) -> tuple[int, int]:
+        """Draw one frame at 1:1 pixels with its top-left at (x, y) (default: centred);
+        returns its top-left corner."""
+        cx, cy, w, h = self.video_rect(video.width, video.height)
+        x = cx if x is None else x
+        y = cy if y is None else y
         video.frames[frame].use(0)
         self.video["u_rect"].value = (x, y, w, h)
         self.ctx.disable(moderngl.BLEND)
@@ -106,27 +111,31 @@ class Renderer:
     def video_rect(self, width: int, height: int) -> tuple[int, int, int, int]:
         return ((self.size[0] - width) // 2, (self.size[1] - height) // 2, width, height)
 
-    # -- text -------------------------------------------------------------------------
-    def _font(self, px: int) -> pygame.font.Font:
-        if px not in self._fonts:
-            self._fonts[px] = pygame.font.Font(None, px)
-        return self._fonts[px]
+    def frame(self, x: float, y: float, w: float, h: float, thickness: float,
+              color: Color) -> None:
+        """An outline drawn inside the rectangle (x, y, w, h)."""
+        t = thickness
+        self.rect(x, y, w, t, color)
+        self.rect(x, y + h - t, w, t, color)
+        self.rect(x, y + t, t, h - 2 * t, color)
+        self.rect(x + w - t, y + t, t, h - 2 * t, color)
 
-    def text_size(self, text: str, px: int = 28) -> tuple[int, int]:
-        return self._font(px).size(text)
+    # -- text -------------------------------------------------------------------------
+    def text_size(self, text: str, px: int = 28, style: str = "regular") -> tuple[int, int]:
+        return self.fonts.size(text, px, style)
 
     def text(self, text: str, x: float, y: float, *, px: int = 28, color: Color = WHITE,
-             anchor: str = "topleft") -> tuple[int, int]:
+             anchor: str = "topleft", style: str = "regular") -> tuple[int, int]:
         """Draw one line of text; ``anchor`` is topleft, center or topright. Returns its size."""
         if not text:
             return 0, 0
-        key = (text, px, False)
+        key = (text, px, style)
         if key not in self._text_cache:
-            surf = self._font(px).render(text, True, (255, 255, 255))
+            surf = self.fonts.font(px, style).render(text, True, (255, 255, 255))
             data = pygame.image.tostring(surf, "RGBA", False)
             tex = self.ctx.texture(surf.get_size(), 4, data)
             tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            if len(self._text_cache) > 512:
+            if len(self._text_cache) > 1024:
                 for old, _, _ in self._text_cache.values():
                     old.release()
                 self._text_cache.clear()
@@ -141,29 +150,6 @@ class Renderer:
         self.text_prog["u_tint"].value = color
         self._vaos[self.text_prog].render(moderngl.TRIANGLE_STRIP)
         return w, h
-
-    def paragraph(self, lines: Sequence[str], x: float, y: float, width: float, *,
-                  px: int = 28, color: Color = WHITE, spacing: float = 1.35) -> float:
-        """Draw word-wrapped lines; returns the y below the last line."""
-        line_h = round(px * spacing)
-        for line in lines:
-            words = line.split()
-            if not words:
-                y += line_h
-                continue
-            current = ""
-            for word in words:
-                trial = f"{current} {word}".strip()
-                if current and self.text_size(trial, px)[0] > width:
-                    self.text(current, x, y, px=px, color=color)
-                    y += line_h
-                    current = word
-                else:
-                    current = trial
-            if current:
-                self.text(current, x, y, px=px, color=color)
-                y += line_h
-        return y
 
     def read_pixels(self) -> np.ndarray:
         """The window's current back buffer as (H, W, 3) uint8, top row first."""

@@ -27,10 +27,13 @@ from __future__ import annotations
 import csv
 import json
 import logging
-from dataclasses import asdict, dataclass
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -39,6 +42,7 @@ from stimuli_manifests import LoadedManifest, Stimulus, load_manifest
 
 from . import __version__
 from .errors import StudyError
+from .remote import ServerClient, ServerUnavailable, Uploader, UploadStatus
 from .schedule import ScheduleItem, make_schedule
 from .session import SessionStore, TrialResult
 
@@ -156,9 +160,45 @@ def _iso(t: datetime) -> str:
     return t.isoformat(timespec="milliseconds").replace("+00:00", "Z")
 
 
+@dataclass(frozen=True)
+class UploadOptions:
+    """Simulated participants uploading to a study server as they rate (``simulate
+    --server``), through the same upload client as the app."""
+
+    server: str
+    tokens: dict[str, str]
+    """participant id -> token (from the invites CSV); the raters take these ids in order."""
+    pace_s: float = 0.0
+    """Seconds between two ratings of one rater (0: as fast as possible)."""
+    offline: dict[str, tuple[float, float]] = field(default_factory=dict)
+    """participant -> (from, until) seconds after the start: their network is down then."""
+    timeout_s: float = 600.0
+    """How long to wait at the end for every upload to arrive."""
+    min_backoff_s: float = 0.2
+    max_backoff_s: float = 5.0
+    client_factory: Callable[[str, str], ServerClient] | None = None
+    """Makes each rater's client from (server, token); e.g. one that times its requests."""
+
+
+@dataclass
+class SimulationRun:
+    truth_path: Path
+    upload: dict[str, UploadStatus] = field(default_factory=dict)
+    """participant -> the uploader's final status (with a server)."""
+
+
 def simulate_panel(manifest_path: str | Path, out_dir: str | Path, opts: SimulationOptions,
                    *, overwrite: bool = False, progress: bool = True) -> Path:
     """Write one session file per simulated rater into ``out_dir``; returns the truth file."""
+    return run_simulation(manifest_path, out_dir, opts, overwrite=overwrite,
+                          progress=progress).truth_path
+
+
+def run_simulation(manifest_path: str | Path, out_dir: str | Path, opts: SimulationOptions,
+                   *, overwrite: bool = False, progress: bool = True,
+                   upload: UploadOptions | None = None) -> SimulationRun:
+    """:func:`simulate_panel`, optionally uploading every session to a study server while
+    it is written (raters then run at once, one thread each, with real times)."""
     opts.check()
     loaded: LoadedManifest = load_manifest(manifest_path)
     m = loaded.manifest
@@ -170,7 +210,15 @@ def simulate_panel(manifest_path: str | Path, out_dir: str | Path, opts: Simulat
         raise StudyError("a single stimulus cannot be repeated without showing it twice in a "
                          "row; use --repetitions 1")
     out = Path(out_dir)
-    participants = [f"{opts.participant_prefix}{k + 1:02d}" for k in range(opts.raters)]
+    if out.exists() and not out.is_dir():
+        raise StudyError(f"--out {out} is a file; give a folder for the session files")
+    if upload is None:
+        participants = [f"{opts.participant_prefix}{k + 1:02d}" for k in range(opts.raters)]
+    else:
+        participants = list(upload.tokens)[:opts.raters]
+        if len(participants) < opts.raters:
+            raise StudyError(f"--raters {opts.raters}, but the invites hold only "
+                             f"{len(participants)} participant(s); invite more")
     targets = [out / f"{p}{SESSION_SUFFIX}" for p in participants] + [out / TRUTH_JSON,
                                                                        out / TRUTH_CSV]
     existing = [t for t in targets if t.exists()]
@@ -205,38 +253,56 @@ def simulate_panel(manifest_path: str | Path, out_dir: str | Path, opts: Simulat
                        "repetitions": repetitions, "truth_file": TRUTH_JSON},
     }
 
-    raters: list[RaterTruth] = []
     n_trials = len(stimuli) * repetitions
     bar = tqdm(total=opts.raters * n_trials, desc="simulate", unit="rating",
                disable=not progress)
+    t0 = time.monotonic()
+
+    def rater(k: int, on_change: Callable[[], None] | None = None) -> RaterTruth:
+        participant = participants[k]
+        rng = np.random.default_rng(rater_seeds[k])
+        bias = _truncated_normal(rng, opts.bias_sd, opts.bias_limit_sd) * unit
+        sigma = float(rng.uniform(*opts.inconsistency_range)) * unit
+        truth = RaterTruth(participant, bias, sigma, kinds[k], rater_seeds[k],
+                           f"{participant}{SESSION_SUFFIX}")
+        plan = make_schedule(items, repetitions, rater_seeds[k])
+        real_time = upload is not None
+        clock = None if real_time else START_TIME + timedelta(days=k)
+        store = SessionStore.create(
+            out / f"{participant}{SESSION_SUFFIX}", participant=participant,
+            study_id=m.study_id, manifest_sha256=loaded.sha256, seed=rater_seeds[k],
+            app_version=f"{__version__}+simulated", plan=plan, settings=settings,
+            created_at=_iso(clock) if clock else None, durable=False,
+        )
+        with store:
+            if on_change is not None:
+                on_change()
+            store.save_preflight([{"name": "simulated", "ok": True,
+                                   "message": "simulated participant: no display"}],
+                                 skipped=True)
+            store.mark_started(display={"simulated": True})
+            for trial in plan:
+                stim = by_id[trial.stimulus]
+                rating = _rate(rng, quality[stim.id], bias, sigma, ambiguity[stim.scene],
+                               kinds[k], scale)
+                result, clock = _trial_result(rng, rating, clock)
+                if upload is not None and upload.pace_s > 0:
+                    time.sleep(upload.pace_s)
+                store.record(trial.index, result)
+                if on_change is not None:
+                    on_change()
+                bar.update(1)
+            store.finish()
+            if on_change is not None:
+                on_change()
+        return truth
+
+    statuses: dict[str, UploadStatus] = {}
     try:
-        for k, participant in enumerate(participants):
-            rng = np.random.default_rng(rater_seeds[k])
-            bias = _truncated_normal(rng, opts.bias_sd, opts.bias_limit_sd) * unit
-            sigma = float(rng.uniform(*opts.inconsistency_range)) * unit
-            raters.append(RaterTruth(participant, bias, sigma, kinds[k], rater_seeds[k],
-                                     f"{participant}{SESSION_SUFFIX}"))
-            plan = make_schedule(items, repetitions, rater_seeds[k])
-            clock = START_TIME + timedelta(days=k)
-            store = SessionStore.create(
-                out / f"{participant}{SESSION_SUFFIX}", participant=participant,
-                study_id=m.study_id, manifest_sha256=loaded.sha256, seed=rater_seeds[k],
-                app_version=f"{__version__}+simulated", plan=plan, settings=settings,
-                created_at=_iso(clock),
-            )
-            with store:
-                store.save_preflight([{"name": "simulated", "ok": True,
-                                       "message": "simulated participant: no display"}],
-                                     skipped=True)
-                store.mark_started(display={"simulated": True})
-                for trial in plan:
-                    stim = by_id[trial.stimulus]
-                    rating = _rate(rng, quality[stim.id], bias, sigma, ambiguity[stim.scene],
-                                   kinds[k], scale)
-                    result, clock = _trial_result(rng, rating, clock)
-                    store.record(trial.index, result)
-                    bar.update(1)
-                store.finish()
+        if upload is None:
+            raters = [rater(k) for k in range(opts.raters)]
+        else:
+            raters, statuses = _rate_and_upload(rater, participants, out, upload, t0)
     finally:
         bar.close()
 
@@ -275,7 +341,70 @@ def simulate_panel(manifest_path: str | Path, out_dir: str | Path, opts: Simulat
         writer.writerows(truth["stimuli"])
     log.info("simulated %d raters (%d outliers) x %d trials into %s", opts.raters,
              opts.outliers, n_trials, out)
-    return truth_path
+    return SimulationRun(truth_path, statuses)
+
+
+class _OfflineClient(ServerClient):
+    """A participant whose network is down for a while (simulated outage)."""
+
+    def __init__(self, server: str, token: str, down: tuple[float, float], t0: float) -> None:
+        super().__init__(server, token)
+        self._down = (t0 + down[0], t0 + down[1])
+
+    def open(self, *args: Any, **kwargs: Any) -> Any:
+        if self._down[0] <= time.monotonic() < self._down[1]:
+            raise ServerUnavailable("simulated network outage")
+        return super().open(*args, **kwargs)
+
+
+def _rate_and_upload(rater: Callable[..., RaterTruth], participants: list[str], out: Path,
+                     upload: UploadOptions, t0: float
+                     ) -> tuple[list[RaterTruth], dict[str, UploadStatus]]:
+    """Every rater at once, each in a thread, each with its uploader (the app's)."""
+    uploaders: dict[str, Uploader] = {}
+    results: dict[int, RaterTruth] = {}
+    errors: list[BaseException] = []
+
+    def one(k: int) -> None:
+        pid = participants[k]
+        down = upload.offline.get(pid)
+        make = upload.client_factory or ServerClient
+        client = (_OfflineClient(upload.server, upload.tokens[pid], down, t0) if down
+                  else make(upload.server, upload.tokens[pid]))
+        up = Uploader(out / f"{pid}{SESSION_SUFFIX}", client, pid,
+                      min_backoff_s=upload.min_backoff_s, max_backoff_s=upload.max_backoff_s,
+                      seed=k)
+        uploaders[pid] = up
+        started = False
+
+        def changed() -> None:
+            nonlocal started
+            if not started:  # the uploader starts once the session file exists
+                up.start()
+                started = True
+            up.notify()
+
+        try:
+            results[k] = rater(k, changed)
+        except BaseException as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=one, args=(k,), name=f"rater-{participants[k]}")
+               for k in range(len(participants))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    if errors:
+        for up in uploaders.values():
+            up.stop()
+        raise errors[0]
+    deadline = time.monotonic() + upload.timeout_s
+    statuses = {}
+    for pid, up in uploaders.items():
+        statuses[pid] = up.flush(max(deadline - time.monotonic(), 0.1))
+        up.stop()
+    return [results[k] for k in range(len(participants))], statuses
 
 
 def _truncated_normal(rng: np.random.Generator, sd: float, limit_sd: float) -> float:
@@ -301,17 +430,23 @@ def _rate(rng: np.random.Generator, q: float, bias: float, sigma: float, delta: 
 
 
 def _trial_result(rng: np.random.Generator, rating: float,
-                  clock: datetime) -> tuple[TrialResult, datetime]:
-    """Plausible behaviour around a rating: response time, switches, viewing split."""
+                  clock: datetime | None) -> tuple[TrialResult, datetime | None]:
+    """Plausible behaviour around a rating: response time, switches, viewing split.
+    ``clock`` None: real time (the trial ends now)."""
     rt = float(rng.lognormal(np.log(6000.0), 0.35))
     toggles = int(rng.poisson(3))
     on_ref = rt * float(rng.uniform(0.3, 0.5))
-    presented = clock
-    answered = presented + timedelta(milliseconds=rt)
+    if clock is None:
+        answered = datetime.now(UTC)
+        presented = answered - timedelta(milliseconds=rt)
+    else:
+        presented = clock
+        answered = presented + timedelta(milliseconds=rt)
     result = TrialResult(
         rating=rating, rt_ms=rt, n_toggles=toggles, ms_on_reference=on_ref,
         ms_on_test=rt - on_ref, presented_at=_iso(presented),
         slider_first_move_ms=rt * float(rng.uniform(0.5, 0.9)), answered_at=_iso(answered),
         details={"simulated": True},
     )
-    return result, answered + timedelta(milliseconds=float(rng.uniform(400, 1500)))
+    pause = timedelta(milliseconds=float(rng.uniform(400, 1500)))
+    return result, None if clock is None else answered + pause

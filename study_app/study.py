@@ -7,6 +7,7 @@ rates and sizes of each test/reference pair).
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +24,7 @@ from stimuli_manifests import (
 
 from .errors import StudyError
 from .schedule import ScheduleItem
+from .session import check_participant_id
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +42,8 @@ class Study:
     loaded: LoadedManifest
     briefing: str | None
     consent: str | None
+    text_hashes: dict[str, str] = field(default_factory=dict)
+    """sha256 of the bytes of each text file read (``briefing.md``, ``consent.md``)."""
 
     @property
     def manifest(self) -> Manifest:
@@ -47,13 +51,16 @@ class Study:
 
     def session_path(self, participant: str, sessions_dir: Path | None = None) -> Path:
         """Where this participant's session file lives (``<study>/sessions/<id>.sqlite``)."""
-        safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in participant)
-        if not safe or safe != participant:
-            raise StudyError(
-                f"participant id {participant!r} may contain only letters, digits, '-', '_' "
-                "and '.'; choose another id"
-            )
-        return (sessions_dir or self.folder / SESSIONS_DIR) / f"{participant}.sqlite"
+        participant = check_participant_id(participant)
+        folder = sessions_dir or self.folder / SESSIONS_DIR
+        if folder.exists() and not folder.is_dir():
+            raise StudyError(f"the sessions folder {folder} is a file, not a folder; choose a "
+                             "folder for the session files")
+        return folder / f"{participant}.sqlite"
+
+    def text_sha256(self, name: str) -> str | None:
+        """sha256 of a study text file as read (``briefing.md``/``consent.md``), or None."""
+        return self.text_hashes.get(name)
 
     def schedule_items(self) -> list[ScheduleItem]:
         return [ScheduleItem(s.id, s.reference, s.is_hidden_reference)
@@ -79,11 +86,20 @@ def load_study(folder: str | Path) -> Study:
     except StimuliError as exc:
         raise StudyError(str(exc)) from None
 
+    hashes: dict[str, str] = {}
+
     def text(name: str) -> str | None:
         p = folder / name
-        return p.read_text(encoding="utf-8") if p.is_file() else None
+        if not p.is_file():
+            return None
+        data = p.read_bytes()
+        hashes[name] = hashlib.sha256(data).hexdigest()
+        try:
+            return data.decode("utf-8-sig").replace("\r\n", "\n")
+        except UnicodeDecodeError:
+            raise StudyError(f"{p} is not UTF-8 text; save it as UTF-8") from None
 
-    return Study(folder, loaded, text(BRIEFING_NAME), text(CONSENT_NAME))
+    return Study(folder, loaded, text(BRIEFING_NAME), text(CONSENT_NAME), hashes)
 
 
 @dataclass
@@ -149,11 +165,32 @@ def check_study(study: Study, *, progress: bool = False) -> StudyCheck:
                                                        "png", "utvideo", "ffvhuff"):
             out.warnings.append(f"{sid}: codec {info.codec}; make sure decoding is lossless "
                                 "enough for a quality study")
+    if out.videos:
+        big = (max(v.width for v in out.videos.values()),
+               max(v.height for v in out.videos.values()))
+        if big[0] <= disp.min_width and big[1] <= disp.min_height and not _label_fits(
+                (disp.min_width, disp.min_height), big):
+            out.errors.append(
+                f"videos of {big[0]}x{big[1]} leave no room for the test/reference label on the "
+                f"minimum display {disp.min_width}x{disp.min_height}, so the pre-flight would "
+                "refuse such screens; raise display.min_width/min_height in the manifest")
     fps_set = {round(v.fps, 3) for v in out.videos.values()}
     if len(fps_set) > 1:
         out.warnings.append("stimuli use several frame rates: " +
                             ", ".join(f"{f:g}" for f in sorted(fps_set)))
     return out
+
+
+def _label_fits(window: tuple[int, int], video: tuple[int, int]) -> bool:
+    """Whether the viewing screen has room beside the video for its label (as the app
+    lays it out with the shipped font)."""
+    from .fonts import Fonts
+    from .layout import viewing_layout
+    from .screens.draw import LABEL_REFERENCE, LABEL_TEST
+
+    lay = viewing_layout(window, video, Fonts(), labels=[LABEL_TEST, LABEL_REFERENCE],
+                         progress="Trial 1 of 1", hints=[], notice=[])
+    return lay.label is not None
 
 
 def _probe(study: Study, sid: str, rel: str, out: StudyCheck) -> None:

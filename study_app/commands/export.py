@@ -6,30 +6,29 @@ import argparse
 from pathlib import Path
 
 NAME = "export"
-HELP = "pack a session file into one zip to send back (and optionally write the ratings CSV)"
+HELP = ("pack a session file into one zip to send back, <participant>_<session>.zip in the "
+        "current folder (and optionally write the ratings CSV)")
 
 
 def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("session", type=Path, help="the session file (<participant>.sqlite)")
-    parser.add_argument("--out", type=Path, default=None,
-                        help="zip to write (default: <participant>_<session>.zip beside it)")
+    parser.add_argument("--out", type=Path, default=None, metavar="ZIP|DIR",
+                        help="zip file or folder to write to (default: the current folder)")
     parser.add_argument("--csv", type=Path, default=None, metavar="OUT",
                         help="also write the tidy ratings CSV to OUT")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..export import export_session
-    from ..session import read_ratings, verify_session, write_ratings_csv
+    from ..session import read_session, verify_session, write_ratings_csv
 
     report = verify_session(args.session)
     out = export_session(args.session, args.out)
     if args.csv is not None:
-        rows, _ = read_ratings(args.session)
+        rows = read_session(args.session).ratings
         write_ratings_csv(rows, args.csv)
         print(f"ratings CSV: {args.csv} ({len(rows)} rows)")
-    state = ("complete" if report.complete else
-             "INCOMPLETE" if report.intact else "DAMAGED")
-    print(f"{out}  ({report.n_ratings} of {report.n_planned} ratings, {state})")
+    print(f"{out}  ({report.n_ratings} of {report.n_planned} ratings, {report.state.upper()})")
     for problem in report.problems:
         print(f"  problem: {problem}")
     return 0

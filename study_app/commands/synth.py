@@ -8,6 +8,7 @@ import re
 from ..errors import StudyError
 
 NAME = "synth"
+EXTRA = "synth"  # the post-processing needs scipy
 HELP = "render synthetic computer-graphics stimuli (six distortion families x 4 levels)"
 
 

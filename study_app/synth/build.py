@@ -10,6 +10,7 @@ the lossless writer are deterministic, so the same options give the same bytes.
 from __future__ import annotations
 
 import logging
+import math
 import shutil
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -34,7 +35,7 @@ from ..errors import StudyError
 from .color import to_display
 from .denoise import atrous_denoise
 from .interpolate import interpolate_frames
-from .methods import INTERPOLATED_FPS, METHODS
+from .methods import DEFAULT_SCENES, INTERPOLATED_FPS, METHODS
 from .renderer import GBuffer, SceneRenderer, available_scenes, create_context
 from .splats import splat_sequence
 from .upscale import TemporalUpscaler, jitter_sequence
@@ -44,7 +45,6 @@ log = logging.getLogger(__name__)
 
 VIDEO_DIR = "videos"
 MANIFEST_NAME = "manifest.json"
-DEFAULT_SCENES = ("colonnade", "lattice")
 SPLAT_KEYFRAME_SECONDS = 0.25
 
 
@@ -71,6 +71,8 @@ class SynthOptions:
             )
         if self.fps not in (30, 60):
             raise StudyError(f"--fps {self.fps}: choose 30 or 60")
+        if not math.isfinite(self.seconds):
+            raise StudyError(f"--seconds {self.seconds}: give a finite number of seconds, e.g. 1")
         frames = self.seconds * self.fps
         if self.seconds <= 0 or abs(frames - round(frames)) > 1e-6 or round(frames) < 2:
             raise StudyError(

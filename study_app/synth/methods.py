@@ -11,6 +11,9 @@ from dataclasses import dataclass
 
 from ..errors import StudyError
 
+# Scenes rendered when the user names none (the GLSL programs in shaders/).
+DEFAULT_SCENES = ("colonnade", "lattice")
+
 
 @dataclass(frozen=True)
 class Level:

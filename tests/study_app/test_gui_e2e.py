@@ -1,10 +1,12 @@
 """End to end: the real app on a virtual X display (Xvfb + Mesa), driven by real X input.
 
-A tiny study (3 stimuli, 64x64, 1 s at 30 fps) is run with ``cgvq-study run``: briefing,
-consent, one practice trial, two rated trials (switching, mouse and keyboard rating), pause
-and quit; a resume that is killed with SIGKILL mid-trial; a final resume to the end screen.
-The session file is then checked against what the input events must have produced. The rating
-screen's screenshot is kept under ``test-artifacts/study_app/``.
+A tiny study (3 stimuli, 64x64, 1 s at 30 fps) is run with ``cgvq-study run`` in the
+experimenter's pilot mode (Xvfb has no vsync; the session records ``paced-pilot``): display
+check, briefing, consent, one practice trial, two rated trials (switching, mouse and keyboard
+rating), pause and a confirmed quit; a resume during which a second run of the same
+participant is refused, then killed with SIGKILL mid-trial; a final resume (taking over the
+dead run's lock) to the end screen. The session file is then checked against what the input
+events must have produced. Screenshots are kept under ``test-artifacts/study_app/e2e/``.
 """
 
 from __future__ import annotations
@@ -15,7 +17,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -31,100 +32,7 @@ pytestmark = pytest.mark.gui
 REPO = Path(__file__).resolve().parents[2]
 ARTIFACTS = REPO / "test-artifacts" / "study_app"
 SCREEN = (1280, 1024)
-
-
-def _free_display() -> int:
-    for n in range(90, 200):
-        if not Path(f"/tmp/.X{n}-lock").exists() and not Path(f"/tmp/.X11-unix/X{n}").exists():
-            return n
-    pytest.skip("no free X display number between :90 and :199")
-
-
-@pytest.fixture(scope="module")
-def xdisplay():
-    """A private Xvfb display with working OpenGL 3.3 through Mesa; skips when impossible."""
-    for tool in ("Xvfb", "xdotool"):
-        if shutil.which(tool) is None:
-            pytest.skip(f"{tool} is not installed (make test installs it as root)")
-    n = _free_display()
-    proc = subprocess.Popen(["Xvfb", f":{n}", "-screen", "0", f"{SCREEN[0]}x{SCREEN[1]}x24",
-                             "-nolisten", "tcp"], stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 10
-    while not Path(f"/tmp/.X11-unix/X{n}").exists():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            proc.kill()
-            pytest.skip("Xvfb did not start")
-        time.sleep(0.05)
-    env = {**os.environ, "DISPLAY": f":{n}", "SDL_VIDEODRIVER": "x11",
-           "SDL_AUDIODRIVER": "dummy", "PYGAME_HIDE_SUPPORT_PROMPT": "1"}
-    probe = subprocess.run(
-        [sys.executable, "-c",
-         "import pygame, moderngl; pygame.display.init();"
-         "[pygame.display.gl_set_attribute(a, v) for a, v in ("
-         "(pygame.GL_CONTEXT_MAJOR_VERSION, 3), (pygame.GL_CONTEXT_MINOR_VERSION, 3),"
-         "(pygame.GL_CONTEXT_PROFILE_MASK, pygame.GL_CONTEXT_PROFILE_CORE))];"
-         "pygame.display.set_mode((64, 64), pygame.OPENGL | pygame.DOUBLEBUF);"
-         "moderngl.create_context(require=330)"],
-        env=env, capture_output=True, text=True, timeout=60)
-    if probe.returncode != 0:
-        proc.kill()
-        pytest.skip(f"no OpenGL 3.3 on Xvfb: {probe.stderr.strip().splitlines()[-1:]}")
-    yield env
-    proc.terminate()
-    proc.wait(timeout=10)
-
-
-class AppDriver:
-    """Runs ``cgvq-study run`` and follows its ``state:`` log lines."""
-
-    def __init__(self, env: dict[str, str], args: list[str]) -> None:
-        self.env = env
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "study_app.cli", "-v", "run", *args],
-            env={**env, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE, text=True)
-        self.lines: list[str] = []
-        self._pos = 0
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        for line in self.proc.stderr:
-            if "state:" in line or "error" in line.lower() or "Traceback" in line:
-                self.lines.append(line.strip())
-
-    def wait(self, state: str, timeout: float = 20.0) -> str:
-        """Wait for the next ``state: <state>`` line; returns it."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            while self._pos < len(self.lines):
-                line = self.lines[self._pos]
-                self._pos += 1
-                if re.search(rf"state: {re.escape(state)}(\s|$)", line):
-                    return line
-            if self.proc.poll() is not None and self._pos >= len(self.lines):
-                break
-            time.sleep(0.02)
-        pytest.fail(f"app never reached state {state!r}; log: {self.lines[-15:]}")
-
-    def key(self, *keys: str) -> None:
-        for k in keys:
-            subprocess.run(["xdotool", "key", k], env=self.env, check=True)
-            time.sleep(0.12)
-
-    def click(self, x: float, y: float) -> None:
-        subprocess.run(["xdotool", "mousemove", str(round(x)), str(round(y)), "click", "1"],
-                       env=self.env, check=True)
-
-    def finish(self, timeout: float = 20) -> tuple[int, str]:
-        """Wait for the app to exit; returns its exit code and stdout."""
-        self.proc.wait(timeout=timeout)
-        self._reader.join(timeout=5)
-        out = self.proc.stdout.read()
-        self.proc.stdout.close()
-        self.proc.stderr.close()
-        return self.proc.returncode, out
+PILOT = "--pilot-no-vsync"  # virtual displays have no vsync: the experimenter's test mode
 
 
 def _slider(line: str) -> tuple[float, float, float]:
@@ -133,35 +41,36 @@ def _slider(line: str) -> tuple[float, float, float]:
     return x0, x1, y
 
 
-def _view_then_rate(app: AppDriver, trial: int) -> str:
+def _view_then_rate(app, trial: int) -> str:
     app.wait(f"viewing trial={trial}")
-    time.sleep(1.15)  # the minimum viewing time is one loop (1 s)
-    app.key("Return")
-    return app.wait("rating")
+    return app.open_rating()  # the minimum viewing time is one loop (1 s)
 
 
-def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory):
+def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory, app_driver):
     study = study_factory(tmp_path / "study")
     session = study / "sessions" / "P01.sqlite"
-    shots = ARTIFACTS
+    lock = study / "sessions" / "P01.sqlite.lock"
+    shots = ARTIFACTS / "e2e"
     shutil.rmtree(shots, ignore_errors=True)
     args = [str(study), "--participant", "P01", "--seed", "5", "--max-dropped-frames", "-1",
-            "--screenshots", str(shots)]
+            "--screenshots", str(shots), PILOT]
 
-    # -- run 1: briefing, consent, practice, two trials, pause, quit ---------------------
-    app = AppDriver(xdisplay, [*args, "--practice", "1"])
-    app.wait("briefing")
+    # -- run 1: display check, briefing, consent, practice, two trials, pause, quit -------
+    app = app_driver(xdisplay, [*args, "--practice", "1"])
+    app.wait("preflight-passed")
+    assert not study.joinpath("sessions", "P01.sqlite").exists()  # nothing stored yet
+    app.key("space")
+    app.wait("welcome")
     app.key("space")
     app.wait("consent")
+    assert not session.exists()
     app.key("a")
-    app.wait("practice-intro")
+    app.wait("practice")
     app.key("space")
     app.wait("viewing trial=-1 practice=1")
-    time.sleep(1.15)
-    app.key("Return")
-    app.wait("rating")
+    app.open_rating()
     app.key("Right", "Return")
-    app.wait("practice-done")
+    app.wait("practice-end")
     app.key("space")
 
     app.wait("viewing trial=0")
@@ -171,9 +80,7 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory):
     time.sleep(1.2)  # the blank (0.5 s) is over: the reference shows for about 0.7 s
     app.key("space")
     app.wait("switch to=test")
-    time.sleep(1.0)
-    app.key("Return")
-    x0, x1, y = _slider(app.wait("rating"))
+    x0, x1, y = _slider(app.open_rating(min_view_s=0.5))
     app.click(x0 + 0.7 * (x1 - x0), y)
     app.wait("slider")
     time.sleep(0.2)
@@ -189,14 +96,21 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory):
     app.key("p")
     app.wait("pause")
     app.key("q")
+    app.wait("confirm-quit")  # quitting asks first; "no" goes back to the pause screen
+    app.key("Escape")
+    app.wait("pause")
+    app.key("q")
+    app.wait("confirm-quit")
+    app.key("y")
     code, out = app.finish()
     assert code == 0, out
     assert "2 of 3 trials answered" in out
+    assert not lock.exists()
 
     rows, problems = read_ratings(session)
     assert problems == []
     assert [r["trial"] for r in rows] == [0, 1]
-    assert rows[0]["rating"] == pytest.approx(70.0, abs=0.15)  # one pixel of a 1120 px track
+    assert rows[0]["rating"] == pytest.approx(70.0, abs=0.15)  # one pixel of the track
     assert rows[1]["rating"] == 69.0
     assert rows[0]["n_toggles"] == 2 and rows[1]["n_toggles"] == 0
     assert rows[0]["ms_on_reference"] > 500 and rows[0]["ms_on_test"] > 500
@@ -205,7 +119,8 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory):
     with SessionStore.open(session) as store:
         logs = [p for p in store.presentations() if p["trial"] == 0]
         info = store.info
-        events = [e["kind"] for e in store.events()]
+        events = store.events()
+    kinds = [e["kind"] for e in events]
     assert len(logs) == 1
     lat = logs[0]["switch_latencies_ms"]
     # Each switch: a mid-grey blank of round(0.5 s x 60 Hz) = 30 refreshes of the presentation
@@ -216,27 +131,48 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory):
     assert len(lat) == 2 and all(400 < v < 3000 for v in lat)
     assert all(400 < v < 3000 for v in logs[0]["blank_durations_ms"])
     assert logs[0]["frames_presented"] > 60 and logs[0]["slider_first_move_ms"] > 1000
-    assert info.display["vsync"] is False  # Xvfb: paced by the monotonic clock
+    assert logs[0]["timing_mode"] == "paced-pilot"
+    # Xvfb has no vsync: the run was the experimenter's pilot mode, and the session says so.
+    assert info.settings["timing_mode"] == "paced-pilot"
+    assert info.display["vsync"] is False and info.display["timing_mode"] == "paced-pilot"
     assert info.display["window"] == list(SCREEN)
+    assert info.display["monitors"] == 1 and info.display["monitor_index"] == 0
+    assert info.display["screen"] == list(SCREEN) and info.display["pixel_ratio"] == 1.0
     assert {c["name"] for c in info.preflight} == {
         "screen_size", "refresh_rate", "pixel_mapping", "memory", "decode_speed", "checksums"}
     assert all(c["ok"] for c in info.preflight) and not info.preflight_skipped
-    assert "pause" in events and "quit" in events
+    # Consent was recorded with the sha256 of the texts the participant saw (= the manifest's).
+    texts = load_manifest(study / "manifest.json").manifest.texts
+    consent = next(e for e in events if e["kind"] == "consent")
+    assert consent["consent_sha256"] == texts["consent.md"]
+    assert consent["briefing_sha256"] == texts["briefing.md"]
+    assert kinds.index("preflight") < kinds.index("consent") < kinds.index("start")
+    assert "pause" in kinds and "quit" in kinds
     assert cli_main(["verify", str(session)]) == 1  # intact but incomplete
 
-    # -- run 2: resume, killed with SIGKILL while trial 2 is on screen -------------------
-    app = AppDriver(xdisplay, args)
+    # -- run 2: resume; a second run of the same participant is refused; SIGKILL ----------
+    app = app_driver(xdisplay, args)
+    app.wait("preflight-passed")
+    app.key("space")
     app.wait("welcome-back")
     app.key("space")
     app.wait("viewing trial=2")
+    second = subprocess.run(
+        [sys.executable, "-m", "study_app.cli", "run", *args],
+        env={**xdisplay, "PYTHONPATH": str(REPO)}, capture_output=True, text=True, timeout=60)
+    assert second.returncode == 2
+    assert second.stderr.count("\n") == 1 and "already has a run open" in second.stderr
     time.sleep(0.3)
     os.kill(app.proc.pid, signal.SIGKILL)
     app.finish()
     rows, problems = read_ratings(session)
     assert problems == [] and len(rows) == 2
+    assert lock.exists()  # left behind by the killed run, but no longer locked
 
-    # -- run 3: resume at trial 2 and finish ---------------------------------------------
-    app = AppDriver(xdisplay, args)
+    # -- run 3: takes the dead run's lock over, resumes at trial 2 and finishes -----------
+    app = app_driver(xdisplay, args)
+    app.wait("preflight-passed")
+    app.key("space")
     app.wait("welcome-back")
     app.key("space")
     line = _view_then_rate(app, 2)
@@ -253,6 +189,7 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory):
     code, out = app.finish()
     assert code == 0, out
     assert "Session finished: 3 trials" in out
+    assert not lock.exists()
 
     rows, problems = read_ratings(session)
     assert problems == []
@@ -265,12 +202,12 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory):
     assert cli_main(["verify", str(session)]) == 0
 
     # -- screenshots: the rating screen is not blank; the video is drawn 1:1 -----------
-    rating = np.asarray(_png(shots / "rating.png"))
+    rating = np.asarray(_png(shots / "rating-after-click.png"))
     assert rating.shape == (SCREEN[1], SCREEN[0], 3)
     assert rating.std() > 5
     red = (rating[..., 0] > 180) & (rating[..., 1] < 60) & (rating[..., 2] < 60)
     assert red.sum() > 100  # the slider's marker
-    viewing = np.asarray(_png(shots / "viewing-test.png"))
+    viewing = np.asarray(_png(shots / "test.png"))
     with SessionStore.open(session) as store:
         last = store.plan()[2]  # each run rewrites the shots: the last run showed trial 2
     frame0 = read_video(load_manifest(study / "manifest.json").stimulus_path(last.stimulus))[0]
@@ -286,40 +223,57 @@ def _png(path: Path):
     return Image.open(path).convert("RGB")
 
 
-def test_gui_preflight_failure_says_what_to_change(tmp_path, xdisplay, study_factory):
-    """A study that needs a bigger screen than Xvfb's stops with a message, before any trial."""
-    study = study_factory(tmp_path / "study", min_display=(1920, 1080), briefing=False,
-                       consent=False)
-    app = AppDriver(xdisplay, [str(study), "--participant", "P02", "--practice", "0"])
+def test_gui_preflight_failure_says_what_to_change(tmp_path, xdisplay, study_factory,
+                                                  app_driver):
+    """A study that needs a bigger screen than Xvfb's stops with a message before briefing
+    and consent, and leaves nothing behind: no session file, no lock, no sessions folder."""
+    study = study_factory(tmp_path / "study", min_display=(1920, 1080))
+    app = app_driver(xdisplay, [str(study), "--participant", "P02", "--practice", "0", PILOT])
     app.wait("preflight-failed")
     app.key("Escape")
     code, _ = app.finish()
     assert code == 2
     err = " ".join(app.lines)
     assert "1280x1024" in err and "1920x1080" in err and "monitor" in err
-    rows, _ = read_ratings(study / "sessions" / "P02.sqlite")
-    assert rows == []
-    with SessionStore.open(study / "sessions" / "P02.sqlite") as store:
-        failed = [c["name"] for c in store.info.preflight if not c["ok"]]
-    assert failed == ["screen_size"]
+    assert "--" not in err.split("pre-flight failed:", 1)[1]  # no command-line flag for them
+    assert not any("state: welcome" in ln or "state: consent" in ln for ln in app.lines)
+    assert not (study / "sessions").exists()
+
+
+def test_gui_without_vsync_a_participant_run_stops_at_the_preflight(tmp_path, xdisplay,
+                                                                    study_factory, app_driver):
+    """Xvfb gives no vsync: without the experimenter's pilot flag the run stops at the
+    pre-flight, telling the participant what to change on the computer."""
+    study = study_factory(tmp_path / "study")
+    app = app_driver(xdisplay, [str(study), "--participant", "P03"])
+    app.wait("preflight-failed")
+    app.key("Return")
+    code, _ = app.finish()
+    assert code == 2
+    err = " ".join(app.lines)
+    assert "refresh_rate" in err and "vertical sync" in err and "graphics driver" in err
+    assert "--" not in err.split("pre-flight failed:", 1)[1]
+    assert not (study / "sessions").exists()
 
 
 WARM_UP_PROBE = """
 import numpy as np
-from study_app.app import Display, OnGpu, draw_viewing, warm_up_viewing
-d = Display(windowed=True, window_size=(640, 480), refresh_hz=60, force_pacer=True)
+from study_app.app import Display, draw_viewing, warm_up_viewing
+from study_app.layout import viewing_layout
+d = Display(windowed=True, window_size=(800, 600), refresh_hz=60, force_pacer=True)
 r = d.renderer
 frames = np.zeros((3, 64, 64, 3), np.uint8)
-gpu = OnGpu("S", {"test": r.upload_video(frames), "reference": r.upload_video(frames)},
-            64, 64, 3, 30.0, 0.0)
+tex = {"test": r.upload_video(frames), "reference": r.upload_video(frames)}
+lay = viewing_layout(d.size, (64, 64), d.fonts, labels=["Test video", "Reference"],
+                     progress="Trial 1 of 2", hints=["Space: switch", "Enter: rate"],
+                     notice=["Please watch for at least", "1.0 s before rating"])
 before = len(r._text_cache)
-warm_up_viewing(r, d.window_size, gpu, "Trial 1 of 2", 1.0)
+warm_up_viewing(r, lay, tex)
 warmed = len(r._text_cache)
 for content in ("test", "blank", "reference"):
     for notice in (False, True):
         for idx in range(3):
-            draw_viewing(r, d.window_size, gpu, content, idx, "Trial 1 of 2", notice=notice,
-                         min_view=1.0)
+            draw_viewing(r, lay, tex.get(content), content, idx, notice=notice)
 print(before, warmed, len(r._text_cache))
 """
 
@@ -332,17 +286,17 @@ def test_warm_up_makes_every_viewing_texture_before_the_first_flip(xdisplay):
                          text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     before, warmed, after = (int(v) for v in out.stdout.split()[-3:])
-    assert warmed - before >= 5  # two labels, the progress line, two hints
+    assert warmed - before >= 7  # two labels, the progress line, two hints, two notice lines
     assert after == warmed
 
 
 ONE_TO_ONE_PROBE = """
 import numpy as np
 from study_app.app import Display
-d = Display(windowed=True, window_size=(637, 479), refresh_hz=60, force_pacer=True)
+d = Display(windowed=True, window_size=(837, 679), refresh_hz=60, force_pacer=True)
 r, ctx = d.renderer, d.ctx
 W, H = d.window_size
-for h, w in ((333, 501), (1, 3), (479, 637)):
+for h, w in ((333, 501), (1, 3), (679, 837)):
     frames = np.random.default_rng(h).integers(0, 256, (3, h, w, 3), dtype=np.uint8)
     video = r.upload_video(frames)
     r.clear()
@@ -364,3 +318,24 @@ def test_video_frames_are_drawn_one_to_one_at_odd_sizes(xdisplay):
     assert out.returncode == 0, out.stderr[-2000:]
     rows = [line.split() for line in out.stdout.strip().splitlines()[-3:]]
     assert [r[2] for r in rows] == ["1", "1", "1"], rows
+
+
+SDL_PROBE = """
+import pygame
+pygame.display.init()
+from study_app import sdl
+from study_app.keys import letter_scancode
+print(sdl.layout_key_name(letter_scancode("q")), sdl.display_bounds(), sdl.display_name(0))
+"""
+
+
+def test_sdl_queries_monitor_and_keyboard_layout(xdisplay):
+    """Monitor bounds and names, and the layout's key names, come from the SDL library
+    Pygame loaded (Xvfb: one 1280x1024 screen, US layout)."""
+    out = subprocess.run([sys.executable, "-c", SDL_PROBE],
+                         env={**xdisplay, "PYTHONPATH": str(REPO)}, capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0, out.stderr[-2000:]
+    key, rest = out.stdout.strip().split(" ", 1)
+    assert key == "Q"
+    assert rest.startswith("[(0, 0, 1280, 1024)]")

@@ -1,0 +1,119 @@
+"""The experimenter's side: ``pull`` every session from the server, as received.
+
+Each participant's entries are fetched page by page and replayed into a new session file
+with :class:`~study_app.session.Replica` (which checks the chain again), so the files are
+regular session files for ``verify`` and ``cgvq-analyze``. The server's flags travel along:
+they are printed and kept in ``server_listing.json`` beside the files.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlencode
+
+from ..errors import StudyError
+from ..session import OutboxEntry, Replica, VerifyReport, read_session, verify_session
+from ..session.ids import check_participant_id
+from ..session.ratings_csv import write_ratings_csv
+from .http import ServerClient
+from .protocol import ADMIN_SESSIONS, admin_entries_path
+
+log = logging.getLogger(__name__)
+
+PAGE = 1000
+LISTING_FILE = "server_listing.json"
+
+
+@dataclass
+class PulledSession:
+    participant: str
+    path: Path | None
+    report: VerifyReport | None
+    version: int | None
+    manifest_sha256: str | None
+    flags: list[dict[str, Any]] = field(default_factory=list)
+
+
+@dataclass
+class PullResult:
+    study_id: str
+    sessions: list[PulledSession]
+    not_started: list[str]
+    withdrawn: list[str]
+    listing_path: Path
+    csv_path: Path | None = None
+    n_csv_rows: int = 0
+
+
+def _entries(client: ServerClient, pid: str) -> list[OutboxEntry]:
+    out: list[OutboxEntry] = []
+    after = 0
+    while True:
+        page = client.json("GET", admin_entries_path(pid) + "?" +
+                           urlencode({"after": after, "limit": PAGE}))
+        rows = page["entries"]
+        for r in rows:
+            out.append(OutboxEntry(int(r["seq"]), str(r["kind"]), json.loads(r["body_json"]),
+                                   str(r["prev_hash"]), str(r["entry_hash"])))
+        if len(rows) < PAGE:
+            return out
+        after = out[-1].seq
+
+
+def _build(path: Path, entries: list[OutboxEntry]) -> None:
+    """Replay ``entries`` into a new session file at ``path`` (replacing an older pull)."""
+    with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
+        built = Path(tmp) / path.name
+        with Replica.create(built, entries[0]) as rep:
+            rep.accept(entries[1:])
+        for suffix in ("-wal", "-shm"):
+            Path(f"{path}{suffix}").unlink(missing_ok=True)
+        shutil.move(str(built), str(path))
+
+
+def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | None = None,
+         progress: Callable[[str], None] | None = None) -> PullResult:
+    """Fetch every session into ``out/<participant>.sqlite`` (see the module doc)."""
+    client = ServerClient(server, admin_token, timeout=120)
+    listing = client.json("GET", ADMIN_SESSIONS)
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise StudyError(f"--out {out} is a file; give a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    sessions: list[PulledSession] = []
+    not_started: list[str] = []
+    rows: list[dict[str, Any]] = []
+    for p in listing["participants"]:
+        pid = check_participant_id(p["participant"])
+        s = p.get("session")
+        if s is None:
+            not_started.append(pid)
+            continue
+        if progress is not None:
+            progress(pid)
+        entries = _entries(client, pid)
+        if not entries:
+            not_started.append(pid)
+            continue
+        path = out / f"{pid}.sqlite"
+        _build(path, entries)
+        report = verify_session(path)
+        sessions.append(PulledSession(pid, path, report, s.get("version"),
+                                      s.get("manifest_sha256"), list(p.get("flags", []))))
+        if csv is not None:
+            rows += read_session(path).ratings
+    listing_path = out / LISTING_FILE
+    listing_path.write_text(json.dumps(listing, indent=2) + "\n", encoding="utf-8")
+    result = PullResult(str(listing["study_id"]), sessions, not_started,
+                        [w["participant"] for w in listing.get("withdrawn", [])], listing_path)
+    if csv is not None:
+        write_ratings_csv(rows, csv)
+        result.csv_path, result.n_csv_rows = Path(csv), len(rows)
+    return result

@@ -1,0 +1,245 @@
+"""Downloading a study from its server: manifest, texts and videos, resumable and checked.
+
+:func:`study_plan` asks the server which version of the study this participant runs and
+which files it needs; :meth:`DownloadPlan.missing_bytes` is what remains to fetch (files
+already in the cache with the right sha256 are kept), so the app can show the size and check
+free disk space (:func:`check_disk_space`) before anything is written. :func:`download_study`
+then fetches each missing file into ``<name>.part``; a download cut off mid-file resumes with
+an HTTP ``Range`` request from where it stopped. Every finished file is checked against the
+sha256 the server listed (and the manifest's own sha256 against the version's); a mismatch
+deletes the file and refuses.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+from typing import Any
+from urllib.parse import quote
+
+from ..errors import StudyError
+from .http import ServerClient, ServerUnavailable
+from .protocol import participant_path
+
+log = logging.getLogger(__name__)
+
+CHUNK = 1 << 20
+DISK_MARGIN_BYTES = 200 * 1024 * 1024
+"""Free space kept beyond the download (session file, decoded frames spilled by the OS)."""
+
+Progress = Callable[[int, int, str], None]
+"""``progress(bytes_done, bytes_total, file_name)`` during a download."""
+
+
+@dataclass(frozen=True)
+class RemoteFile:
+    path: str
+    """Relative to the study folder, POSIX separators."""
+    size: int
+    sha256: str
+
+
+@dataclass(frozen=True)
+class DownloadPlan:
+    """The study version a participant runs and where its files go."""
+
+    study_id: str
+    manifest_sha256: str
+    files: tuple[RemoteFile, ...]
+    folder: Path
+    """``<cache>/<study_id>/<manifest sha256 prefix>``: the local study folder."""
+
+    @property
+    def total_bytes(self) -> int:
+        return sum(f.size for f in self.files)
+
+    def local(self, f: RemoteFile) -> Path:
+        return self.folder.joinpath(*PurePosixPath(f.path).parts)
+
+    def cached(self, f: RemoteFile) -> bool:
+        """Present with the right size and sha256 (the hash is remembered beside the file)."""
+        p = self.local(f)
+        try:
+            if p.stat().st_size != f.size:
+                return False
+        except OSError:
+            return False
+        mark = p.with_name(p.name + ".sha256")
+        if mark.is_file() and mark.read_text(encoding="ascii").strip() == f.sha256:
+            return True
+        if _sha256(p) == f.sha256:
+            mark.write_text(f.sha256 + "\n", encoding="ascii")
+            return True
+        return False
+
+    def missing(self) -> list[RemoteFile]:
+        return [f for f in self.files if not self.cached(f)]
+
+    def missing_bytes(self) -> int:
+        """Bytes still to download (partial downloads counted as what they lack)."""
+        total = 0
+        for f in self.missing():
+            part = _part(self.local(f))
+            have = part.stat().st_size if part.is_file() else 0
+            total += max(f.size - have, 0) if have <= f.size else f.size
+        return total
+
+
+def _part(p: Path) -> Path:
+    return p.with_name(p.name + ".part")
+
+
+def _sha256(p: Path) -> str:
+    digest = hashlib.sha256()
+    with open(p, "rb") as fh:
+        while chunk := fh.read(CHUNK):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _safe_relative(text: Any) -> str:
+    if not isinstance(text, str) or not text or "\\" in text or "\0" in text:
+        raise StudyError(f"the study server listed an invalid file name {text!r}")
+    parts = PurePosixPath(text).parts
+    if PurePosixPath(text).is_absolute() or any(p in ("..", ".", "") for p in parts):
+        raise StudyError(f"the study server listed a file outside the study folder: {text!r}")
+    return text
+
+
+def study_plan(client: ServerClient, participant: str, cache: str | Path) -> DownloadPlan:
+    """Ask the server which study version and files this participant needs."""
+    info = client.json("GET", participant_path(participant, "study"))
+    try:
+        study_id = str(info["study_id"])
+        sha = str(info["manifest_sha256"])
+        files = tuple(RemoteFile(_safe_relative(f["path"]), int(f["size"]), str(f["sha256"]))
+                      for f in info["files"])
+    except (KeyError, TypeError, ValueError):
+        raise StudyError("the study server's file list is malformed") from None
+    from ..session.ids import check_participant_id
+
+    try:
+        check_participant_id(study_id)
+    except StudyError:
+        raise StudyError(f"the study server names an invalid study id {study_id!r}") from None
+    if len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
+        raise StudyError("the study server sent an invalid manifest checksum")
+    if "manifest.json" not in {f.path for f in files}:
+        raise StudyError("the study server's file list lacks manifest.json")
+    folder = Path(cache) / study_id / sha[:16]
+    return DownloadPlan(study_id, sha, files, folder)
+
+
+def check_disk_space(plan: DownloadPlan, *, margin: int = DISK_MARGIN_BYTES) -> tuple[int, int]:
+    """(bytes needed, bytes free); :class:`StudyError` when they do not fit."""
+    need = plan.missing_bytes()
+    probe = plan.folder
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free
+    if need and need + margin > free:
+        raise StudyError(
+            f"the study needs {human_bytes(need)} more disk space, but only {human_bytes(free)} "
+            f"is free on the disk of {plan.folder}; free some space (or choose another folder "
+            "with --cache) and start again")
+    return need, free
+
+
+def human_bytes(n: float) -> str:
+    for unit in ("B", "KB", "MB", "GB"):
+        if abs(n) < 1000 or unit == "GB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000.0
+    return f"{n:.1f} GB"
+
+
+def _fetch(client: ServerClient, participant: str, f: RemoteFile, dest: Path,
+           done_before: int, total: int, progress: Progress | None) -> None:
+    part = _part(dest)
+    have = part.stat().st_size if part.is_file() else 0
+    if have > f.size:
+        part.unlink()
+        have = 0
+    headers = {"Range": f"bytes={have}-"} if 0 < have < f.size else {}
+    url = participant_path(participant, "files/" + quote(f.path))
+    if have < f.size:
+        with client.open("GET", url, headers=headers) as resp:
+            if resp.status == 206:
+                mode = "ab"
+            else:  # the server sent the whole file: start over
+                mode, have = "wb", 0
+            with open(part, mode) as out:
+                while True:
+                    try:
+                        chunk = resp.read(CHUNK)
+                    except OSError as exc:
+                        raise ServerUnavailable(f"the download of {f.path} was cut off ({exc}); "
+                                                "start again to resume") from None
+                    if not chunk:
+                        break
+                    if have + len(chunk) > f.size:
+                        raise StudyError(f"the study server sent more of {f.path} than its "
+                                         "listed size")
+                    out.write(chunk)
+                    have += len(chunk)
+                    if progress is not None:
+                        progress(done_before + have, total, f.path)
+    if have != f.size:
+        raise ServerUnavailable(f"the download of {f.path} stopped at {have} of {f.size} bytes; "
+                                "start again to resume")
+    actual = _sha256(part)
+    if actual != f.sha256:
+        part.unlink()
+        raise StudyError(f"{f.path} arrived with sha256 {actual[:12]}..., not the study's "
+                         f"{f.sha256[:12]}...: refused (the download was corrupted or the "
+                         "server's copy changed); start again, or tell the experimenter")
+    part.replace(dest)
+    dest.with_name(dest.name + ".sha256").write_text(f.sha256 + "\n", encoding="ascii")
+
+
+RETRIES = 6
+"""Attempts per file when the server asks to wait (429) or the connection drops; each
+retry resumes with a Range request."""
+
+
+def download_study(client: ServerClient, participant: str, plan: DownloadPlan, *,
+                   progress: Progress | None = None,
+                   sleep: Callable[[float], None] = time.sleep) -> Path:
+    """Fetch every missing file of ``plan``; returns the local study folder. A file cut off
+    or rate-limited is retried (resuming) a few times with backoff; then
+    :class:`ServerUnavailable` (call again to resume). :class:`StudyError` when a file does
+    not match its checksum."""
+    plan.folder.mkdir(parents=True, exist_ok=True)
+    missing = plan.missing()
+    total = plan.missing_bytes()
+    done = 0
+    for f in missing:
+        dest = plan.local(f)
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        part = _part(dest)
+        before = max(f.size - (part.stat().st_size if part.is_file() else 0), 0)
+        for attempt in range(1, RETRIES + 1):
+            try:
+                _fetch(client, participant, f, dest, done - (f.size - before), total,
+                       progress)
+                break
+            except ServerUnavailable as exc:
+                if attempt == RETRIES:
+                    raise
+                wait = exc.retry_after if exc.retry_after is not None else 2.0 ** attempt
+                log.info("download of %s paused %.0f s: %s", f.path, wait, exc)
+                sleep(min(wait, 60.0))
+        done += before
+    manifest = plan.folder / "manifest.json"
+    if _sha256(manifest) != plan.manifest_sha256:
+        manifest.unlink()
+        raise StudyError("the downloaded manifest does not match the study version the server "
+                         "named; start again")
+    if progress is not None:
+        progress(total, total, "")
+    return plan.folder

@@ -1,0 +1,129 @@
+"""``cgvq-study run --server``: the participant's side of a served study, before and after the
+player runs.
+
+:func:`fetch_study` asks the server for the participant's study version, shows its size and
+the free disk space, and downloads what is missing (a progress bar on the terminal the app
+was started from) into the participant's data folder, where the session file lives too. When
+the server cannot be reached but the study was downloaded before, the participant carries on
+offline: the uploads catch up once the server is back. :func:`start_uploader` follows the
+session file from a background thread; :func:`upload_report` is the end screen's sentence.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import StudyError
+from .download import check_disk_space, download_study, human_bytes, study_plan
+from .http import ServerClient, ServerUnavailable
+from .invite import Invite
+from .uploader import Uploader
+
+log = logging.getLogger(__name__)
+
+APP_DIR = "cgvq-study"
+FLUSH_AT_END_S = 20.0
+"""How long the end screen waits for the last uploads before it reports."""
+
+
+def default_data_dir() -> Path:
+    """Where downloaded studies and session files live: the platform's per-user data folder
+    (not a cache: the session file is the participant's result)."""
+    if sys.platform.startswith("win"):
+        base = Path(os.environ.get("LOCALAPPDATA") or Path.home() / "AppData" / "Local")
+    elif sys.platform == "darwin":
+        base = Path.home() / "Library" / "Application Support"
+    else:
+        base = Path(os.environ.get("XDG_DATA_HOME") or Path.home() / ".local" / "share")
+    return base / APP_DIR
+
+
+@dataclass(frozen=True)
+class RemoteStudy:
+    folder: Path
+    """The downloaded study folder (one per study version)."""
+    sessions_dir: Path
+    """Where the participant's session file lives (shared by the study's versions)."""
+    offline: bool = False
+
+
+def _last_path(data_dir: Path, invite: Invite) -> Path:
+    return data_dir / f"last-{invite.participant}.json"
+
+
+def fetch_study(invite: Invite, data_dir: str | Path | None = None, *,
+                say: Callable[[str], None] = print, progress: bool = True) -> RemoteStudy:
+    """Download (or find in the data folder) the participant's study; see the module doc."""
+    data_dir = Path(data_dir) if data_dir is not None else default_data_dir()
+    client = ServerClient(invite.server, invite.token)
+    last = _last_path(data_dir, invite)
+    try:
+        plan = study_plan(client, invite.participant, data_dir)
+    except ServerUnavailable as exc:
+        if last.is_file():
+            info = json.loads(last.read_text(encoding="utf-8"))
+            folder = Path(info["folder"])
+            if info.get("server") == invite.server and (folder / "manifest.json").is_file():
+                say(f"The study server cannot be reached ({exc}); continuing with the study "
+                    "downloaded before. Your answers are sent once the server is back.")
+                return RemoteStudy(folder, Path(info["sessions_dir"]), offline=True)
+        raise
+    need, free = check_disk_space(plan)
+    total = plan.total_bytes
+    if need:
+        say(f"Study {plan.study_id}: {human_bytes(total)} in {len(plan.files)} files, "
+            f"{human_bytes(need)} to download; {human_bytes(free)} free on this disk.")
+        from tqdm.auto import tqdm
+
+        with tqdm(total=need, unit="B", unit_scale=True, desc="download",
+                  disable=not progress) as bar:
+            def step(done: int, _total: int, _name: str) -> None:
+                bar.update(done - bar.n)
+
+            download_study(client, invite.participant, plan, progress=step)
+    else:
+        say(f"Study {plan.study_id}: all {len(plan.files)} files ({human_bytes(total)}) are "
+            "already on this computer.")
+    sessions = plan.folder.parent / "sessions"
+    last.parent.mkdir(parents=True, exist_ok=True)
+    last.write_text(json.dumps({"server": invite.server, "folder": str(plan.folder),
+                                "sessions_dir": str(sessions)}) + "\n", encoding="utf-8")
+    return RemoteStudy(plan.folder, sessions)
+
+
+def start_uploader(invite: Invite, session_path: Path) -> Uploader:
+    """The background upload of the participant's session file (it waits for the file)."""
+    return Uploader(session_path, ServerClient(invite.server, invite.token),
+                    invite.participant).start()
+
+
+def upload_report(uploader: Uploader, timeout: float = FLUSH_AT_END_S) -> tuple[bool, str]:
+    """(everything arrived, the sentence for the end screen), after waiting for the last
+    uploads at most ``timeout`` seconds."""
+    status = uploader.flush(timeout)
+    return status.all_arrived, status.describe()
+
+
+def check_invite_args(server: str | None, participant: str | None, token: str | None,
+                      invite_file: str | Path | None) -> Invite:
+    """The invite from ``--invite FILE`` or ``--server/--participant/--token``."""
+    from .invite import read_invite
+
+    if invite_file is not None:
+        if server or token:
+            raise StudyError("give either --invite FILE or --server and --token, not both")
+        inv = read_invite(invite_file)
+        if participant and participant != inv.participant:
+            raise StudyError(f"--participant {participant} differs from the invite's "
+                             f"{inv.participant}")
+        return inv
+    if not (server and participant and token):
+        raise StudyError("with --server also give --participant and --token (or use the "
+                         "invite file: --invite FILE)")
+    return Invite(server, participant, token)

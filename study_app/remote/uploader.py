@@ -1,0 +1,313 @@
+"""Uploading a session file's outbox to the study server, in order, as it grows.
+
+:func:`sync_session` is one pass: a handshake (the server says what it acknowledged, notes the
+client's clock and compares the client's change log with what it holds), then every entry
+after the acknowledged one, in batches, each answered with the new acknowledged sequence
+number (written into the file's ``upload_state``). :class:`Uploader` runs passes on a
+background thread: the app calls :meth:`Uploader.notify` after each committed rating (which
+only sets an event, so the presentation loop never waits for the network); offline, passes
+fail and are retried with exponential backoff (or the server's ``Retry-After``) until the
+server is back. A refusal (a bad token, a contradiction with acknowledged data) stops the
+thread: retrying cannot help, and the end screen says so.
+"""
+
+from __future__ import annotations
+
+import logging
+import random
+import sqlite3
+import threading
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Literal
+
+from .. import __version__
+from ..errors import StudyError
+from ..session import outbox
+from ..session.chain import canonical
+from ..session.records import utc_now
+from ..session.replica import tables_match_outbox
+from ..session.schema import open_existing
+from .http import ServerClient, ServerRefused, ServerUnavailable
+from .protocol import CLIENT_BATCH_BYTES, MAX_BATCH_ENTRIES, PROTOCOL, participant_path
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SyncResult:
+    """Where a session stands after a pass: ``acked_seq`` of ``local_seq`` entries arrived."""
+
+    acked_seq: int
+    local_seq: int
+    sent: int
+    """Entries sent in this pass (re-sends included)."""
+    requests: int
+    clock_offset_ms: float | None = None
+
+    @property
+    def complete(self) -> bool:
+        return self.acked_seq >= self.local_seq
+
+
+def local_problems(path: Path) -> list[str]:
+    """What the participant's own file says about itself: its tables against its change log,
+    the change log's own chain. Reported to the server at the handshake."""
+    try:
+        return [p[:500] for p in tables_match_outbox(path)][:50]
+    except StudyError as exc:
+        return [f"the session file cannot be read ({exc})"[:500]]
+
+
+def _open(path: Path) -> sqlite3.Connection:
+    con = open_existing(path, readonly=False)
+    con.execute("PRAGMA busy_timeout=10000")
+    con.execute("PRAGMA synchronous=NORMAL")  # a lost ack only means a (harmless) re-send
+    if not outbox.has_outbox(con):
+        con.close()
+        raise StudyError(f"{path} predates uploads (it has no change log); send it back with "
+                         "'cgvq-study export' instead")
+    return con
+
+
+def _batches(entries: list[outbox.OutboxEntry]) -> list[list[dict[str, Any]]]:
+    out: list[list[dict[str, Any]]] = []
+    size = 0
+    for e in entries:
+        item = e.as_json()
+        n = len(canonical(item))
+        if out and (size + n > CLIENT_BATCH_BYTES or len(out[-1]) >= MAX_BATCH_ENTRIES):
+            out.append([])
+            size = 0
+        if not out:
+            out.append([])
+        out[-1].append(item)
+        size += n
+    return out
+
+
+def _acked(answer: Any, limit: int) -> int:
+    try:
+        acked = int(answer["acked_seq"])
+    except (KeyError, TypeError, ValueError):
+        raise ServerUnavailable("the study server's answer lacks acked_seq") from None
+    if not 0 <= acked <= limit:
+        raise ServerRefused(f"the study server acknowledged entry {acked}, which this session "
+                            f"does not have (it has {limit})", 409)
+    return acked
+
+
+def sync_session(path: str | Path, client: ServerClient, participant: str, *,
+                 check_local: bool = True) -> SyncResult:
+    """One upload pass of a session file (see the module doc). Raises
+    :class:`ServerUnavailable` (try later) or :class:`ServerRefused` (stop)."""
+    path = Path(path)
+    problems = local_problems(path) if check_local else []
+    try:
+        con = _open(path)
+    except StudyError as exc:  # tell the server before giving up: it flags the participant
+        client.json("POST", participant_path(participant, "handshake"), {
+            "protocol": PROTOCOL, "session_id": None, "client_time": utc_now(),
+            "app_version": __version__, "log_hashes": [],
+            "local_problems": [f"the session file cannot be opened ({exc})"[:500]]})
+        raise
+    try:
+        con.execute("BEGIN")
+        try:  # who the session is, from its change log (the tables may have been edited)
+            first = outbox.read_entries(con, after=0, limit=1)
+            hashes = [r[0] for r in con.execute("SELECT entry_hash FROM outbox ORDER BY seq")]
+        finally:
+            con.execute("COMMIT")
+        header = first[0].body.get("header", {}) if first else {}
+        if header.get("participant") != participant:
+            raise StudyError(f"{path} belongs to participant {header.get('participant')!r}, "
+                             f"not {participant!r}")
+        session_id = header.get("session_id")
+        if not isinstance(session_id, str):
+            raise StudyError(f"{path}: the change log's first entry is damaged; send the file "
+                             "with 'cgvq-study export' instead")
+        answer = client.json("POST", participant_path(participant, "handshake"), {
+            "protocol": PROTOCOL, "session_id": session_id, "client_time": utc_now(),
+            "app_version": __version__, "log_hashes": hashes, "local_problems": problems})
+        acked = _acked(answer, len(hashes))
+        offset = answer.get("clock_offset_ms") if isinstance(answer, dict) else None
+        sent, requests = 0, 1
+        while True:
+            entries = outbox.read_entries(con, after=acked, limit=MAX_BATCH_ENTRIES)
+            if not entries:
+                break
+            for batch in _batches(entries):
+                answer = client.json("POST", participant_path(participant, "entries"), {
+                    "protocol": PROTOCOL, "session_id": session_id, "client_time": utc_now(),
+                    "entries": batch})
+                requests += 1
+                sent += len(batch)
+                acked = _acked(answer, batch[-1]["seq"])
+                outbox.set_upload_state(con, "acked_seq", str(acked))
+                outbox.set_upload_state(con, "acked_at", utc_now())
+        local_seq = int(con.execute("SELECT coalesce(max(seq), 0) FROM outbox").fetchone()[0])
+        return SyncResult(acked, local_seq, sent, requests,
+                          float(offset) if isinstance(offset, int | float) else None)
+    finally:
+        con.close()
+
+
+State = Literal["starting", "sending", "up to date", "offline", "refused", "stopped"]
+
+
+@dataclass(frozen=True)
+class UploadStatus:
+    """What the app shows: how much arrived, and why not everything (when so)."""
+
+    state: State
+    acked_seq: int = 0
+    local_seq: int = 0
+    error: str | None = None
+    last_success: float | None = None
+    """time.monotonic() of the last successful pass."""
+
+    @property
+    def all_arrived(self) -> bool:
+        return self.local_seq > 0 and self.acked_seq >= self.local_seq
+
+    def describe(self) -> str:
+        """One sentence for the end screen."""
+        if self.all_arrived:
+            return "All your answers have arrived at the study server."
+        missing = max(self.local_seq - self.acked_seq, 0)
+        if self.state == "refused":
+            return (f"The study server refused the upload ({self.error}). Please contact the "
+                    "experimenter and send your session file with 'cgvq-study export'.")
+        why = self.error or "in progress"
+        return (f"{missing} change(s) have not reached the study server yet ({why}). They are "
+                "kept on this computer: run the same command again later to send them.")
+
+
+class Uploader:
+    """Background upload of one session file (see the module doc). It may start before the
+    file exists (it waits for it) and looks at the file every ``idle_check_s`` seconds even
+    without :meth:`notify`, so the app needs no hook to keep it going: a local look costs
+    one small read; a request goes out only when there is something new."""
+
+    def __init__(self, path: str | Path, client: ServerClient, participant: str, *,
+                 min_backoff_s: float = 1.0, max_backoff_s: float = 60.0,
+                 idle_check_s: float = 2.0, seed: int | None = None) -> None:
+        self.path = Path(path)
+        self.client = client
+        self.participant = participant
+        self.min_backoff_s = min_backoff_s
+        self.max_backoff_s = max_backoff_s
+        self.idle_check_s = idle_check_s
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._changed = threading.Condition(self._lock)
+        self._status = UploadStatus("starting")
+        self._rng = random.Random(seed)
+        self._thread = threading.Thread(target=self._run, name=f"uploader-{participant}",
+                                        daemon=True)
+        self._checked_local = False
+
+    # -- control (any thread) ---------------------------------------------------------
+    def start(self) -> Uploader:
+        self._thread.start()
+        return self
+
+    def notify(self) -> None:
+        """Something new was committed: upload soon. Never blocks."""
+        self._wake.set()
+
+    @property
+    def status(self) -> UploadStatus:
+        with self._lock:
+            return self._status
+
+    def flush(self, timeout: float) -> UploadStatus:
+        """Wait (at most ``timeout`` seconds) until everything arrived or the server refused;
+        the status either way."""
+        deadline = time.monotonic() + timeout
+        self.notify()
+        with self._changed:
+            while True:
+                st = self._status
+                if st.all_arrived or st.state in ("refused", "stopped") or \
+                        not self.path.exists():
+                    return st
+                left = deadline - time.monotonic()
+                if left <= 0 or not self._thread.is_alive():
+                    return st
+                self._changed.wait(min(left, 0.5))
+
+    def stop(self, timeout: float = 5.0) -> UploadStatus:
+        self._stop.set()
+        self._wake.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+        return self.status
+
+    # -- the thread -------------------------------------------------------------------
+    def _set(self, **changes: Any) -> None:
+        with self._changed:
+            self._status = replace(self._status, **changes)
+            self._changed.notify_all()
+
+    def _run(self) -> None:
+        failures = 0
+        synced = False
+        while not self._stop.is_set():
+            self._wake.clear()
+            delay = self.idle_check_s
+            if not self.path.exists():  # the app has not created the session file yet
+                self._wake.wait(delay)
+                continue
+            if synced and failures == 0:  # a cheap local look before any request
+                local = _local_seq(self.path)
+                if local <= self.status.acked_seq:
+                    self._set(local_seq=local)
+                    self._wake.wait(delay)
+                    continue
+            self._set(state="sending")
+            try:
+                result = sync_session(self.path, self.client, self.participant,
+                                      check_local=not self._checked_local)
+                self._checked_local = synced = True
+                failures = 0
+                self._set(state="up to date" if result.complete else "sending",
+                          acked_seq=result.acked_seq, local_seq=result.local_seq, error=None,
+                          last_success=time.monotonic())
+                if not result.complete:
+                    delay = 0.0
+            except ServerRefused as exc:
+                log.warning("upload of %s refused: %s", self.path, exc)
+                self._set(state="refused", error=exc.detail or str(exc))
+                break
+            except (ServerUnavailable, sqlite3.Error) as exc:
+                failures += 1
+                cap = min(self.max_backoff_s, self.min_backoff_s * 2 ** min(failures - 1, 16))
+                delay = self._rng.uniform(cap / 2, cap)
+                if isinstance(exc, ServerUnavailable) and exc.retry_after is not None:
+                    delay = max(delay, min(exc.retry_after, self.max_backoff_s))
+                log.debug("upload of %s postponed %.1f s: %s", self.path, delay, exc)
+                self._set(state="offline", error=str(exc), local_seq=_local_seq(self.path))
+            except StudyError as exc:
+                log.warning("upload of %s stopped: %s", self.path, exc)
+                self._set(state="refused", error=str(exc))
+                break
+            if delay > 0:
+                self._wake.wait(delay)
+        if self.status.state != "refused":
+            self._set(state="stopped")
+
+
+def _local_seq(path: Path) -> int:
+    try:
+        con = open_existing(path, readonly=True)
+    except StudyError:
+        return 0
+    try:
+        return int(con.execute("SELECT coalesce(max(seq), 0) FROM outbox").fetchone()[0])
+    except sqlite3.Error:
+        return 0
+    finally:
+        con.close()

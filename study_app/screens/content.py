@@ -1,0 +1,211 @@
+"""What each text screen says and which actions it offers (pure; no drawing).
+
+Participant-facing text only: it says what to do or change on the computer, never a
+command-line option. Each screen's actions have keys (``keys``) and buttons; a button's text
+names its keys as the participant's keyboard layout labels them (``name_keys``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..keys import Keymap, keymap
+from ..preflight import Check
+
+NameKeys = Callable[[Keymap, str], str]
+
+
+@dataclass(frozen=True)
+class ScreenSpec:
+    """A text screen: ``name`` (logged and used for screenshots), title, Markdown body,
+    buttons as (action, text) and the key bindings of those actions.
+
+    ``needs_end``: actions offered only once the text was scrolled to its end (consent).
+    ``close_action``: what closing the window means on this screen.
+    """
+
+    name: str
+    title: str
+    body: str
+    buttons: tuple[tuple[str, str], ...]
+    keys: Keymap
+    needs_end: frozenset[str] = field(default_factory=frozenset)
+    close_action: str = "quit"
+    primary: str | None = None
+
+
+def _button(keys: Keymap, action: str, text: str, name_keys: NameKeys) -> tuple[str, str]:
+    return action, f"{text}  ({name_keys(keys, action)})"
+
+
+def _spec(name: str, title: str, body: str, keys: Keymap,
+          buttons: Sequence[tuple[str, str]], name_keys: NameKeys, **kw) -> ScreenSpec:
+    return ScreenSpec(name, title, body,
+                      tuple(_button(keys, a, t, name_keys) for a, t in buttons), keys, **kw)
+
+
+CONTINUE = keymap(go=["space", "enter"])
+
+
+def welcome(briefing: str | None, duration: str, name_keys: NameKeys) -> ScreenSpec:
+    body = (briefing or "# Welcome\n\nYou will watch short videos and rate their quality.")
+    body += f"\n\n---\n\n**How long:** {duration}. You can take a break whenever you like."
+    return _spec("welcome", "Welcome", body, CONTINUE, [("go", "Continue")], name_keys,
+                 primary="go")
+
+
+def consent(text: str, name_keys: NameKeys) -> ScreenSpec:
+    keys = keymap(accept=["a"], decline=["esc"])
+    body = text + ("\n\n---\n\nIf you agree, choose **I agree**. If you do not, choose "
+                   "**I do not agree**: nothing is recorded and the program closes.")
+    return _spec("consent", "Consent", body, keys,
+                 [("decline", "I do not agree"), ("accept", "I agree")], name_keys,
+                 needs_end=frozenset({"accept"}), close_action="decline", primary="accept")
+
+
+def preflight_passed(checks: Sequence[Check], duration: str, resumed: bool,
+                     name_keys: NameKeys) -> ScreenSpec:
+    lines = []
+    for c in checks:
+        label = {"screen_size": "Screen", "refresh_rate": "Refresh",
+                 "pixel_mapping": "Pixels", "memory": "Memory",
+                 "decode_speed": "Video loading", "checksums": "Study files"}.get(c.name, c.name)
+        lines.append(f"- **{label}:** {c.message}")
+    what = "continue the study" if resumed else "take part"
+    takes = "The rest of the study takes" if resumed else "The study takes"
+    body = (f"Your computer and screen can show the videos exactly as needed, so you can "
+            f"{what}.\n\n" + "\n".join(lines) + f"\n\n**{takes} {duration}.**")
+    return _spec("preflight-passed", "Your display passed the check", body, CONTINUE,
+                 [("go", "Continue")], name_keys, primary="go")
+
+
+def preflight_failed(failed: Sequence[Check], name_keys: NameKeys) -> ScreenSpec:
+    keys = keymap(close=["esc", "enter"])
+    items = "\n".join(f"- {c.message[0].upper()}{c.message[1:]}." for c in failed)
+    body = ("This computer cannot show the study's videos exactly as needed yet. Nothing "
+            "was recorded.\n\n" + items +
+            "\n\nPlease change the above and start the study again. If it still does not "
+            "work, tell the experimenter what this screen says.")
+    return _spec("preflight-failed", "Your display needs a change", body, keys,
+                 [("close", "Close")], name_keys, close_action="close", primary="close")
+
+
+def practice_intro(n: int, viewing: Keymap, rating: Keymap, min_view_s: float,
+                   name_keys: NameKeys) -> ScreenSpec:
+    k = name_keys
+    trials = "trial" if n == 1 else "trials"
+    body = (f"First, {n} practice {trials} to get to know the controls. They are not "
+            "recorded.\n\n"
+            "## Watching\n\n"
+            f"- **{k(viewing, 'switch')}**: switch between the *test video* and its "
+            "*reference* (a grey screen shows briefly in between).\n"
+            "- The label beside the video says which one is showing: the **Test video** "
+            "label is a filled yellow box, the **Reference** label a blue frame.\n"
+            f"- **{k(viewing, 'rate')}**: go to the rating, after watching at least "
+            f"{min_view_s:.1f} s.\n\n"
+            "## Rating\n\n"
+            "- Click on the scale, drag the marker, or use the **←** and **→** keys "
+            "(with **Shift**: bigger steps).\n"
+            f"- **{k(rating, 'submit')}** or the **Submit** button: record your rating.\n"
+            f"- **{k(rating, 'back')}** or **Back to the videos**: watch again.\n\n"
+            "## Breaks\n\n"
+            f"- **{k(viewing, 'pause')}**: pause at any time. From the pause screen you can "
+            "continue, stop and continue later, or withdraw from the study.")
+    return _spec("practice", "Practice", body, CONTINUE, [("go", "Start the practice")],
+                 name_keys, primary="go")
+
+
+def practice_done(name_keys: NameKeys) -> ScreenSpec:
+    body = ("That was the practice. The real trials start now; your ratings are recorded "
+            "from here on.")
+    return _spec("practice-end", "Practice done", body, CONTINUE,
+                 [("go", "Start the study")], name_keys, primary="go")
+
+
+def welcome_back(answered: int, total: int, name_keys: NameKeys) -> ScreenSpec:
+    body = (f"Your answers so far are saved ({answered} of {total} trials done). You "
+            f"continue with trial {answered + 1}.")
+    return _spec("welcome-back", "Welcome back", body, CONTINUE, [("go", "Continue")],
+                 name_keys, primary="go")
+
+
+PAUSE_KEYS = keymap(resume=["space", "enter"], quit=["q"], withdraw=["w"])
+
+
+def pause(answered: int, total: int, name_keys: NameKeys) -> ScreenSpec:
+    body = (f"Your answers so far are saved ({answered} of {total} trials done). "
+            "When you continue, the trial you were watching starts again from its "
+            "beginning.\n\n"
+            "- **Continue**: back to the study.\n"
+            "- **Stop and continue later**: close the program now; start it again the same "
+            "way to continue where you stopped.\n"
+            "- **Withdraw from the study**: stop taking part.")
+    return _spec("pause", "Paused", body, PAUSE_KEYS,
+                 [("withdraw", "Withdraw from the study"), ("quit", "Stop and continue later"),
+                  ("resume", "Continue")], name_keys, primary="resume")
+
+
+def break_screen(answered: int, total: int, name_keys: NameKeys) -> ScreenSpec:
+    body = (f"{answered} of {total} trials done, and your answers are saved. Rest your eyes "
+            "for a moment: look away from the screen, into the distance.\n\n"
+            "The next trial starts when you continue.")
+    return _spec("break", "Time for a break", body, PAUSE_KEYS,
+                 [("withdraw", "Withdraw from the study"), ("quit", "Stop and continue later"),
+                  ("resume", "Continue")], name_keys, primary="resume")
+
+
+# Enter keeps going (the highlighted "No"); stopping or withdrawing needs its own key.
+CONFIRM_KEYS = keymap(yes=["y"], no=["enter", "esc", "n"])
+
+
+def confirm_quit(answered: int, total: int, name_keys: NameKeys) -> ScreenSpec:
+    body = (f"Your answers so far are saved ({answered} of {total} trials done). To continue "
+            "later, start the study again the same way: it continues where you stopped.")
+    return _spec("confirm-quit", "Stop now and continue later?", body, CONFIRM_KEYS,
+                 [("no", "No, go back"), ("yes", "Yes, stop now")], name_keys,
+                 close_action="yes", primary="no")
+
+
+def confirm_withdraw(name_keys: NameKeys) -> ScreenSpec:
+    body = ("You can stop taking part at any time, without giving a reason.\n\n"
+            "If you withdraw, the study ends now and your result file is marked as "
+            "withdrawn. Please still send it to the experimenter, and tell them whether "
+            "your answers so far may be used or should be deleted.")
+    return _spec("confirm-withdraw", "Withdraw from the study?", body, CONFIRM_KEYS,
+                 [("no", "No, go back"), ("yes", "Yes, withdraw")], name_keys,
+                 close_action="no", primary="no")
+
+
+def end(session_path: Path, total: int, withdrawn: bool, name_keys: NameKeys,
+        upload: tuple[bool, str] | None = None) -> ScreenSpec:
+    """The last screen. ``upload`` (with a study server): whether everything arrived and the
+    sentence saying so; when it all arrived there is nothing to send."""
+    keys = keymap(close=["enter", "esc"], show=["o"])
+    path = session_path.resolve()
+    title = "You have withdrawn" if withdrawn else "Thank you!"
+    first = ("You withdrew from the study. Thank you for your time." if withdrawn else
+             f"All {total} trials are done.")
+    where = (f"**{_md_escape(str(path))}**\n\n"
+             f"(the file *{_md_escape(path.name)}* in the folder "
+             f"*{_md_escape(str(path.parent))}*)")
+    if upload is not None and upload[0]:
+        body = (f"{first}\n\n## {_md_escape(upload[1])}\n\n"
+                "There is nothing to send. A copy of your answers stays on this computer:\n\n"
+                f"{where}")
+    else:
+        sent = f"{_md_escape(upload[1])}\n\n" if upload is not None else ""
+        body = (f"{first}\n\n{sent}"
+                "## Send this one file to the experimenter\n\n"
+                f"{where}\n\n"
+                "Attach it to an e-mail to the experimenter, or upload it where the "
+                "experimenter told you. Send only this file: it holds all your answers.")
+    return _spec("end", title, body, keys,
+                 [("show", "Show the file in its folder"), ("close", "Close")], name_keys,
+                 close_action="close", primary="close")
+
+
+def _md_escape(text: str) -> str:
+    """Text shown literally in Markdown (file names with '_' or '*')."""
+    return "".join("\\" + c if c in "\\*_`#[]" else c for c in text)

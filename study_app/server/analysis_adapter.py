@@ -1,0 +1,122 @@
+"""The one place the server calls the ``analysis`` package (live statistics on the dashboard).
+
+Imported only by the statistics worker of the server process, never by the participant's
+side. Everything the dashboard needs from the analysis comes through :func:`analyse`, so a
+change of the analysis API is absorbed here.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from stimuli_manifests import LoadedManifest, parse_manifest
+
+log = logging.getLogger(__name__)
+
+SPLITS = 200
+"""Random half splits for the live ceiling (the report uses more)."""
+CI_DRAWS = 20
+
+
+@dataclass
+class StudyFigures:
+    """What the analysis says about the ratings that arrived so far."""
+
+    n_raters: int = 0
+    icc2k: float | None = None
+    icc2k_ci: tuple[float, float] | None = None
+    split_half_plcc: float | None = None
+    split_half_sb: float | None = None
+    removed: list[str] = field(default_factory=list)
+    """Raters the screening would remove (with the reason)."""
+    removed_reasons: dict[str, str] = field(default_factory=dict)
+    dmos: pd.DataFrame | None = None
+    model: str | None = None
+    figures: dict[str, bytes] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)
+
+
+def loaded_manifest(manifest_bytes: bytes, sha256: str) -> LoadedManifest:
+    manifest = parse_manifest(json.loads(manifest_bytes), source="manifest")
+    return LoadedManifest(manifest, None, Path("."), sha256)
+
+
+def analyse(frame: pd.DataFrame, loaded: LoadedManifest, *, seed: int = 0,
+            figure: bool = True) -> StudyFigures:
+    """Screening, ICC(2,k), split-half ceiling and DMOS per scene with CIs, from tidy rows
+    (the ratings-table columns) of every session so far."""
+    from analysis import AnalysisConfig, AnalysisError, ratings_from_frame, run_analysis
+
+    out = StudyFigures()
+    try:
+        rs = ratings_from_frame(frame, loaded, source="server")
+    except AnalysisError as exc:
+        out.problems.append(str(exc))
+        return out
+    out.n_raters = rs.n_raters
+    if rs.n_raters < 3:
+        out.problems.append(f"{rs.n_raters} rater(s) so far: the statistics start at 3")
+        return out
+    config = AnalysisConfig(seed=seed, n_splits=SPLITS, ci_draws=CI_DRAWS, n_boot=100)
+    try:
+        a = run_analysis(rs, config, progress=False)
+    except AnalysisError as exc:
+        out.problems.append(str(exc))
+        return out
+    out.removed = list(a.outliers.removed_names)
+    out.removed_reasons = {r.rater: r.reason for r in a.outliers.removed}
+    if a.reliability is not None:
+        out.icc2k = float(a.reliability.icc["ICC(2,k)"])
+        lo, hi = a.reliability.icc_ci["ICC(2,k)"]
+        out.icc2k_ci = (float(lo), float(hi))
+    if a.ceiling is not None:
+        s = a.ceiling.summary()
+        out.split_half_plcc = float(s["plcc"]["median"])
+        out.split_half_sb = float(s["plcc_spearman_brown"]["median"])
+    out.dmos = a.dmos()
+    out.model = a.scores.model_name
+    out.problems += [str(p) for p in a.problems if "never rated" not in str(p)]
+    if figure:
+        try:
+            out.figures["dmos"] = _dmos_png(a)
+        except Exception as exc:  # a figure is never worth losing the numbers for
+            log.warning("DMOS figure failed: %s", exc)
+    return out
+
+
+def _dmos_png(a: Any) -> bytes:
+    from analysis.figures import dmos_per_scene
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "dmos.png"
+        dmos_per_scene(a, path)
+        return path.read_bytes()
+
+
+def panel_correlation(frame: pd.DataFrame) -> dict[str, float]:
+    """Per participant, Pearson r of their per-stimulus means with the mean of everyone else
+    (over stimuli both rated; NaN-free pairs >= 3)."""
+    if frame.empty:
+        return {}
+    means = frame.pivot_table(index="stimulus", columns="participant", values="rating",
+                              aggfunc="mean")
+    out: dict[str, float] = {}
+    total = means.sum(axis=1, min_count=1)
+    count = means.notna().sum(axis=1)
+    for p in means.columns:
+        mine = means[p]
+        others_n = count - mine.notna()
+        with np.errstate(invalid="ignore", divide="ignore"):
+            others = (total - mine.fillna(0.0)) / others_n.where(others_n > 0)
+        ok = mine.notna() & others.notna()
+        if ok.sum() >= 3 and mine[ok].std() > 0 and others[ok].std() > 0:
+            out[str(p)] = float(np.corrcoef(mine[ok], others[ok])[0, 1])
+    return out

@@ -1,0 +1,137 @@
+"""Finding session files in what a user names: files, folders and exported zips, many at once.
+
+An exported zip holds ``<participant>_<session>.sqlite`` (older exports: ``session.sqlite``),
+the ratings CSV and ``SHA256SUMS``; its members are checked against the sums and copied into a
+private temporary folder under names of our own (never the member's path), with a size cap,
+so a hostile zip can neither escape the folder nor fill the disk.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import re
+import tempfile
+import zipfile
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .records import SessionProblem
+
+CHECKSUM_MEMBER = "SHA256SUMS"
+SESSION_SUFFIX = ".sqlite"
+MAX_MEMBER_BYTES = 1 << 30  # far above any real session file
+_SIDE_SUFFIXES = ("-wal", "-shm", "-journal", ".creating")
+
+
+@dataclass
+class SessionSource:
+    """One session file to read: ``path`` on disk, ``origin`` as the user would name it."""
+
+    path: Path
+    origin: str
+    problems: list[SessionProblem] = field(default_factory=list)
+    """Problems of the container (a zip member failing its checksum)."""
+    warnings: list[str] = field(default_factory=list)
+    """What could not be checked (a zip without checksums)."""
+
+
+def _is_session_name(name: str) -> bool:
+    return name.endswith(SESSION_SUFFIX) and not name.endswith(_SIDE_SUFFIXES)
+
+
+def _read_sums(zf: zipfile.ZipFile) -> dict[str, str] | None:
+    if CHECKSUM_MEMBER not in zf.namelist():
+        return None
+    sums = {}
+    for line in zf.read(CHECKSUM_MEMBER).decode("utf-8", "replace").splitlines():
+        digest, _, name = line.partition("  ")
+        if name.strip():
+            sums[name.strip()] = digest.strip().lower()
+    return sums
+
+
+def _copy_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, dest: Path) -> str:
+    """Copy one member to ``dest`` (size-capped); returns its sha256."""
+    digest = hashlib.sha256()
+    written = 0
+    with zf.open(info) as src, open(dest, "wb") as out:
+        while chunk := src.read(1 << 20):
+            written += len(chunk)
+            if written > MAX_MEMBER_BYTES:
+                raise ValueError(f"member {info.filename} is larger than "
+                                 f"{MAX_MEMBER_BYTES >> 20} MiB")
+            digest.update(chunk)
+            out.write(chunk)
+    return digest.hexdigest()
+
+
+def _from_zip(path: Path, workdir: Path, counter: Iterator[int]
+              ) -> tuple[list[SessionSource], list[SessionProblem]]:
+    try:
+        zf = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError) as exc:
+        return [], [SessionProblem(path, None, f"not a readable zip ({exc})")]
+    sources: list[SessionSource] = []
+    problems: list[SessionProblem] = []
+    with zf:
+        members = [i for i in zf.infolist() if not i.is_dir() and _is_session_name(i.filename)]
+        if not members:
+            return [], [SessionProblem(path, None, "holds no session file (*.sqlite); send "
+                                       "the zip made by 'cgvq-study export'")]
+        sums = _read_sums(zf)
+        for info in members:
+            safe = re.sub(r"[^A-Za-z0-9._-]", "_", Path(info.filename).name)
+            dest = workdir / f"{next(counter):04d}_{safe}"
+            origin = f"{path}:{info.filename}"
+            try:
+                digest = _copy_member(zf, info, dest)
+            except (ValueError, zipfile.BadZipFile, OSError) as exc:
+                problems.append(SessionProblem(path, None, f"{info.filename}: {exc}"))
+                continue
+            source = SessionSource(dest, origin)
+            if sums is None:
+                source.warnings.append(f"{origin}: no {CHECKSUM_MEMBER} in the zip, so its "
+                                       "integrity in transit cannot be checked")
+            elif sums.get(info.filename) != digest:
+                source.problems.append(SessionProblem(
+                    Path(origin), None, "checksum mismatch: the file was altered or damaged "
+                    "in transit"))
+            sources.append(source)
+    return sources, problems
+
+
+@contextlib.contextmanager
+def session_sources(paths: Iterable[str | Path]
+                    ) -> Iterator[tuple[list[SessionSource], list[SessionProblem]]]:
+    """Every session file in ``paths`` (files, folders searched recursively, zips), in a
+    stable order, and the problems of what could not be used. Zip members live in a
+    temporary folder until the ``with`` block ends."""
+    with tempfile.TemporaryDirectory(prefix="cgvq-sessions-") as tmp:
+        workdir = Path(tmp)
+        counter = iter(range(1 << 30))
+        sources: list[SessionSource] = []
+        problems: list[SessionProblem] = []
+        for given in paths:
+            p = Path(given)
+            if p.is_dir():
+                found = sorted(q for q in p.rglob("*") if q.is_file() and (
+                    _is_session_name(q.name) or q.suffix == ".zip"))
+                if not found:
+                    problems.append(SessionProblem(p, None, "folder holds no session file "
+                                                   "(*.sqlite) or exported zip"))
+                candidates = found
+            elif p.is_file():
+                candidates = [p]
+            else:
+                problems.append(SessionProblem(p, None, "not found"))
+                continue
+            for c in candidates:
+                if zipfile.is_zipfile(c):
+                    more, bad = _from_zip(c, workdir, counter)
+                    sources += more
+                    problems += bad
+                else:
+                    sources.append(SessionSource(c, str(c)))
+        yield sources, problems

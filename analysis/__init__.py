@@ -1,13 +1,15 @@
 """From raw ratings to DMOS, reliability, outlier raters, human ceiling and metric validation.
 
 Library entry points (the CLI ``cgvq-analyze`` is a thin layer over these):
-:func:`load_ratings` / :func:`load_sureal` read ratings into a :class:`RatingSet`,
-:func:`run_analysis` runs every step, :func:`write_report` writes the report folder.
+:func:`load_ratings` / :func:`load_sureal` read ratings into a :class:`RatingSet` (with the
+sessions refused and why, in ``exclusions``), :func:`run_analysis` runs every step (the
+completeness rule, screening, reliability, scores with rater-bootstrap DMOS CIs, ceiling,
+data quality, metric validation), :func:`write_report` writes the report folder.
 """
 
 __version__ = "0.1.0"
 
-from .data import InputProblem, RatingSet
+from .data import Exclusion, InputProblem, RatingSet
 from .errors import AnalysisError
 from .inputs import load_ratings, ratings_from_frame
 from .metrics import load_metric_scores, validate_metrics
@@ -22,6 +24,7 @@ __all__ = [
     "Analysis",
     "AnalysisConfig",
     "AnalysisError",
+    "Exclusion",
     "InputProblem",
     "RatingSet",
     "__version__",

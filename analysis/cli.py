@@ -7,25 +7,38 @@ import logging
 import sys
 from pathlib import Path
 
+from stimuli_manifests.cli_runner import run_command
+
 from .errors import AnalysisError
+from .outliers import DEFAULT_METHOD
 from .outliers import METHODS as OUTLIER_METHODS
+from .pipeline import DEFAULT_MIN_COMPLETENESS
 from .scores import MODELS
+
+MAX_LINES = 20  # input problems and exclusions printed on stderr before "... and N more"
 
 
 def _inputs(p: argparse.ArgumentParser) -> None:
     src = p.add_argument_group("ratings (one of)")
-    src.add_argument("--sessions", nargs="+", metavar="DIR|FILE",
-                     help="session files (*.sqlite) or folders holding them")
+    src.add_argument("--sessions", nargs="+", metavar="DIR|FILE|ZIP",
+                     help="session files (*.sqlite), folders or zip archives holding them")
     src.add_argument("--ratings", nargs="+", metavar="CSV", help="tidy ratings CSV file(s)")
     src.add_argument("--sureal", metavar="DATASET",
                      help="SUREAL dataset file (.py parsed, never executed, or .json)")
     p.add_argument("--manifest", metavar="M", help="study manifest (with --sessions/--ratings)")
     p.add_argument("--model", choices=MODELS, default="mle",
                    help="score model: mle (SUREAL MLE, default), p910 (MLE_CO_AP2), mos, bt500")
-    p.add_argument("--outliers", choices=OUTLIER_METHODS, default="grubbs",
-                   help="rater screening: grubbs (default), bt500, none")
-    p.add_argument("--alpha", type=float, default=0.05, help="significance level (0.05)")
-    p.add_argument("--seed", type=int, default=0, help="seed of bootstrap and splits (0)")
+    p.add_argument("--outliers", choices=OUTLIER_METHODS, default=DEFAULT_METHOD,
+                   help="rater screening: p913 (default: ITU-T P.913 correlation with the "
+                        "leave-one-out panel, iterated, confirmed by the MLE inconsistency), "
+                        "grubbs (the CGVQM+D paper's rule), bt500, none")
+    p.add_argument("--min-completeness", type=float, default=DEFAULT_MIN_COMPLETENESS,
+                   metavar="F", help="leave out raters who answered less than this share of "
+                   f"their planned trials ({DEFAULT_MIN_COMPLETENESS}; 0 keeps everyone)")
+    p.add_argument("--alpha", type=float, default=0.05,
+                   help="significance level of the tests, in (0, 0.5) (0.05)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of bootstraps and splits, a whole number >= 0 (0)")
     p.add_argument("--bootstrap", type=int, default=1000, metavar="N",
                    help="bootstrap resamples (1000)")
     p.add_argument("--splits", type=int, default=1000, metavar="N",
@@ -75,41 +88,57 @@ def _load(args: argparse.Namespace):
     return load_ratings(args.manifest, ratings_csv=args.ratings, sessions=args.sessions)
 
 
+def _check_out(args: argparse.Namespace) -> None:
+    """``--out`` must not be a file where a folder is written, nor a folder for a CSV."""
+    out = getattr(args, "out", None)
+    if not out:
+        return
+    path = Path(out)
+    if args.command == "dmos":
+        if path.is_dir():
+            raise AnalysisError(f"--out {out} is a folder; give the DMOS CSV file to write")
+    elif path.exists() and not path.is_dir():
+        raise AnalysisError(f"--out {out} is an existing file; give a folder for the "
+                            f"{args.command} output")
+
+
+def _say(lines: list[str], what: str) -> None:
+    for line in lines[:MAX_LINES]:
+        print(f"{what}: {line}", file=sys.stderr)
+    if len(lines) > MAX_LINES:
+        print(f"... and {len(lines) - MAX_LINES} more {what} line(s)", file=sys.stderr)
+
+
 def _run(args: argparse.Namespace) -> int:
     from .metrics import load_metric_scores
-    from .pipeline import AnalysisConfig, run_analysis
+    from .pipeline import AnalysisConfig, prepare, run_analysis
     from .report import summary_text, write_report, write_tables
 
     if args.bootstrap < 1 or args.splits < 1:
         raise AnalysisError("--bootstrap and --splits must be at least 1")
-    rs = _load(args)
-    for prob in rs.problems[:5]:
-        print(f"input problem: {prob}", file=sys.stderr)
-    if len(rs.problems) > 5:
-        print(f"... and {len(rs.problems) - 5} more input problem(s)", file=sys.stderr)
     config = AnalysisConfig(model=args.model, outliers=args.outliers, alpha=args.alpha,
-                            seed=args.seed, n_boot=args.bootstrap, n_splits=args.splits)
-    if args.command == "dmos":
-        from .exports import write_dmos_csv
-        from .outliers import screen_raters
+                            seed=args.seed, n_boot=args.bootstrap, n_splits=args.splits,
+                            min_completeness=args.min_completeness).check()
+    _check_out(args)
+    rs = _load(args)
+    _say([str(x) for x in rs.exclusions], "excluded")
+    _say([str(p) for p in rs.problems], "input problem")
+    if args.command in ("dmos", "export"):
+        from .exports import write_dmos_csv, write_exports
         from .scores import fit_scores
 
-        screen = screen_raters(rs, args.outliers, alpha=args.alpha)
-        kept = rs.with_raters(screen.kept)
-        res = fit_scores(kept, args.model)
-        path = write_dmos_csv(kept, res, args.out)
-        removed = ", ".join(screen.removed_names) or "none"
-        print(f"{kept.n_stimuli} stimuli, {kept.n_raters} raters (removed: {removed}); "
-              f"model {res.model_name}; wrote {path}")
-        return 0
-    if args.command == "export":
-        from .exports import write_exports
-        from .outliers import screen_raters
-        from .scores import fit_scores
-
-        screen = screen_raters(rs, args.outliers, alpha=args.alpha)
-        res = fit_scores(rs.with_raters(screen.kept), args.model)
-        for kind, path in write_exports(rs, res, args.out).items():
+        _, screen, kept = prepare(rs, config)
+        _say([str(x) for x in kept.exclusions if x not in rs.exclusions], "excluded")
+        res = fit_scores(kept, args.model, n_boot=config.n_boot, seed=config.seed)
+        if res.fallback:
+            print(f"warning: {res.fallback}", file=sys.stderr)
+        if args.command == "dmos":
+            path = write_dmos_csv(kept, res, args.out)
+            removed = ", ".join(screen.removed_names) or "none"
+            print(f"{kept.n_stimuli} stimuli, {kept.n_raters} raters (screened out: "
+                  f"{removed}); model {res.model_name}; wrote {path}")
+            return 0
+        for kind, path in write_exports(kept, res, args.out, raw=rs).items():
             print(f"{kind}: {path}")
         return 0
     metrics = None
@@ -123,6 +152,9 @@ def _run(args: argparse.Namespace) -> int:
             raise AnalysisError(f"cannot read --notes file {args.notes} ({exc.strerror})") \
                 from None
     analysis = run_analysis(rs, config, metrics, progress=sys.stderr.isatty())
+    _say([str(x) for x in analysis.exclusions if x not in rs.exclusions], "excluded")
+    if analysis.scores.fallback:
+        print(f"warning: {analysis.scores.fallback}", file=sys.stderr)
     print(summary_text(analysis))
     if args.command == "report":
         path = write_report(analysis, args.out, notes=notes)
@@ -142,14 +174,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR,
                         format="%(levelname)s %(name)s: %(message)s")
-    try:
-        return _run(args)
-    except AnalysisError as exc:
-        print(f"cgvq-analyze: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("cgvq-analyze: interrupted", file=sys.stderr)
-        return 130
+    return run_command("cgvq-analyze", lambda: _run(args), extra="analysis")
 
 
 if __name__ == "__main__":

@@ -16,6 +16,24 @@ STIMULUS_COLUMNS = ("reference", "scene", "method", "level", "is_hidden_referenc
 
 
 @dataclass(frozen=True)
+class Exclusion:
+    """Something left out of the analysis as a whole (a session, a rater), with the rule.
+
+    ``kind`` is one of ``refused session``, ``duplicate session``, ``partial rater``,
+    ``screened out``; ``who`` names the file or rater, ``reason`` says why in words a reader
+    of the report understands, ``rule`` names the rule and its threshold.
+    """
+
+    kind: str
+    who: str
+    reason: str
+    rule: str = ""
+
+    def __str__(self) -> str:
+        return f"{self.kind}: {self.who}: {self.reason}"
+
+
+@dataclass(frozen=True)
 class InputProblem:
     """One bad input row or file: where it is and what was wrong; the row is left out."""
 
@@ -46,6 +64,10 @@ class RatingSet:
     study: str = "study"
     source: str = ""
     problems: list[InputProblem] = field(default_factory=list)
+    exclusions: list[Exclusion] = field(default_factory=list)
+    # One row per participant seen in the input (also those left out), indexed by rater id:
+    # completeness, session and presentation facts, status. See :mod:`analysis.quality`.
+    rater_info: pd.DataFrame | None = None
 
     def __post_init__(self) -> None:
         self.scores = np.asarray(self.scores, dtype=float)
@@ -107,4 +129,17 @@ class RatingSet:
             raters=[self.raters[k] for k in keep],
             scores=self.scores[:, keep, :].copy(),
             problems=list(self.problems),
+            exclusions=list(self.exclusions),
         )
+
+    def completeness(self) -> np.ndarray:
+        """Per rater: share of the planned (stimulus, repetition) trials with a rating.
+
+        Taken from ``rater_info`` when the input knew the plan (session files, manifest);
+        otherwise (a SUREAL dataset, whose raters may repeat stimuli unevenly) the share of
+        the stimuli the rater rated at least once.
+        """
+        if self.rater_info is not None and "completeness" in self.rater_info.columns:
+            info = self.rater_info["completeness"]
+            return np.array([float(info.get(r, np.nan)) for r in self.raters])
+        return np.isfinite(self.scores).any(axis=2).sum(axis=0) / max(self.n_stimuli, 1)

@@ -2,28 +2,38 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
+
+from stimuli_manifests.tables import DMOS, write_table
 
 from .data import RatingSet
 from .scores import ScoreResult, dmos_table
 from .sureal_io import write_sureal_json
 
-DMOS_COLUMNS = ("stimulus", "reference", "method", "level", "dmos", "ci95_low", "ci95_high",
-                "mos", "n_ratings", "model")
+DMOS_COLUMNS = DMOS.required
+
+
+def _cell(value: Any) -> Any:
+    if value is None or value is pd.NA:
+        return ""
+    if isinstance(value, float) and not math.isfinite(value):
+        return ""
+    return value
 
 
 def write_dmos_csv(rs: RatingSet, res: ScoreResult, path: str | Path, *,
                    quality: bool = True) -> Path:
-    """DMOS contract (DESIGN.md 5) columns first, then scene, quality and its CI."""
+    """The DMOS table (``cgvq-dmos/1``): contract columns, then scene, the model's raw quality
+    and its CI, and the hidden-reference flag; last column ``format``."""
     table = dmos_table(rs, res)
     if not quality:
         table = table.drop(columns=["quality", "quality_ci95_low", "quality_ci95_high"])
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    table.to_csv(path, index=False)
-    return path
+    rows = [{k: _cell(v) for k, v in row.items()} for row in table.to_dict("records")]
+    return write_table(path, DMOS, rows, columns=list(table.columns))
 
 
 def rating_matrix(rs: RatingSet) -> pd.DataFrame:
@@ -44,11 +54,15 @@ def write_rating_matrix(rs: RatingSet, path: str | Path) -> Path:
     return path
 
 
-def write_exports(rs: RatingSet, res: ScoreResult, out: str | Path) -> dict[str, Path]:
-    """All three exports into folder ``out``."""
+def write_exports(rs: RatingSet, res: ScoreResult, out: str | Path, *,
+                  raw: RatingSet | None = None) -> dict[str, Path]:
+    """All three exports into folder ``out``: the DMOS of ``rs`` (the raters used), and the
+    SUREAL dataset and P.910 matrix of ``raw`` (every rater as read; default ``rs``) so the
+    screening can be re-run elsewhere."""
     out = Path(out)
+    raw = raw or rs
     return {
         "dmos": write_dmos_csv(rs, res, out / "dmos.csv"),
-        "sureal": write_sureal_json(rs, out / "sureal_dataset.json"),
-        "p910_matrix": write_rating_matrix(rs, out / "rating_matrix_p910.csv"),
+        "sureal": write_sureal_json(raw, out / "sureal_dataset.json"),
+        "p910_matrix": write_rating_matrix(raw, out / "rating_matrix_p910.csv"),
     }

@@ -47,10 +47,12 @@ def dmos_per_scene(a: Analysis, path: Path) -> Path:
         ax = fig.add_subplot(rows, cols, k + 1)
         sd = d[d["scene"] == scene].sort_values(["method", "level"], na_position="last")
         x = np.arange(len(sd))
-        for i, (_, r) in enumerate(sd.iterrows()):
-            ax.errorbar(i, r["dmos"], yerr=[[r["dmos"] - r["ci95_low"]],
-                                            [r["ci95_high"] - r["dmos"]]],
-                        fmt="o", color=colors[r["method"]], capsize=2, ms=4)
+        for method in dict.fromkeys(sd["method"]):
+            sel = (sd["method"] == method).to_numpy()
+            r = sd[sel]
+            ax.errorbar(x[sel], r["dmos"], yerr=[r["dmos"] - r["ci95_low"],
+                                                 r["ci95_high"] - r["dmos"]],
+                        fmt="o", color=colors[method], capsize=2, ms=4, ls="none")
         for j, (name, pdata) in enumerate(preds.items()):
             p = pdata.set_index("stimulus")["predicted"]
             y = [p.get(s, np.nan) for s in sd["stimulus"]]
@@ -91,12 +93,15 @@ def metric_scatter(a: Analysis, path: Path) -> Path | None:
         for m in methods:
             s = dat[dat["method"] == m]
             ax.scatter(s["score"], s["dmos"], s=12, color=colors[m], label=m)
+        sign = 1.0 if np.allclose(dat["score"], dat["oriented"]) else -1.0
         grid = np.linspace(dat["score"].min(), dat["score"].max(), 200)
-        ax.plot(grid, a.metrics.mappings[name](grid), "k-", lw=1)
+        ax.plot(grid, a.metrics.mappings[name](sign * grid), "k-", lw=1)
         r = table.loc[name]
-        ax.set_title(f"{name}\nPLCC {r['plcc']:.3f}  SRCC {r['srcc']:.3f} "
-                     f"({a.metrics.mappings[name].kind})", fontsize=8)
-        ax.set_xlabel("metric score")
+        flag = " [FLAGGED]" if name in a.metrics.untrained else ""
+        ax.set_title(f"{name}{flag}\nPLCC {r['plcc']:.3f}  SRCC {r['srcc']:.3f} "
+                     f"({a.metrics.mappings[name].kind})", fontsize=8,
+                     color="#a00" if flag else "k")
+        ax.set_xlabel("metric score" + (" (lower is better)" if sign < 0 else ""))
         ax.set_ylabel("DMOS")
         if k == 0:
             ax.legend(fontsize=6)
@@ -172,16 +177,35 @@ def ci_curve(a: Analysis, path: Path) -> Path | None:
     c = a.ci_curve
     if c is None:
         return None
-    fig = Figure(figsize=(5, 3.5))
-    ax = fig.add_subplot()
-    ax.plot(c.n_raters, c.mean_width, "o", label="measured (subsampled raters)")
+    two = c.dmos_width is not None
+    fig = Figure(figsize=(10 if two else 5, 3.6))
+    ax = fig.add_subplot(1, 2 if two else 1, 1)
+    ax.plot(c.n_raters, c.mean_width, "o", ms=4, label="MOS (subsampled raters)")
     grid = np.linspace(c.n_raters.min(), c.n_raters.max(), 100)
     if np.isfinite(c.a):
         ax.plot(grid, c.a * grid ** (-c.b), "-", label=f"{c.a:.3g} n^-{c.b:.3f}")
+    if two:
+        ax.plot(c.n_raters, c.dmos_width, "s", ms=4, label="DMOS (paper's curve)")
     ax.set_xlabel("number of raters")
     ax.set_ylabel("mean 95% CI width")
     ax.legend(fontsize=8)
-    ax.set_title("CI width versus number of raters")
+    ax.set_title("CI width versus number of raters", fontsize=10)
+    if two:
+        ax2 = fig.add_subplot(1, 2, 2)
+        red = c.reduction_per_rater()
+        n = np.array(list(red), dtype=float)
+        r = np.array(list(red.values()))
+        ax2.plot(n[r > 0], r[r > 0], "o", ms=4, label="reduction by the n-th rater")
+        if np.isfinite(c.decay_rate):
+            g = np.linspace(max(5, n.min()), n.max(), 100)
+            ax2.plot(g, c.decay_scale * np.exp(-c.decay_rate * g), "-",
+                     label=f"{c.decay_scale:.3g} exp(-{c.decay_rate:.3f} n)")
+        if (r > 0).sum() >= 2:
+            ax2.set_yscale("log")  # an exponential decay is a straight line
+        ax2.set_xlabel("n-th rater added")
+        ax2.set_ylabel("DMOS CI width reduction")
+        ax2.legend(fontsize=8)
+        ax2.set_title("reduction per added participant (paper's reading)", fontsize=10)
     return _save(fig, path)
 
 
@@ -205,31 +229,132 @@ def metric_comparison(a: Analysis, path: Path) -> Path | None:
     x = np.arange(len(t))
     w = 0.38
     for off, key, col in ((-w / 2, "plcc", "tab:blue"), (w / 2, "srcc", "tab:orange")):
-        val = t[key].abs().to_numpy(dtype=float)
-        lo = np.abs(t[f"{key}_ci95_low"].to_numpy(dtype=float))
-        hi = np.abs(t[f"{key}_ci95_high"].to_numpy(dtype=float))
-        err = np.abs(np.vstack([val - np.minimum(lo, hi), np.maximum(lo, hi) - val]))
-        ax.bar(x + off, val, w, yerr=err, capsize=3, color=col, label=f"|{key.upper()}|")
+        val = t[key].to_numpy(dtype=float)
+        lo = t[f"{key}_ci95_low"].to_numpy(dtype=float)
+        hi = t[f"{key}_ci95_high"].to_numpy(dtype=float)
+        err = np.nan_to_num(np.abs(np.vstack([val - lo, hi - val])))
+        ax.bar(x + off, val, w, yerr=err, capsize=3, color=col, label=key.upper())
     ax.set_xticks(x, t["metric"], rotation=20, ha="right", fontsize=8)
-    ax.set_ylim(0, 1.05)
+    ax.set_ylim(min(0.0, float(np.nanmin(t[["plcc", "srcc"]].to_numpy(dtype=float))) - 0.05),
+                1.05)
     ax.legend(fontsize=8)
     ax.set_title("metrics versus DMOS (95% bootstrap CI)", fontsize=10)
     return _save(fig, path)
 
 
+def metric_benchmark(a: Analysis, path: Path) -> Path | None:
+    """Paper-style benchmark: metrics sorted by PLCC, 95% CIs, human ceiling as a band."""
+    if a.metrics is None:
+        return None
+    t = a.metrics.table
+    human = t[t["fit"] == "none"]
+    t = t[t["fit"] != "none"].sort_values("plcc")
+    fig = Figure(figsize=(9, 0.45 * len(t) + 1.8))
+    ax = fig.add_subplot()
+    y = np.arange(len(t))
+    h = 0.38
+    for off, key, col in ((h / 2, "plcc", "tab:blue"), (-h / 2, "srcc", "tab:orange")):
+        val = t[key].to_numpy(dtype=float)
+        err = np.nan_to_num(np.abs(np.vstack([val - t[f"{key}_ci95_low"].to_numpy(float),
+                                              t[f"{key}_ci95_high"].to_numpy(float) - val])))
+        bars = ax.barh(y + off, val, h, xerr=err, capsize=2, color=col, label=key.upper())
+        for bar, name in zip(bars, t["metric"], strict=True):
+            if name in a.metrics.untrained:
+                bar.set_hatch("//")
+                bar.set_alpha(0.5)
+    if len(human):
+        lo, hi = float(human["plcc_ci95_low"].iloc[0]), float(human["plcc_ci95_high"].iloc[0])
+        if np.isfinite(lo) and np.isfinite(hi):
+            ax.axvspan(lo, hi, color="0.85", zorder=0, label="human ceiling PLCC (95%)")
+    labels = [f"{m}  [FLAGGED]" if m in a.metrics.untrained else m for m in t["metric"]]
+    ax.set_yticks(y, labels, fontsize=8)
+    for tick, name in zip(ax.get_yticklabels(), t["metric"], strict=True):
+        if name in a.metrics.untrained:
+            tick.set_color("#a00")
+    ax.set_xlim(min(0.0, float(np.nanmin(t[["plcc", "srcc"]].to_numpy(float))) - 0.05), 1.0)
+    ax.set_xlabel("correlation with DMOS")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    ax.set_title("metric benchmark (95% two-way bootstrap CIs; hatched: flagged)", fontsize=10)
+    return _save(fig, path)
+
+
+def metric_per_method(a: Analysis, path: Path) -> Path | None:
+    """SRCC of every metric within each distortion method (heat map with values)."""
+    if a.metrics is None or a.metrics.per_method.empty:
+        return None
+    pm = a.metrics.per_method.pivot(index="metric", columns="method", values="srcc")
+    if pm.shape[1] < 2:
+        return None
+    order = a.metrics.table.set_index("metric")["plcc"].reindex(pm.index).sort_values().index
+    pm = pm.loc[order[::-1]]
+    fig = Figure(figsize=(1.1 * pm.shape[1] + 3, 0.4 * pm.shape[0] + 1.8))
+    ax = fig.add_subplot()
+    im = ax.imshow(pm.to_numpy(dtype=float), vmin=-1, vmax=1, cmap="RdBu", aspect="auto")
+    for i in range(pm.shape[0]):
+        for j in range(pm.shape[1]):
+            v = pm.iat[i, j]
+            if np.isfinite(v):
+                ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=7,
+                        color="white" if abs(v) > 0.6 else "black")
+    ax.set_xticks(range(pm.shape[1]), pm.columns, rotation=30, ha="right", fontsize=8)
+    ax.set_yticks(range(pm.shape[0]), pm.index, fontsize=8)
+    ax.set_title("SRCC per distortion method", fontsize=10)
+    fig.colorbar(im, ax=ax)
+    return _save(fig, path)
+
+
+def rater_agreement(a: Analysis, path: Path) -> Path | None:
+    """Each rater's correlation with the others and between their repetitions, thresholds."""
+    q = a.quality
+    if q is None or "loo_r" not in q.columns or q["loo_r"].isna().all():
+        return None
+    from .quality import THRESHOLDS
+
+    n = len(q)
+    fig = Figure(figsize=(max(5, 0.32 * n + 2), 3.4))
+    ax = fig.add_subplot()
+    x = np.arange(n)
+    status = q["status"].astype(str).to_numpy()
+    colors = np.where(status == "used", "tab:blue",
+                      np.where(np.char.startswith(status.astype(str), "removed"), "tab:red",
+                               "0.6"))
+    ax.bar(x - 0.2, q["loo_r"].to_numpy(dtype=float), 0.4, color=colors,
+           label="r with the others (blue used, red removed, grey dropped)")
+    if "repeat_r" in q.columns and q["repeat_r"].notna().any():
+        ax.bar(x + 0.2, q["repeat_r"].to_numpy(dtype=float), 0.4, color="tab:green",
+               alpha=0.6, label="r between own repetitions")
+    ax.axhline(THRESHOLDS["loo_r"], color="tab:blue", ls="--", lw=0.8)
+    ax.axhline(THRESHOLDS["repeat_r"], color="tab:green", ls=":", lw=0.8)
+    ax.axhline(0, color="0.5", lw=0.6)
+    ax.set_xticks(x, q.index, rotation=90, fontsize=6)
+    ax.set_ylim(min(-0.5, float(np.nanmin(q["loo_r"].to_numpy(float))) - 0.05), 1.0)
+    ax.legend(fontsize=7, loc="lower left")
+    ax.set_title("rater agreement (dashed: flag thresholds)", fontsize=10)
+    return _save(fig, path)
+
+
 FIGURES = {
+    "metric_benchmark": (metric_benchmark, "metric benchmark: PLCC and SRCC with 95% two-way "
+                         "bootstrap CIs, sorted; the grey band is the human ceiling; flagged "
+                         "metrics (random backbone, uniform weights) hatched"),
+    "metric_per_method": (metric_per_method, "SRCC of each metric within each distortion "
+                          "method"),
+    "rater_agreement": (rater_agreement, "each rater's correlation with the leave-one-out "
+                        "panel and between their own repetitions, with the flag thresholds"),
     "dmos_per_scene": (dmos_per_scene, "DMOS per scene with 95% CIs by method and level "
                        "(metric predictions after the logistic mapping as black markers)"),
     "metric_scatter": (metric_scatter, "each metric against DMOS with its fitted mapping"),
-    "metric_comparison": (metric_comparison, "metric comparison: |PLCC| and |SRCC| with 95% "
+    "metric_comparison": (metric_comparison, "metric comparison: PLCC and SRCC with 95% "
                           "bootstrap CIs, human ceiling alongside"),
     "inter_rater": (inter_rater_heatmap, "inter-rater Pearson correlation"),
     "intra_rater": (intra_rater_bars, "intra-rater reliability (mean r between repetitions)"),
     "rater_bias": (rater_bias, "rater bias and inconsistency with 95% CIs"),
     "content_ambiguity": (content_ambiguity, "content ambiguity with 95% CIs"),
     "split_half": (split_half_hist, "split-half (human ceiling) distributions"),
-    "ci_vs_raters": (ci_curve, "mean 95% CI width of the per-stimulus mean score versus "
-                     "number of raters (random panels), power-law fit"),
+    "ci_vs_raters": (ci_curve, "left: mean 95% CI width of MOS (power-law fit) and of DMOS "
+                     "versus the number of raters (random panels); right: the DMOS CI "
+                     "reduction bought by each added participant, with its exponential decay "
+                     "(the CGVQM+D paper's reading)"),
 }
 
 

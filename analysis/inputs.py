@@ -8,21 +8,27 @@ Bad rows never stop the run: each one becomes an :class:`InputProblem` naming th
 from __future__ import annotations
 
 import logging
-import sqlite3
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from tqdm.auto import tqdm
 
 from stimuli_manifests import LoadedManifest, StimuliError, load_manifest
+from stimuli_manifests.errors import TableError
+from stimuli_manifests.tables import FORMAT_COLUMN, RATINGS
 
-from .data import InputProblem, RatingSet
+from .data import Exclusion, InputProblem, RatingSet
 from .errors import AnalysisError
+from .quality import facts_from_rows, facts_from_sessions
+from .sessions import SESSION_SUFFIXES, read_one, select_sessions
+from .sessions import session_files as _session_sources
 
 log = logging.getLogger(__name__)
 
-SESSION_SUFFIXES = (".sqlite", ".sqlite3", ".db")
+__all__ = ["SESSION_SUFFIXES", "load_ratings", "ratings_from_frame", "read_manifest"]
+
 _REQUIRED = ("participant", "stimulus", "rating")
 
 
@@ -37,67 +43,60 @@ def read_manifest(path: str | Path) -> LoadedManifest:
 def _frame_from_csv(path: Path) -> pd.DataFrame:
     try:
         frame = pd.read_csv(path, dtype={"participant": str, "stimulus": str, "reference": str,
-                                         "session": str, "study": str})
+                                         "session": str, "study": str, FORMAT_COLUMN: str})
     except FileNotFoundError:
         raise AnalysisError(f"ratings file {path} does not exist") from None
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise AnalysisError(f"ratings file {path} is not a readable CSV ({exc})") from None
+    if FORMAT_COLUMN in frame.columns:
+        try:
+            RATINGS.check_versions(frame[FORMAT_COLUMN].dropna().tolist(), path)
+        except TableError as exc:
+            raise AnalysisError(str(exc)) from None
     missing = [c for c in _REQUIRED if c not in frame.columns]
     if missing:
         raise AnalysisError(
             f"ratings file {path} lacks column(s) {', '.join(missing)}; it must be the tidy "
-            "ratings table (study, session, participant, trial, stimulus, reference, repetition, "
-            "is_hidden_reference, rating, ...)"
+            f"ratings table ({RATINGS.version}: {', '.join(RATINGS.required)}; the analysis "
+            "needs at least participant, stimulus and rating)"
         )
     frame["_source"] = str(path)
     frame["_row"] = np.arange(len(frame)) + 2  # line number: header is line 1
+    frame["_rank"] = 0
     return frame
 
 
-def session_files(paths: Sequence[str | Path]) -> list[Path]:
-    """Expand folders into their session files (``*.sqlite``), keep files as given."""
-    out: list[Path] = []
-    for p in map(Path, paths):
-        if p.is_dir():
-            found = sorted(f for f in p.iterdir() if f.suffix in SESSION_SUFFIXES)
-            if not found:
-                raise AnalysisError(f"no session files (*.sqlite) in folder {p}")
-            out += found
-        elif p.is_file():
-            out.append(p)
-        else:
-            raise AnalysisError(f"session path {p} does not exist")
-    return out
-
-
-def _frame_from_sessions(paths: Sequence[str | Path]) -> tuple[pd.DataFrame, list[InputProblem]]:
-    try:  # the one allowed arrow into the study app: its session-store module
-        from study_app.session import StudyError, read_ratings
-    except ImportError as exc:  # pragma: no cover - the study app ships with the toolkit
-        raise AnalysisError(f"session files need study_app.session ({exc})") from None
-
-    problems: list[InputProblem] = []
+def _frame_from_sessions(
+    paths: Sequence[str | Path], loaded: LoadedManifest
+) -> tuple[pd.DataFrame, list[InputProblem], list[Exclusion], pd.DataFrame]:
+    records = []
+    with _session_sources(paths) as (sources, problems):
+        for source in tqdm(sources, desc="sessions", unit="file", leave=False,
+                           disable=len(sources) < 20):
+            try:
+                records.append(read_one(source))
+            except AnalysisError as exc:
+                problems.append(InputProblem(source.origin, None,
+                                             str(exc).removeprefix(f"{source.origin}: ")))
+    selection = select_sessions(records, loaded.manifest.study_id, loaded.sha256)
+    for exc in selection.exclusions:
+        log.warning("%s", exc)
+    problems += selection.problems
     frames = []
-    for path in session_files(paths):
-        try:
-            rows, found = read_ratings(path)
-        except (StudyError, sqlite3.DatabaseError, OSError) as exc:
-            problems.append(InputProblem(str(path), None, f"not used: {exc}"))
-            continue
-        for prob in found:
-            problems.append(InputProblem(str(prob.path), prob.row, prob.message))
-        frame = pd.DataFrame(rows)
+    for rank, rec in enumerate(selection.used):
+        frame = pd.DataFrame(rec.ratings)
         if frame.empty:
             continue
-        frame["_source"] = str(path)
+        frame["_source"] = rec.path
         frame["_row"] = frame["trial"]
+        frame["_rank"] = rank
         frames.append(frame)
     if not frames:
-        raise AnalysisError(
-            "no usable ratings in the session files: "
-            + ("; ".join(str(p) for p in problems[:3]) or "they are empty")
-        )
-    return pd.concat(frames, ignore_index=True), problems
+        why = "; ".join(str(x) for x in [*selection.exclusions, *problems][:3])
+        raise AnalysisError("no usable ratings in the session files: " + (why or "they are "
+                                                                           "empty"))
+    facts = facts_from_sessions(selection.used)
+    return pd.concat(frames, ignore_index=True), problems, selection.exclusions, facts
 
 
 def _problem(row: pd.Series, message: str) -> InputProblem:
@@ -110,18 +109,26 @@ def ratings_from_frame(
     *,
     problems: Iterable[InputProblem] = (),
     source: str = "",
+    exclusions: Iterable[Exclusion] = (),
+    facts: pd.DataFrame | None = None,
 ) -> RatingSet:
     """Validate tidy rating rows against the manifest and build a :class:`RatingSet`.
 
     Rows with a missing or non-numeric rating, a rating outside the scale, an unknown stimulus,
     a reference that contradicts the manifest, or a repeated (participant, stimulus,
-    repetition) are reported and left out (the first of duplicates is kept).
+    repetition) are reported and left out. Of duplicates, the row of the earliest session
+    (``_rank``; session files are ranked by start time) is kept, then the first in the file.
+    ``facts`` (per participant, from the session files) go into ``rater_info`` together with
+    each participant's completeness.
     """
     manifest = loaded.manifest
     scale = manifest.scale
     problems = list(problems)
     if "_source" not in frame.columns:
         frame = frame.assign(_source=source or "<ratings>", _row=np.arange(len(frame)) + 2)
+    if "_rank" not in frame.columns:
+        frame = frame.assign(_rank=0)
+    frame = frame.sort_values(["_rank"], kind="stable")
     stimuli = manifest.stimuli(include_hidden_references=True)
     by_id = {s.id: s for s in stimuli}
 
@@ -169,10 +176,16 @@ def ratings_from_frame(
         rep = frame.groupby(["participant", "stimulus"]).cumcount().astype(float)
     good = frame.loc[keep].assign(_rating=values[keep], _rep=rep[keep].to_numpy(),
                                   participant=part[keep], stimulus=stim[keep])
-    dup = good.duplicated(["participant", "stimulus", "_rep"], keep="first")
+    key = ["participant", "stimulus", "_rep"]
+    dup = good.duplicated(key, keep="first")
+    first = good.loc[~dup].set_index(key)["_source"]
     for _, row in good.loc[dup].iterrows():
+        kept_in = first.get((row["participant"], row["stimulus"], row["_rep"]), "")
+        where = "later copy" if kept_in == row["_source"] else \
+            f"the rating from the earlier session ({kept_in}) is used"
         problems.append(_problem(row, f"duplicate rating of {row['stimulus']} repetition "
-                                 f"{row['_rep']:g} by {row['participant']}; later copy left out"))
+                                 f"{row['_rep']:g} by {row['participant']}; {where} "
+                                 "(this row left out)"))
     good = good.loc[~dup]
     if good.empty:
         raise AnalysisError(
@@ -201,6 +214,10 @@ def ratings_from_frame(
     scores = np.full((len(order), len(raters), int(slot.max()) + 1), np.nan)
     scores[e_idx, s_idx, slot] = ratings
 
+    info = _rater_info(good, raters, frame, facts,
+                       planned=len(manifest.stimuli(include_hidden_references=manifest.protocol
+                                                    .hidden_reference))
+                       * manifest.protocol.repetitions)
     table = pd.DataFrame(
         {
             "reference": [s.reference for s in order],
@@ -214,8 +231,27 @@ def ratings_from_frame(
     return RatingSet(
         stimuli=table, raters=raters, scores=scores, scale_min=float(scale.min),
         scale_max=float(scale.max), ref_score=float(scale.max), study=manifest.study_id,
-        source=source, problems=problems,
+        source=source, problems=problems, exclusions=list(exclusions), rater_info=info,
     )
+
+
+def _rater_info(good: pd.DataFrame, raters: list[str], frame: pd.DataFrame,
+                facts: pd.DataFrame | None, planned: int) -> pd.DataFrame:
+    """Per participant: valid ratings, planned trials, completeness, and the session facts."""
+    info = facts.copy() if facts is not None and not facts.empty else \
+        facts_from_rows(frame.assign(participant=frame["participant"].astype(str)))
+    info = info.reindex(list(dict.fromkeys([*raters, *info.index])))
+    n = good.groupby("participant").size()
+    info["n_ratings"] = [int(n.get(r, 0)) for r in info.index]
+    if "n_planned" not in info.columns or info["n_planned"].isna().all():
+        info["n_planned"] = planned
+    info["n_planned"] = info["n_planned"].fillna(planned)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        info["completeness"] = np.minimum(
+            1.0, info["n_ratings"] / info["n_planned"].where(info["n_planned"] > 0))
+    info["status"] = ["used" if r in raters else "no valid ratings" for r in info.index]
+    info.index.name = "rater"
+    return info
 
 
 def load_ratings(
@@ -230,14 +266,17 @@ def load_ratings(
         raise AnalysisError("give the ratings either as a CSV (--ratings) or as session "
                             "files (--sessions), not both or neither")
     problems: list[InputProblem] = []
+    exclusions: list[Exclusion] = []
+    facts = None
     if ratings_csv is not None:
         paths = [ratings_csv] if isinstance(ratings_csv, (str, Path)) else list(ratings_csv)
         frame = pd.concat([_frame_from_csv(Path(p)) for p in paths], ignore_index=True)
         source = ", ".join(str(p) for p in paths)
     else:
-        frame, problems = _frame_from_sessions(sessions or [])
+        frame, problems, exclusions, facts = _frame_from_sessions(sessions or [], loaded)
         source = ", ".join(str(p) for p in sessions or [])
-    rs = ratings_from_frame(frame, loaded, problems=problems, source=source)
+    rs = ratings_from_frame(frame, loaded, problems=problems, source=source,
+                            exclusions=exclusions, facts=facts)
     for prob in rs.problems:
         log.warning("input problem: %s", prob)
     return rs

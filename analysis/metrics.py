@@ -1,62 +1,100 @@
-"""Metric versus humans: logistic mapping, correlations with bootstrap CIs, significance.
+"""Metric versus humans, as ITU-T P.1401 does it, for every metric in the scores files.
 
-Each metric's scores are mapped to DMOS with the 5-parameter logistic
-``q' = b1 (0.5 - 1 / (1 + exp(b2 (q - b3)))) + b4 q + b5`` (fitted on standardised scores from
-a data-driven start, within bounds; when the fit fails or is not monotone over the data, a
-straight line is used and the table says so). PLCC and RMSE use the mapped scores, SRCC and
-KRCC the raw ones (their sign is reported as is; comparisons use the fit-based PLCC, which
-does not depend on whether a metric is higher- or lower-is-better). Bootstrap resamples
-stimuli; every statistic of every resample is computed in one vectorised pass.
+Scores are read through the ``cgvq-scores/1`` contract (:data:`stimuli_manifests.tables.SCORES`);
+each row's ``direction`` (``higher-better``/``lower-better``) orients the metric so that higher
+means better quality before anything is computed; a file without it is refused (the direction
+is never guessed from the data). Metrics computed with a random backbone or uniform weights
+stay flagged wherever they appear.
+
+Per metric: the 5-parameter logistic mapping (:mod:`analysis.mapping`), PLCC and P.1401's rmse
+(``N - d``) on mapped scores, SRCC and KRCC on the oriented scores, the epsilon-insensitive
+rmse* and the outlier ratio from the DMOS CIs; all overall and per distortion method.
+
+Intervals: a two-way bootstrap. Each resample takes a resample of the raters (the DMOS of
+:mod:`analysis.intervals`) and a resample of the stimuli, stratified by distortion method, and
+refits the mapping inside the resample. Rating noise attenuates correlations and the in-sample
+fit flatters them; the bootstrap reproduces both, so the interval is the basic (reverse
+percentile) bootstrap interval on Fisher's z (log for rmse), its bias taken against the
+bootstrap world's own value, its spread widened by the small-sample correction of
+:func:`small_sample_factor` (coverage checked in ``benchmarks/bench_coverage.py``).
+Significance: the paper's one-tailed paired bootstrap test of PLCC, Williams'
+t and Steiger's Z for dependent correlations, and P.1401's F-test on rmse and rmse*.
 """
 
 from __future__ import annotations
 
 import itertools
+import json
 import logging
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy import optimize
+from scipy import stats
+
+from stimuli_manifests.errors import TableError
+from stimuli_manifests.tables import DIRECTIONS, FORMAT_COLUMN, SCORES
 
 from .data import InputProblem
 from .errors import AnalysisError
-from .stats import (
-    all_columns,
-    kendall_columns,
-    pearson_columns,
-    percentile_interval,
-    rmse_columns,
-    spearman_columns,
+from .mapping import Mapping, fit_mapping, logistic5, refit_batch
+from .p1401 import (
+    dependent_correlation_tests,
+    outlier_ratio,
+    rmse_dof,
+    rmse_f_test,
+    rmse_star,
 )
+from .stats import kendall_columns, pearson_columns, spearman_columns
 
 log = logging.getLogger(__name__)
 
-_REQUIRED = ("stimulus", "metric", "score")
+__all__ = ["Mapping", "MetricScores", "MetricValidation", "fit_mapping", "load_metric_scores",
+           "logistic5", "validate_metrics"]
+
 STATS = ("plcc", "srcc", "krcc", "rmse")
+_FIX_DIRECTION = ("add a column 'direction' holding higher-better or lower-better for each "
+                  "row (e.g. psnr,higher-better; flip,lower-better), or rewrite the file with "
+                  "'cgvqm batch', which writes it")
 
 
 # -- input --------------------------------------------------------------------------------
 @dataclass
 class MetricScores:
-    """Scores of one or more metrics, one row per (metric, stimulus)."""
+    """Scores of one or more metrics, one row per (metric, stimulus).
 
-    frame: pd.DataFrame  # columns: stimulus, metric (display id), score, backbone
+    ``frame`` columns: stimulus, metric (display id), score (as written), direction,
+    oriented (score, negated for lower-better), backbone, _source, _row.
+    """
+
+    frame: pd.DataFrame
     problems: list[InputProblem] = field(default_factory=list)
+    flags: dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        f = self.frame
+        if "direction" not in f.columns:
+            f["direction"] = "higher-better"
+        if "oriented" not in f.columns:
+            sign = np.where(f["direction"] == "lower-better", -1.0, 1.0)
+            f["oriented"] = pd.to_numeric(f["score"], errors="coerce") * sign
+        for col, default in (("_source", "<scores>"), ("_row", 0)):
+            if col not in f.columns:
+                f[col] = default
+        if not self.flags:
+            self.flags = provenance_flags(f)
 
     @property
     def metrics(self) -> list[str]:
         return list(dict.fromkeys(self.frame["metric"]))
 
+    def direction(self, metric: str) -> str:
+        return str(self.frame.loc[self.frame["metric"] == metric, "direction"].iloc[0])
+
     def untrained(self) -> dict[str, str]:
-        """Metrics that ran on an untrained (random) backbone -> that backbone value."""
-        if "backbone" not in self.frame.columns:
-            return {}
-        b = self.frame.dropna(subset=["backbone"])
-        b = b[b["backbone"].astype(str).str.lower().str.startswith("random")]
-        return dict(zip(b["metric"], b["backbone"].astype(str), strict=False))
+        """Metrics whose provenance makes them not the published metric -> why."""
+        return dict(self.flags)
 
 
 def metric_id(metric: str, pooling: object) -> str:
@@ -66,103 +104,164 @@ def metric_id(metric: str, pooling: object) -> str:
     return f"{metric} ({pooling})"
 
 
+def _settings_flags(text: object) -> list[str]:
+    if not isinstance(text, str) or not text.strip().startswith("{"):
+        return []
+    try:
+        settings = json.loads(text)
+    except json.JSONDecodeError:
+        return []
+    out = []
+    if isinstance(settings, dict):
+        if settings.get("random_backbone") not in (None, False, "", 0):
+            out.append("random backbone")
+        if str(settings.get("weights", "")).lower() == "uniform":
+            out.append("uniform weights")
+    return out
+
+
+def provenance_flags(frame: pd.DataFrame) -> dict[str, str]:
+    """Metric -> warning for scores from a random (untrained) backbone or uniform weights."""
+    flags: dict[str, list[str]] = {}
+    for _, row in frame.iterrows():
+        found = []
+        backbone = row.get("backbone")
+        if isinstance(backbone, str) and "random" in backbone.lower():
+            found.append(f"random (untrained) backbone: {backbone}")
+        weights = row.get("weights_sha256")
+        if isinstance(weights, str) and weights.strip().lower() == "uniform":
+            found.append("uniform feature weights (not a calibrated metric)")
+        found += _settings_flags(row.get("settings"))
+        if str(row["metric"]).split(" (")[0].endswith("-uniform"):
+            found.append("uniform feature weights (not a calibrated metric)")
+        for item in found:
+            lst = flags.setdefault(str(row["metric"]), [])
+            if item not in lst and not any(item in x or x in item for x in lst):
+                lst.append(item)
+    return {m: "; ".join(v) for m, v in flags.items()}
+
+
+def _read_scores_csv(path: Path) -> pd.DataFrame:
+    try:
+        f = pd.read_csv(path, dtype={"stimulus": str, "reference": str, "metric": str,
+                                     "direction": str, "backbone": str, "weights_sha256": str,
+                                     "settings": str, "pooling": str, FORMAT_COLUMN: str},
+                        keep_default_na=True)
+    except FileNotFoundError:
+        raise AnalysisError(f"metric scores file {path} does not exist") from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise AnalysisError(f"metric scores file {path} is not a readable CSV ({exc})") \
+            from None
+    if "direction" not in f.columns and {"stimulus", "metric", "score"} <= set(f.columns):
+        raise AnalysisError(f"metric scores file {path} has no 'direction' column: "
+                            + _FIX_DIRECTION)
+    try:
+        SCORES.check(list(f.columns),
+                     f[FORMAT_COLUMN].dropna().tolist() if FORMAT_COLUMN in f.columns else None,
+                     path)
+    except TableError as exc:
+        raise AnalysisError(str(exc)) from None
+    direction = f["direction"].fillna("").str.strip().str.lower()
+    bad = sorted(set(direction) - set(DIRECTIONS))
+    if bad:
+        raise AnalysisError(f"metric scores file {path}: direction {bad[0]!r} is not one of "
+                            f"{', '.join(DIRECTIONS)}; " + _FIX_DIRECTION)
+    f["direction"] = direction
+    f["_source"], f["_row"] = str(path), np.arange(len(f)) + 2
+    return f
+
+
 def load_metric_scores(paths: list[str | Path]) -> MetricScores:
-    """Read metric score CSVs (DESIGN.md contract 4); bad rows are reported and left out."""
-    frames, problems = [], []
-    for path in map(Path, paths):
-        try:
-            f = pd.read_csv(path, dtype={"stimulus": str, "reference": str, "metric": str})
-        except FileNotFoundError:
-            raise AnalysisError(f"metric scores file {path} does not exist") from None
-        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-            raise AnalysisError(f"metric scores file {path} is not a readable CSV ({exc})") \
-                from None
-        missing = [c for c in _REQUIRED if c not in f.columns]
-        if missing:
-            raise AnalysisError(f"metric scores file {path} lacks column(s) "
-                                f"{', '.join(missing)} (needs stimulus, reference, metric, score)")
-        f["_source"], f["_row"] = str(path), np.arange(len(f)) + 2
-        frames.append(f)
-    f = pd.concat(frames, ignore_index=True)
+    """Read metric score CSVs (``cgvq-scores/1``); bad rows are reported and left out."""
+    problems: list[InputProblem] = []
+    f = pd.concat([_read_scores_csv(Path(p)) for p in paths], ignore_index=True)
     pooling = f["pooling"] if "pooling" in f.columns else pd.Series([None] * len(f))
     f["metric"] = [metric_id(m, p) for m, p in zip(f["metric"], pooling, strict=True)]
+    both = f.groupby("metric")["direction"].nunique()
+    if (both > 1).any():
+        name = both[both > 1].index[0]
+        raise AnalysisError(f"metric {name!r} is marked both higher-better and lower-better; "
+                            "one metric has one direction")
     f["score"] = pd.to_numeric(f["score"], errors="coerce")
     bad = ~np.isfinite(f["score"].to_numpy(dtype=float))
     for _, row in f[bad].iterrows():
+        note = row.get("note")
+        why = f" ({note})" if isinstance(note, str) and note.strip() else ""
         problems.append(InputProblem(row["_source"], int(row["_row"]),
                                      f"score of {row['metric']} for {row['stimulus']} is missing "
-                                     "or not a number; row left out"))
+                                     f"or not a number{why}; row left out"))
+    flags = provenance_flags(f)
     f = f[~bad]
     dup = f.duplicated(["metric", "stimulus"], keep="first")
     for _, row in f[dup].iterrows():
         problems.append(InputProblem(row["_source"], int(row["_row"]),
                                      f"second score of {row['metric']} for {row['stimulus']}; "
                                      "left out"))
-    f = f[~dup]
+    f = f[~dup].copy()
     if "backbone" not in f.columns:
         f["backbone"] = None
-    return MetricScores(f.reset_index(drop=True), problems)
+    f["oriented"] = np.where(f["direction"] == "lower-better", -f["score"], f["score"])
+    return MetricScores(f.reset_index(drop=True), problems, flags)
 
 
-# -- logistic mapping ------------------------------------------------------------------------
-def logistic5(q: np.ndarray, b1: float, b2: float, b3: float, b4: float, b5: float) -> np.ndarray:
-    """The 5-parameter logistic of VQEG / Sheikh et al. (2006)."""
-    with np.errstate(over="ignore"):
-        return b1 * (0.5 - 1.0 / (1.0 + np.exp(b2 * (q - b3)))) + b4 * q + b5
+# -- resampling ------------------------------------------------------------------------------
+def stratified_indices(groups: np.ndarray, n_boot: int,
+                       rng: np.random.Generator) -> tuple[np.ndarray, dict[str, slice]]:
+    """Bootstrap indices (B, n) drawn within each group; columns are grouped in blocks."""
+    blocks, parts, start = {}, [], 0
+    for g in dict.fromkeys(groups):
+        members = np.flatnonzero(groups == g)
+        parts.append(members[rng.integers(0, members.size, size=(n_boot, members.size))])
+        blocks[str(g)] = slice(start, start + members.size)
+        start += members.size
+    return np.concatenate(parts, axis=1), blocks
 
 
-@dataclass
-class Mapping:
-    """A fitted monotone mapping from metric score to DMOS."""
-
-    kind: str  # "logistic5" or "linear (fallback)"
-    params: tuple[float, ...]
-    center: float
-    scale: float
-
-    def __call__(self, q: np.ndarray) -> np.ndarray:
-        z = (np.asarray(q, dtype=float) - self.center) / self.scale
-        if self.kind == "logistic5":
-            return logistic5(z, *self.params)
-        return self.params[0] * z + self.params[1]
+def small_sample_factor(n: int, strata: int) -> float:
+    """How much wider than the bootstrap spread an interval of a statistic of ``n`` stimuli
+    resampled within ``strata`` groups must be: the within-group bootstrap variance is
+    ``(n - strata) / n`` of the sampling variance, and the 97.5% quantile is Student's with
+    n - 3 degrees of freedom (Fisher's z of a correlation) rather than the normal one."""
+    if n - strata < 1 or n <= 3:
+        return 1.0
+    return float(np.sqrt(n / (n - strata)) * stats.t.ppf(0.975, n - 3) / stats.norm.ppf(0.975))
 
 
-def fit_mapping(q: np.ndarray, y: np.ndarray) -> Mapping:
-    """Fit the 5-parameter logistic (bounded, from a robust start) or fall back to a line."""
-    q, y = np.asarray(q, dtype=float), np.asarray(y, dtype=float)
-    center, scale = float(np.median(q)), float(np.std(q)) or 1.0
-    z = (q - center) / scale
-    slope, intercept = np.polyfit(z, y, 1) if len(z) >= 2 else (0.0, float(np.mean(y)))
-    line = Mapping("linear (fallback)", (float(slope), float(intercept)), center, scale)
-    if len(q) < 6:
-        return line
-    yr = float(np.ptp(y)) or 1.0
-    sign = 1.0 if slope >= 0 else -1.0
-    lower = [-10 * yr, 1e-2, float(z.min()), -yr, float(y.min()) - 10 * yr]
-    upper = [10 * yr, 20.0, float(z.max()), yr, float(y.max()) + 10 * yr]
-    best, best_sse = None, np.inf
-    for b2 in (1.0, 3.0, 0.3):
-        p0 = [sign * yr, b2, float(np.clip(np.median(z), lower[2], upper[2])), 0.0,
-              float(np.mean(y))]
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                params, _ = optimize.curve_fit(logistic5, z, y, p0=p0, bounds=(lower, upper),
-                                               maxfev=20000)
-        except (RuntimeError, ValueError, optimize.OptimizeWarning):
-            continue
-        sse = float(np.sum((logistic5(z, *params) - y) ** 2))
-        if sse < best_sse:
-            best, best_sse = params, sse
-    if best is None:
-        log.warning("logistic fit did not converge; using a linear mapping")
-        return line
-    grid = logistic5(np.linspace(z.min(), z.max(), 200), *best)
-    steps = np.diff(grid)
-    if not ((steps >= -1e-9 * yr).all() or (steps <= 1e-9 * yr).all()):
-        log.warning("logistic fit is not monotone over the data; using a linear mapping")
-        return line
-    return Mapping("logistic5", tuple(float(p) for p in best), center, scale)
+def _basic_interval(point: float, ref: float, boot: np.ndarray, kind: str, *,
+                    factor: float = 1.0) -> tuple[float, float]:
+    """Basic bootstrap interval on Fisher's z (correlations) or log (rmse):
+    ``point - bias -/+ factor * spread``, with ``bias`` = median of the resamples minus
+    ``ref`` (the statistic of the bootstrap world: the full data under the estimator the
+    resamples use) and ``spread`` = the distances from that median to the 97.5% and 2.5%
+    quantiles (reversed, as the basic interval does); ``factor`` is the small-sample
+    correction of :func:`small_sample_factor`."""
+    boot = boot[np.isfinite(boot)]
+    if boot.size < 10 or not np.isfinite(point) or not np.isfinite(ref):
+        return float("nan"), float("nan")
+    if kind == "corr":
+        fwd, inv = (lambda x: np.arctanh(np.clip(x, -0.999999, 0.999999))), np.tanh
+    else:
+        fwd, inv = (lambda x: np.log(np.maximum(x, 1e-12))), np.exp
+    lo_q, mid, hi_q = np.percentile(fwd(boot), [2.5, 50.0, 97.5])
+    centre = fwd(np.array(point)) - (mid - fwd(np.array(ref)))
+    return (float(inv(centre - factor * (hi_q - mid))),
+            float(inv(centre + factor * (mid - lo_q))))
+
+
+def _point_stats(y: np.ndarray, q: np.ndarray, pred: np.ndarray, d: int) -> dict[str, float]:
+    return {"plcc": float(pearson_columns(y, pred)[0]),
+            "srcc": float(spearman_columns(y, q)[0]),
+            "krcc": float(kendall_columns(y, q)[0]),
+            "rmse": rmse_dof(y, pred, d)}
+
+
+def _boot_stats(yb: np.ndarray, qb: np.ndarray, pb: np.ndarray, d: int) -> dict[str, np.ndarray]:
+    """Statistics of every resample (rows of (B, n) arrays)."""
+    n = yb.shape[1]
+    err = ((yb - pb) ** 2).sum(axis=1)
+    return {"plcc": pearson_columns(yb.T, pb.T), "srcc": spearman_columns(yb.T, qb.T),
+            "krcc": kendall_columns(yb.T, qb.T),
+            "rmse": np.sqrt(err / (n - d)) if n > d else np.full(yb.shape[0], np.nan)}
 
 
 # -- validation ----------------------------------------------------------------------------
@@ -172,112 +271,241 @@ class MetricValidation:
 
     table: pd.DataFrame  # one row per metric (+ the human ceiling row)
     per_method: pd.DataFrame
-    significance: pd.DataFrame  # p-value that row metric's PLCC > column metric's
+    significance: pd.DataFrame  # bootstrap p-value that row metric's PLCC > column metric's
     better: pd.DataFrame  # bool: row significantly better than column at alpha
     mappings: dict[str, Mapping]
     data: dict[str, pd.DataFrame]  # per metric: stimulus, score, dmos, predicted, method
     problems: list[InputProblem]
     untrained: dict[str, str]
     alpha: float
+    comparisons: pd.DataFrame = field(default_factory=pd.DataFrame)  # all pairwise tests
+    williams: pd.DataFrame = field(default_factory=pd.DataFrame)  # Williams' p matrix
+    boot: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    boot_ref: dict[str, dict[str, float]] = field(default_factory=dict)  # bootstrap world
 
 
-def _bootstrap(y: np.ndarray, pred: np.ndarray, raw: np.ndarray,
-               idx: np.ndarray) -> dict[str, np.ndarray]:
-    yb, pb, rb = y[idx].T, pred[idx].T, raw[idx].T
-    return {"plcc": pearson_columns(yb, pb), "srcc": spearman_columns(yb, rb),
-            "krcc": kendall_columns(yb, rb), "rmse": rmse_columns(yb, pb)}
+@dataclass
+class _Fitted:
+    name: str
+    rows: np.ndarray  # positions in the target table
+    q: np.ndarray
+    y: np.ndarray
+    mapping: Mapping
+    pred: np.ndarray
+    idx: np.ndarray
+    blocks: dict[str, slice]
+    boot: dict[str, np.ndarray]
+    pred_boot: np.ndarray
+    y_boot: np.ndarray
 
 
 def validate_metrics(
     dmos: pd.DataFrame,
     scores: MetricScores,
     *,
+    boot=None,
     n_boot: int = 1000,
     seed: int = 0,
     alpha: float = 0.05,
     ceiling: dict[str, dict[str, float]] | None = None,
 ) -> MetricValidation:
-    """Compare every metric with DMOS (hidden references excluded: their DMOS is fixed)."""
-    target = dmos[~dmos["is_hidden_reference"].astype(bool)].set_index("stimulus")
+    """Compare every metric with DMOS (hidden references excluded: their DMOS is fixed).
+
+    ``dmos`` is :func:`analysis.scores.dmos_table`'s frame; ``boot`` the
+    :class:`~analysis.intervals.RaterBootstrap` of the same rating set (rows in the same
+    order). Without it only the stimuli are resampled (DMOS held fixed).
+    """
+    hidden = dmos["is_hidden_reference"].astype(bool).to_numpy()
+    target = dmos[~hidden].reset_index(drop=True)
+    positions = np.flatnonzero(~hidden)
+    y_all = target["dmos"].to_numpy(dtype=float)
+    ci_all = ((target["ci95_high"] - target["ci95_low"]) / 2).to_numpy(dtype=float)
+    methods_all = target["method"].astype(str).to_numpy()
+    if boot is not None:
+        n_boot = boot.dmos.shape[1]
+        yb_all = boot.dmos[positions].T  # (B, T)
+        y_ref_all = boot.dmos_full[positions]
+    else:
+        yb_all = np.tile(y_all, (n_boot, 1))
+        y_ref_all = y_all
+    sid = pd.Index(target["stimulus"].astype(str))
+    # One set of stimulus draws shared by every metric that covers all stimuli, so paired
+    # comparisons pair the same resamples.
+    shared_idx = stratified_indices(methods_all, n_boot, np.random.default_rng([seed, 23]))
     problems = list(scores.problems)
-    rng = np.random.default_rng(seed)
-    rows, method_rows, mappings, data, boots = [], [], {}, {}, {}
+    fitted: dict[str, _Fitted] = {}
+    refs: dict[str, dict[str, float]] = {}
+    rows, method_rows = [], []
     for name in scores.metrics:
         m = scores.frame[scores.frame["metric"] == name]
-        unknown = m[~m["stimulus"].isin(dmos["stimulus"])]
-        for _, row in unknown.iterrows():
+        known = m["stimulus"].isin(dmos["stimulus"].astype(str))
+        for _, row in m[~known].iterrows():
             problems.append(InputProblem(row["_source"], int(row["_row"]),
                                          f"{name}: stimulus {row['stimulus']!r} has no DMOS; "
                                          "left out"))
-        m = m[m["stimulus"].isin(target.index)]
+        m = m[m["stimulus"].isin(sid)]
         if len(m) < 3:
             problems.append(InputProblem(name, None, f"{name}: only {len(m)} stimuli with DMOS; "
                                          "metric not evaluated"))
             continue
-        q = m["score"].to_numpy(dtype=float)
-        y = target.loc[m["stimulus"], "dmos"].to_numpy(dtype=float)
-        mapping = fit_mapping(q, y)
-        pred = mapping(q)
-        mappings[name] = mapping
-        methods = target.loc[m["stimulus"], "method"].to_numpy()
-        data[name] = pd.DataFrame({"stimulus": m["stimulus"].to_numpy(), "score": q, "dmos": y,
-                                   "predicted": pred, "method": methods,
-                                   "scene": target.loc[m["stimulus"], "scene"].to_numpy()})
-        point = all_columns(y, pred)
-        raw = all_columns(y, q)
-        point["srcc"], point["krcc"] = raw["srcc"], raw["krcc"]
-        idx = rng.integers(0, len(y), size=(n_boot, len(y)))
-        boot = _bootstrap(y, pred, q, idx)
-        boots[name] = (m["stimulus"].to_numpy(), boot)
-        row = {"metric": name, "n": len(y), "fit": mapping.kind}
+        pos = sid.get_indexer(m["stimulus"].astype(str))
+        order = np.argsort(pos)
+        pos = pos[order]
+        draws = shared_idx if len(pos) == len(sid) else stratified_indices(
+            methods_all[pos], n_boot, np.random.default_rng([seed, 23, len(pos),
+                                                             int(pos.sum())]))
+        f = _fit_one(name, pos, m["oriented"].to_numpy(dtype=float)[order], y_all, yb_all,
+                     draws)
+        fitted[name] = f
+        d = f.mapping.n_params
+        ci = ci_all[pos]
+        point = _point_stats(f.y, f.q, f.pred, d)
+        ref = _ref_stats(f, y_ref_all[pos], d)
+        refs[name] = ref
+        row = {"metric": name, "direction": scores.direction(name), "n": len(f.y),
+               "fit": f.mapping.kind, "d": d}
         for key in STATS:
-            row[key] = float(point[key][0])
-            row[f"{key}_ci95_low"], row[f"{key}_ci95_high"] = percentile_interval(boot[key])
-        row["backbone"] = scores.untrained().get(name, "")
+            row[key] = point[key]
+            row[f"{key}_ci95_low"], row[f"{key}_ci95_high"] = _basic_interval(
+                point[key], ref[key], f.boot[key], "rmse" if key == "rmse" else "corr",
+                factor=small_sample_factor(len(f.y), len(f.blocks)))
+        row["rmse_star"] = rmse_star(f.y, f.pred, ci, d)
+        row["outlier_ratio"] = outlier_ratio(f.y, f.pred, ci)
+        row["flag"] = scores.flags.get(name, "")
         rows.append(row)
-        for method in dict.fromkeys(methods):
-            sel = methods == method
-            if sel.sum() >= 3:
-                method_rows.append({
-                    "metric": name, "method": method, "n": int(sel.sum()),
-                    "plcc": float(pearson_columns(y[sel], pred[sel])[0]),
-                    "srcc": float(all_columns(y[sel], q[sel])["srcc"][0]),
-                })
+        method_rows += _per_method(f, ci, y_ref_all[pos], methods_all[pos])
     if not rows:
         raise AnalysisError("no metric could be compared with DMOS (no shared stimuli); check "
                             "that the score CSV's stimulus ids match the manifest")
     table = pd.DataFrame(rows)
     if ceiling:
-        human = {"metric": "human ceiling (split-half)", "n": len(target), "fit": "none",
-                 "backbone": ""}
+        human = {"metric": "human ceiling (split-half)", "direction": "", "n": len(target),
+                 "fit": "none", "d": 0, "flag": ""}
         for key in STATS:
             c = ceiling.get(key, {})
             human[key] = c.get("median", np.nan)
             human[f"{key}_ci95_low"] = c.get("ci95_low", np.nan)
             human[f"{key}_ci95_high"] = c.get("ci95_high", np.nan)
         table = pd.concat([table, pd.DataFrame([human])], ignore_index=True)
-
-    names = list(mappings)
+    comparisons = _comparisons(fitted, y_all, yb_all, ci_all, methods_all, n_boot, seed)
+    names = list(fitted)
+    overall = comparisons[comparisons["scope"] == "all"] if len(comparisons) else comparisons
     pvals = pd.DataFrame(np.nan, index=names, columns=names)
-    for a, b in itertools.permutations(names, 2):
-        pvals.loc[a, b] = _paired_p(data[a], data[b], mappings[a], mappings[b], n_boot,
-                                    seed)
-    better = pvals < alpha
-    return MetricValidation(table, pd.DataFrame(method_rows), pvals, better, mappings, data,
-                            problems, scores.untrained(), alpha)
+    williams = pd.DataFrame(np.nan, index=names, columns=names)
+    for _, c in overall.iterrows():
+        pvals.loc[c["metric_a"], c["metric_b"]] = c["boot_p"]
+        williams.loc[c["metric_a"], c["metric_b"]] = c["williams_p"]
+    data = {name: pd.DataFrame({
+        "stimulus": target["stimulus"].to_numpy()[f.rows],
+        "score": scores.frame.set_index(["metric", "stimulus"]).loc[name]["score"]
+        .reindex(target["stimulus"].to_numpy()[f.rows]).to_numpy(),
+        "oriented": f.q, "dmos": f.y, "predicted": f.pred,
+        "method": methods_all[f.rows], "scene": target["scene"].to_numpy()[f.rows]})
+        for name, f in fitted.items()}
+    return MetricValidation(table, pd.DataFrame(method_rows), pvals, pvals < alpha,
+                            {n: f.mapping for n, f in fitted.items()}, data, problems,
+                            dict(scores.flags), alpha, comparisons, williams,
+                            {n: f.boot for n, f in fitted.items()}, refs)
 
 
-def _paired_p(da: pd.DataFrame, db: pd.DataFrame, ma: Mapping, mb: Mapping,
-              n_boot: int, seed: int) -> float:
-    """One-tailed paired bootstrap p-value of H0: PLCC(a) <= PLCC(b) on shared stimuli."""
-    shared = da.merge(db, on="stimulus", suffixes=("_a", "_b"))
-    if len(shared) < 3:
-        return float("nan")
-    y = shared["dmos_a"].to_numpy()
-    pa, pb = ma(shared["score_a"].to_numpy()), mb(shared["score_b"].to_numpy())
-    idx = np.random.default_rng(seed + 1).integers(0, len(y), size=(n_boot, len(y)))
-    ra = pearson_columns(y[idx].T, pa[idx].T)
-    rb = pearson_columns(y[idx].T, pb[idx].T)
-    diff = ra - rb
-    diff = diff[np.isfinite(diff)]
-    return float(np.mean(diff <= 0)) if diff.size else float("nan")
+def _fit_one(name: str, pos: np.ndarray, q: np.ndarray, y_all: np.ndarray,
+             yb_all: np.ndarray, draws: tuple[np.ndarray, dict[str, slice]]) -> _Fitted:
+    y = y_all[pos]
+    mapping = fit_mapping(q, y)
+    pred = mapping(q)
+    idx, blocks = draws
+    rows_b = np.arange(idx.shape[0])[:, None]
+    yb = yb_all[:, pos][rows_b, idx]
+    qb = q[idx]
+    pb, _ = refit_batch(mapping, qb, yb)
+    boot = _boot_stats(yb, qb, pb, mapping.n_params)
+    return _Fitted(name, pos, q, y, mapping, pred, idx, blocks, boot, pb, yb)
+
+
+def _ref_stats(f: _Fitted, y_ref: np.ndarray, d: int) -> dict[str, float]:
+    """The statistics in the bootstrap world: full stimuli, full-panel DMOS of the fast
+    estimator, mapping refitted on it."""
+    pred, _ = refit_batch(f.mapping, f.q[None, :], y_ref[None, :])
+    return _point_stats(y_ref, f.q, pred[0], d)
+
+
+def _per_method(f: _Fitted, ci: np.ndarray, y_ref: np.ndarray,
+                methods: np.ndarray) -> list[dict]:
+    out = []
+    pred_ref, _ = refit_batch(f.mapping, f.q[None, :], y_ref[None, :])
+    for method, block in f.blocks.items():
+        sel = methods == method
+        if sel.sum() < 3:
+            continue
+        row = {"metric": f.name, "method": method, "n": int(sel.sum())}
+        point = _point_stats(f.y[sel], f.q[sel], f.pred[sel], 0)
+        ref = _point_stats(y_ref[sel], f.q[sel], pred_ref[0][sel], 0)
+        boot = _boot_stats(f.y_boot[:, block], f.q[f.idx[:, block]], f.pred_boot[:, block], 0)
+        for key in STATS:
+            row[key] = point[key]
+            row[f"{key}_ci95_low"], row[f"{key}_ci95_high"] = _basic_interval(
+                point[key], ref[key], boot[key], "rmse" if key == "rmse" else "corr",
+                factor=small_sample_factor(int(sel.sum()), 1))
+        row["rmse_star"] = rmse_star(f.y[sel], f.pred[sel], ci[sel], 0)
+        row["outlier_ratio"] = outlier_ratio(f.y[sel], f.pred[sel], ci[sel])
+        out.append(row)
+    return out
+
+
+def _comparisons(fitted: dict[str, _Fitted], y_all: np.ndarray, yb_all: np.ndarray,
+                 ci_all: np.ndarray, methods_all: np.ndarray, n_boot: int,
+                 seed: int) -> pd.DataFrame:
+    """Every ordered pair of metrics, overall and per method: is a better than b?"""
+    rows = []
+    for a, b in itertools.permutations(fitted, 2):
+        fa, fb = fitted[a], fitted[b]
+        shared = np.intersect1d(fa.rows, fb.rows)
+        if shared.size < 4:
+            continue
+        same = np.array_equal(fa.rows, fb.rows)
+        if same:
+            pa_b, pb_b, ya_b = fa.pred_boot, fb.pred_boot, fa.y_boot
+            idx, blocks = fa.idx, fa.blocks
+            pa, pb = fa.pred, fb.pred
+        else:  # different stimulus sets: refit both on the shared stimuli
+            ia, ib = np.searchsorted(fa.rows, shared), np.searchsorted(fb.rows, shared)
+            ma, mb = fit_mapping(fa.q[ia], y_all[shared]), fit_mapping(fb.q[ib], y_all[shared])
+            pa, pb = ma(fa.q[ia]), mb(fb.q[ib])
+            rng = np.random.default_rng([seed, 29, len(shared), int(shared.sum())])
+            idx, blocks = stratified_indices(methods_all[shared], n_boot, rng)
+            ya_b = yb_all[:, shared][np.arange(n_boot)[:, None], idx]
+            pa_b, _ = refit_batch(ma, fa.q[ia][idx], ya_b)
+            pb_b, _ = refit_batch(mb, fb.q[ib][idx], ya_b)
+        order = fa.rows if same else shared
+        y = y_all[order]
+        ci = ci_all[order]
+        methods = methods_all[order]
+        da = fa.mapping.n_params
+        db = fb.mapping.n_params
+        scopes = [("all", np.ones(len(order), dtype=bool), slice(None))]
+        scopes += [(m, methods == m, blk) for m, blk in blocks.items()]
+        for scope, sel, blk in scopes:
+            if sel.sum() < 4:
+                continue
+            dda, ddb = (da, db) if scope == "all" else (0, 0)
+            ra = pearson_columns(ya_b[:, blk].T, pa_b[:, blk].T)
+            rb = pearson_columns(ya_b[:, blk].T, pb_b[:, blk].T)
+            diff = (ra - rb)[np.isfinite(ra - rb)]
+            tests = dependent_correlation_tests(y[sel], pa[sel], pb[sel])
+            rmse_a, rmse_b = rmse_dof(y[sel], pa[sel], dda), rmse_dof(y[sel], pb[sel], ddb)
+            f_rmse, p_rmse = rmse_f_test(rmse_b, int(sel.sum()), ddb, rmse_a, int(sel.sum()),
+                                         dda)
+            star_a = rmse_star(y[sel], pa[sel], ci[sel], dda)
+            star_b = rmse_star(y[sel], pb[sel], ci[sel], ddb)
+            f_star, p_star = rmse_f_test(star_b, int(sel.sum()), ddb, star_a, int(sel.sum()),
+                                         dda)
+            rows.append({
+                "scope": scope, "metric_a": a, "metric_b": b, "n": int(sel.sum()),
+                "plcc_a": float(pearson_columns(y[sel], pa[sel])[0]),
+                "plcc_b": float(pearson_columns(y[sel], pb[sel])[0]),
+                "boot_p": float(np.mean(diff <= 0)) if diff.size else float("nan"),
+                **tests,
+                "rmse_F": f_rmse, "rmse_p": p_rmse, "rmse_star_F": f_star,
+                "rmse_star_p": p_star,
+            })
+    return pd.DataFrame(rows)

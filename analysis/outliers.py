@@ -1,10 +1,15 @@
-"""Screening out raters who disagree with the panel.
+"""Screening out raters who disagree with the panel (``--outliers``).
 
-Default: iterative two-sided Grubbs' test on each rater's mean absolute deviation from the
-panel mean (ratings averaged over repetitions). The most extreme rater is removed while the
-test rejects at ``alpha``; the panel mean is recomputed without the removed raters before the
-next round. Alternatives: ITU-R BT.500 kurtosis-based screening (as implemented in SUREAL) and
-no screening.
+- ``p913`` (default): ITU-T P.913's correlation screening against the leave-one-out panel,
+  iterated, confirmed by the MLE inconsistency estimate; robust to rater bias and to masking
+  (see :mod:`analysis.screening`).
+- ``grubbs``: the CGVQM+D paper's rule, kept to reproduce it: iterative two-sided Grubbs'
+  test on each rater's mean absolute deviation from the panel mean (ratings averaged over
+  repetitions); the most extreme rater is removed while the test rejects at ``alpha``. The
+  deviation mixes rater bias (which the MLE models) with inconsistency, so a consistent rater
+  with an offset can be removed and several offset raters can mask a random one.
+- ``bt500``: ITU-R BT.500 kurtosis-based screening (as implemented in SUREAL).
+- ``none``.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
 from scipy import stats
 
 from .data import RatingSet
@@ -23,7 +29,8 @@ from .errors import AnalysisError
 
 log = logging.getLogger(__name__)
 
-METHODS = ("grubbs", "bt500", "none")
+METHODS = ("p913", "grubbs", "bt500", "none")
+DEFAULT_METHOD = "p913"
 
 
 @dataclass(frozen=True)
@@ -46,6 +53,10 @@ class OutlierResult:
     removed: list[RemovedRater]
     kept: list[int]
     deviation: dict[str, float] = field(default_factory=dict)
+    # Per rater (all of them): the statistics of the rule, the decision and, for removals and
+    # near-misses, why.
+    table: pd.DataFrame | None = None
+    notes: list[str] = field(default_factory=list)
 
     @property
     def removed_names(self) -> list[str]:
@@ -111,7 +122,21 @@ def grubbs_screen(rs: RatingSet, alpha: float = 0.05) -> OutlierResult:
     if not first_dev and kept:
         dev = rater_deviation(means[:, kept])
         first_dev = {rs.raters[k]: float(d) for k, d in zip(kept, dev, strict=True)}
-    return OutlierResult("grubbs", removed, kept, first_dev)
+    table = pd.DataFrame({"deviation": pd.Series(first_dev)}).reindex(rs.raters)
+    table["decision"] = ["removed" if r in {x.rater for x in removed} else "kept"
+                         for r in rs.raters]
+    table["reason"] = [next((x.reason for x in removed if x.rater == r), "")
+                       for r in rs.raters]
+    if len(kept) >= 3:
+        dev = rater_deviation(means[:, kept])
+        g, k = grubbs_statistic(dev)
+        crit = grubbs_critical(len(kept), alpha)
+        if g > 0.9 * crit:
+            name = rs.raters[kept[k]]
+            table.loc[name, "reason"] = (f"near-miss, kept: Grubbs G = {g:.3f} is within 10% "
+                                         f"of the critical {crit:.3f} (n = {len(kept)})")
+    table.index.name = "rater"
+    return OutlierResult("grubbs", removed, kept, first_dev, table=table)
 
 
 def bt500_rejection(rs: RatingSet) -> tuple[list[bool], list[float], list[float]]:
@@ -143,18 +168,43 @@ def bt500_screen(rs: RatingSet) -> OutlierResult:
         for s in range(rs.n_raters) if rejected[s]
     ]
     kept = [s for s in range(rs.n_raters) if not rejected[s]]
+    table = pd.DataFrame({"outside_share": first, "one_sidedness": second,
+                          "decision": ["removed" if r else "kept" for r in rejected],
+                          "reason": [next((x.reason for x in removed if x.rater == name), "")
+                                     for name in rs.raters]},
+                         index=pd.Index(rs.raters, name="rater"))
     return OutlierResult("bt500", removed, kept, {r: f for r, f in zip(rs.raters, first,
-                                                                      strict=True)})
+                                                                      strict=True)},
+                         table=table)
 
 
-def screen_raters(rs: RatingSet, method: str = "grubbs", *, alpha: float = 0.05) -> OutlierResult:
+def check_alpha(alpha: float) -> float:
+    """A significance level must be a number in (0, 0.5); anything else is refused."""
+    try:
+        value = float(alpha)
+    except (TypeError, ValueError):
+        raise AnalysisError(f"alpha {alpha!r} is not a number") from None
+    if not (0.0 < value < 0.5):
+        raise AnalysisError(f"alpha must lie between 0 and 0.5 (e.g. 0.05), got {alpha!r}")
+    return value
+
+
+def screen_raters(rs: RatingSet, method: str = DEFAULT_METHOD, *,
+                  alpha: float = 0.05) -> OutlierResult:
     """Run the chosen screening; ``none`` keeps everyone."""
-    if method == "grubbs":
+    alpha = check_alpha(alpha)
+    if method == "p913":
+        from .screening import p913_screen
+
+        result = p913_screen(rs)
+    elif method == "grubbs":
         result = grubbs_screen(rs, alpha)
     elif method == "bt500":
         result = bt500_screen(rs)
     elif method == "none":
-        result = OutlierResult("none", [], list(range(rs.n_raters)))
+        result = OutlierResult("none", [], list(range(rs.n_raters)),
+                               table=pd.DataFrame({"decision": "kept", "reason": ""},
+                                                  index=pd.Index(rs.raters, name="rater")))
     else:
         raise AnalysisError(f"unknown outlier method {method!r}; use one of {', '.join(METHODS)}")
     if len(result.kept) < 2:

@@ -3,20 +3,26 @@
 from __future__ import annotations
 
 import logging
+import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
+import numpy as np
+import pandas as pd
 from tqdm.auto import tqdm
 
 from .ceiling import CiCurve, SplitHalf, ci_width_curve, split_half
-from .data import InputProblem, RatingSet
+from .data import Exclusion, InputProblem, RatingSet
 from .errors import AnalysisError
 from .metrics import MetricScores, MetricValidation, validate_metrics
-from .outliers import OutlierResult, screen_raters
+from .outliers import DEFAULT_METHOD, OutlierResult, check_alpha, screen_raters
+from .quality import drop_incomplete, quality_table
 from .reliability import Reliability, reliability
-from .scores import ScoreResult, dmos_table, fit_scores
+from .scores import ScoreResult, check_not_constant, dmos_table, fit_scores
 
 log = logging.getLogger(__name__)
+
+DEFAULT_MIN_COMPLETENESS = 0.5
 
 
 @dataclass
@@ -24,12 +30,28 @@ class AnalysisConfig:
     """Choices of a run (CLI flags map one to one)."""
 
     model: str = "mle"
-    outliers: str = "grubbs"
+    outliers: str = DEFAULT_METHOD
     alpha: float = 0.05
     seed: int = 0
     n_boot: int = 1000
     n_splits: int = 1000
     ci_draws: int = 100
+    min_completeness: float = DEFAULT_MIN_COMPLETENESS
+
+    def check(self) -> AnalysisConfig:
+        """Refuse values that would give silently wrong numbers (one clear message each)."""
+        self.alpha = check_alpha(self.alpha)
+        if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool) or \
+                self.seed < 0:
+            raise AnalysisError(f"seed must be a whole number >= 0, got {self.seed!r}")
+        for name in ("n_boot", "n_splits", "ci_draws"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, np.integer)) or value < 1:
+                raise AnalysisError(f"{name} must be a whole number >= 1, got {value!r}")
+        c = self.min_completeness
+        if not isinstance(c, (int, float)) or not math.isfinite(c) or not 0 <= c <= 1:
+            raise AnalysisError(f"min-completeness must lie in [0, 1] (e.g. 0.5), got {c!r}")
+        return self
 
 
 @dataclass
@@ -38,7 +60,7 @@ class Analysis:
 
     config: AnalysisConfig
     ratings: RatingSet  # as read
-    screened: RatingSet  # after outlier removal
+    screened: RatingSet  # after the completeness rule and outlier removal
     outliers: OutlierResult
     reliability: Reliability | None
     scores: ScoreResult
@@ -47,18 +69,41 @@ class Analysis:
     metrics: MetricValidation | None
     timings: dict[str, float] = field(default_factory=dict)
     problems: list[InputProblem] = field(default_factory=list)
+    exclusions: list[Exclusion] = field(default_factory=list)
+    quality: pd.DataFrame | None = None  # per rater data quality (analysis.quality)
+    used: RatingSet | None = None  # after the completeness rule, before screening
 
-    def dmos(self):
+    def dmos(self) -> pd.DataFrame:
         return dmos_table(self.screened, self.scores)
+
+    @property
+    def partial_kept(self) -> list[tuple[str, float]]:
+        """Raters kept although their sessions are incomplete: (rater, completeness)."""
+        rs = self.used or self.screened
+        comp = rs.completeness()
+        return [(r, float(c)) for r, c in zip(rs.raters, comp, strict=True)
+                if np.isfinite(c) and c < 1.0 - 1e-9]
+
+
+def prepare(rs: RatingSet, config: AnalysisConfig) -> tuple[RatingSet, OutlierResult,
+                                                            RatingSet]:
+    """The completeness rule and the rater screening: (used, screening result, screened)."""
+    used = drop_incomplete(rs, config.min_completeness)
+    check_not_constant(used)
+    outliers = screen_raters(used, config.outliers, alpha=config.alpha)
+    screened = used.with_raters(outliers.kept)
+    exclusions = list(used.exclusions) + [
+        Exclusion("screened out", r.rater, r.reason, f"--outliers {outliers.method}")
+        for r in outliers.removed]
+    return used, outliers, replace(screened, exclusions=exclusions)
 
 
 def run_analysis(rs: RatingSet, config: AnalysisConfig | None = None,
                  metric_scores: MetricScores | None = None, *, progress: bool = True) -> Analysis:
-    """Screen raters, then reliability, scores and DMOS, ceiling, metric validation."""
-    config = config or AnalysisConfig()
+    """Completeness rule, screening, reliability, scores and DMOS, ceiling, metric validation."""
+    config = (config or AnalysisConfig()).check()
     timings: dict[str, float] = {}
-    problems = list(rs.problems)
-    steps = ["outliers", "reliability", "scores", "ceiling", "ci curve"] + (
+    steps = ["outliers", "reliability", "scores", "ceiling", "ci curve", "quality"] + (
         ["metrics"] if metric_scores is not None else [])
     bar = tqdm(total=len(steps), desc="analysis", disable=not progress, leave=False)
 
@@ -71,18 +116,19 @@ def run_analysis(rs: RatingSet, config: AnalysisConfig | None = None,
         bar.update(1)
 
     step("outliers")
-    outliers = screen_raters(rs, config.outliers, alpha=config.alpha)
-    screened = rs.with_raters(outliers.kept)
+    used, outliers, screened = prepare(rs, config)
+    problems = list(used.problems)
+    exclusions = list(screened.exclusions)
     done("outliers")
     step("reliability")
     try:
-        rel = reliability(screened)
+        rel = reliability(screened, n_boot=min(200, config.n_boot), seed=config.seed)
     except AnalysisError as exc:
         problems.append(InputProblem("reliability", None, str(exc)))
         rel = None
     done("reliability")
     step("scores")
-    scores = fit_scores(screened, config.model)
+    scores = fit_scores(screened, config.model, n_boot=config.n_boot, seed=config.seed)
     problems += scores.problems
     done("scores")
     step("ceiling")
@@ -96,15 +142,24 @@ def run_analysis(rs: RatingSet, config: AnalysisConfig | None = None,
     curve = ci_width_curve(screened, config.ci_draws, config.seed) \
         if screened.n_raters >= 3 else None
     done("ci curve")
+    step("quality")
+    info = rs.rater_info
+    if used.rater_info is not None:
+        info = used.rater_info
+    quality = quality_table(replace(rs, rater_info=info), screening=outliers.table,
+                            min_completeness=config.min_completeness)
+    for r in outliers.removed:
+        quality.loc[r.rater, "status"] = f"removed ({outliers.method})"
+    done("quality")
     validation = None
     if metric_scores is not None:
         step("metrics")
         validation = validate_metrics(
-            dmos_table(screened, scores), metric_scores, n_boot=config.n_boot,
-            seed=config.seed, alpha=config.alpha,
+            dmos_table(screened, scores), metric_scores, boot=scores.bootstrap,
+            n_boot=config.n_boot, seed=config.seed, alpha=config.alpha,
             ceiling=ceiling.summary() if ceiling is not None else None)
         problems += [p for p in validation.problems if p not in problems]
         done("metrics")
     bar.close()
     return Analysis(config, rs, screened, outliers, rel, scores, ceiling, curve, validation,
-                    timings, problems)
+                    timings, problems, exclusions, quality, used)

@@ -19,13 +19,24 @@ _ICC_NAMES = {"ICC(2,k)": ("ICC(A,k)", "ICC2k"), "ICC(3,k)": ("ICC(C,k)", "ICC3k
 
 @dataclass
 class Reliability:
-    """ICCs (with 95% CIs), the inter-rater Pearson matrix and intra-rater repeatability."""
+    """ICCs (with 95% CIs), the inter-rater Pearson matrix and intra-rater repeatability.
+
+    ``method`` says how the ICCs were computed: pingouin's ANOVA on complete data, or REML
+    variance components on all cells when some rater skipped some stimuli (then
+    ``complete_case`` holds pingouin's values on the stimuli every rater rated, with their
+    count, when there are at least 3).
+    """
 
     icc: dict[str, float]
     icc_ci: dict[str, tuple[float, float]]
     n_targets: int
     inter_rater: pd.DataFrame
     intra_rater: pd.Series
+    method: str = "pingouin (two-way ANOVA, complete data)"
+    n_stimuli: int = 0
+    n_raters: int = 0
+    n_cells: int = 0
+    complete_case: dict | None = None
 
 
 def icc_from_long(data: pd.DataFrame, targets: str, raters: str,
@@ -70,17 +81,37 @@ def repetition_correlation(scores: np.ndarray) -> np.ndarray:
     return out
 
 
-def reliability(rs: RatingSet) -> Reliability:
+def reliability(rs: RatingSet, *, n_boot: int = 200, seed: int = 0) -> Reliability:
     """All reliability figures of a rating set (ratings averaged over repetitions)."""
+    from .icc import icc_unbalanced
+
     means = rs.rater_means()
-    long = pd.DataFrame(means, index=rs.stimulus_ids, columns=rs.raters).stack().rename(
-        "rating").rename_axis(["stimulus", "rater"]).reset_index()
-    complete = np.isfinite(means).all(axis=1).sum()
-    if complete < 3 or rs.n_raters < 2:
-        raise AnalysisError(
-            f"ICC needs at least 3 stimuli rated by every rater and 2 raters (have {complete} "
-            f"complete stimuli, {rs.n_raters} raters)")
-    icc, ci = icc_from_long(long, "stimulus", "rater", "rating")
+    rated = np.isfinite(means)
+    n_stim = int(rated.any(axis=1).sum())
+    if rs.n_raters < 2 or n_stim < 3:
+        raise AnalysisError(f"ICC needs at least 3 stimuli and 2 raters (have {n_stim} "
+                            f"stimuli, {rs.n_raters} raters)")
+    complete_rows = rated.all(axis=1)
+    complete = int(complete_rows.sum())
     inter = pd.DataFrame(means, columns=rs.raters).corr(method="pearson", min_periods=3)
     intra = pd.Series(repetition_correlation(rs.scores), index=rs.raters, name="intra_rater_r")
-    return Reliability(icc, ci, int(complete), inter, intra)
+    cells = int(rated.sum())
+    if complete == n_stim:
+        long = pd.DataFrame(means, index=rs.stimulus_ids, columns=rs.raters).stack().rename(
+            "rating").rename_axis(["stimulus", "rater"]).reset_index()
+        icc, ci = icc_from_long(long, "stimulus", "rater", "rating")
+        return Reliability(icc, ci, complete, inter, intra, n_stimuli=n_stim,
+                           n_raters=rs.n_raters, n_cells=cells)
+    icc, ci = icc_unbalanced(means, n_boot=n_boot, seed=seed)
+    cc = None
+    if complete >= 3:
+        sub = means[complete_rows]
+        long = pd.DataFrame(sub, columns=rs.raters).stack().rename("rating").rename_axis(
+            ["stimulus", "rater"]).reset_index()
+        cc_icc, cc_ci = icc_from_long(long, "stimulus", "rater", "rating")
+        cc = {"icc": cc_icc, "ci": cc_ci, "n_stimuli": complete}
+    method = (f"REML variance components on all {cells} stimulus-rater cells "
+              f"({cells / (n_stim * rs.n_raters):.0%} of {n_stim} x {rs.n_raters}); 95% CI from "
+              f"{n_boot} resamples of the stimuli")
+    return Reliability(icc, ci, complete, inter, intra, method=method, n_stimuli=n_stim,
+                       n_raters=rs.n_raters, n_cells=cells, complete_case=cc)

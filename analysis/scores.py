@@ -9,7 +9,10 @@ Models (``--model``):
 - ``bt500``: SUREAL's ITU-R BT.500 rater rejection, then plain means.
 
 Repetitions enter as repeated votes. SUREAL prints progress on stdout; it is silenced here.
-DMOS(v) = Q(v) - Q(ref(v)) + ref_score, where the hidden reference's score gives Q(ref).
+DMOS(v) = Q(v) - Q(ref(v)) + ref_score, where the hidden reference's score gives Q(ref); its
+95% CI comes from a bootstrap over raters (:mod:`analysis.intervals`), which keeps the
+covariance of Q(v) and Q(ref) that adding their CIs in quadrature would ignore. A hidden
+reference's DMOS is ref_score by definition (CI of zero width).
 """
 
 from __future__ import annotations
@@ -59,6 +62,8 @@ class ScoreResult:
     content_ambiguity_ci: np.ndarray | None = None
     rejected: list[str] = field(default_factory=list)
     problems: list[InputProblem] = field(default_factory=list)
+    fallback: str | None = None  # why the requested model was replaced, when it was
+    bootstrap: object | None = None  # analysis.intervals.RaterBootstrap behind the DMOS CIs
 
     @property
     def model_name(self) -> str:
@@ -111,12 +116,23 @@ def _ci_pair(ci95: list, value: np.ndarray) -> np.ndarray:
     return np.c_[value - lo, value + hi]
 
 
-def fit_scores(rs: RatingSet, model: str = "mle") -> ScoreResult:
-    """Quality scores of every stimulus under the chosen model, and DMOS from them."""
+def check_not_constant(rs: RatingSet) -> None:
+    """Refuse a panel whose ratings are all equal: no score model can say anything."""
+    votes = rs.scores[np.isfinite(rs.scores)]
+    if votes.size and np.ptp(votes) == 0:
+        raise AnalysisError(f"all {votes.size} ratings are equal ({votes[0]:g}): there is no "
+                            "variation to analyse; check the input")
+
+
+def fit_scores(rs: RatingSet, model: str = "mle", *, n_boot: int = 1000,
+               seed: int = 0) -> ScoreResult:
+    """Quality scores of every stimulus under the chosen model, DMOS from them, and DMOS CIs
+    from ``n_boot`` resamples of the raters (seeded)."""
     if model not in MODELS:
         raise AnalysisError(f"unknown score model {model!r}; use one of {', '.join(MODELS)}")
     if rs.n_raters < 2:
         raise AnalysisError("at least 2 raters are needed to fit a score model")
+    check_not_constant(rs)
     rejected: list[str] = []
     work = rs
     if model == "bt500":
@@ -150,6 +166,7 @@ def fit_scores(rs: RatingSet, model: str = "mle") -> ScoreResult:
                    "inconsistency beyond the scale range); fell back to MLE_CO_AP2 (p910)")
             log.warning(msg)
             result.problems.append(InputProblem("score model", None, msg))
+            result.fallback = msg
             result.model = model = "p910"
             out = _run_sureal(
                 MaximumLikelihoodEstimationModelContentObliviousAlternativeProjection2, work)
@@ -170,9 +187,15 @@ def fit_scores(rs: RatingSet, model: str = "mle") -> ScoreResult:
             result.content = list(dict.fromkeys(work.stimuli["reference"]))
             result.content_ambiguity = amb
             result.content_ambiguity_ci = _ci_pair(out["content_ambiguity_ci95"], amb)
-    result.dmos, result.dmos_halfwidth, dmos_problems = dmos_from_quality(
-        rs, result.quality, result.quality_halfwidth)
+    result.dmos, _, dmos_problems = dmos_from_quality(rs, result.quality,
+                                                      result.quality_halfwidth)
     result.problems += dmos_problems
+    from .intervals import estimator_weights, rater_bootstrap
+
+    boot = rater_bootstrap(work, estimator_weights(work, result), n_boot, seed)
+    half = boot.halfwidth()  # bt500: over the raters its screening kept, like the DMOS
+    result.dmos_halfwidth = np.where(rs.hidden_reference_mask, 0.0, half)
+    result.bootstrap = boot
     return result
 
 
@@ -202,9 +225,9 @@ def _plausible(out: dict, rs: RatingSet) -> bool:
 def dmos_from_quality(
     rs: RatingSet, quality: np.ndarray, halfwidth: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, list[InputProblem]]:
-    """DMOS = Q(v) - Q(ref(v)) + ref_score with the two half-widths combined in quadrature.
-
-    A hidden reference gets ref_score and its own half-width. Stimuli whose reference was
+    """DMOS = Q(v) - Q(ref(v)) + ref_score (and, for reference only, the half-widths in
+    quadrature, which ignores their covariance; the reported CIs come from
+    :mod:`analysis.intervals`). A hidden reference gets ref_score. Stimuli whose reference was
     never rated as hidden reference keep their quality score (reported as a problem).
     """
     ref = rs.reference_index()

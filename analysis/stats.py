@@ -81,3 +81,23 @@ def percentile_interval(values: np.ndarray, level: float = 0.95) -> tuple[float,
     tail = (1.0 - level) / 2.0 * 100.0
     lo, hi = np.percentile(values, [tail, 100.0 - tail])
     return float(lo), float(hi)
+
+
+def all_columns_masked(x: np.ndarray, y: np.ndarray) -> tuple[dict[str, np.ndarray],
+                                                                np.ndarray]:
+    """:func:`all_columns` where each column uses only the rows finite in both (unbalanced
+    designs: a split-half leaves some stimuli unrated in one half). Returns the statistics
+    and the number of rows each column used (columns with fewer than 3 get NaN)."""
+    x, y = _as_columns(x), _as_columns(y)
+    ok = np.isfinite(x) & np.isfinite(y)
+    n = ok.sum(axis=0)
+    full = ok.all(axis=0)
+    out = {k: np.full(x.shape[1], np.nan) for k in ("plcc", "srcc", "krcc", "rmse")}
+    if full.any():
+        for key, vals in all_columns(x[:, full], y[:, full]).items():
+            out[key][full] = vals
+    for j in np.flatnonzero(~full & (n >= 3)):
+        rows = ok[:, j]
+        for key, vals in all_columns(x[rows, j], y[rows, j]).items():
+            out[key][j] = vals[0]
+    return out, n

@@ -1,0 +1,271 @@
+"""The data-quality section: what each participant did, and what looks wrong.
+
+Facts come from the session files (settings, display, pre-flight, presentation logs) or, for a
+ratings CSV, from the columns it has. Agreement figures come from the ratings (correlation
+with the leave-one-out panel mean, repeat correlation) and from the screening. Each flag names
+its threshold (:data:`THRESHOLDS`), so the report can say why a rater is flagged; flags inform,
+the screening rule (:mod:`analysis.screening`) and ``--min-completeness`` decide.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from .data import RatingSet
+
+# Flag thresholds (documented in the report's methods section and the README).
+THRESHOLDS: dict[str, float] = {
+    "completeness": 0.9,        # below: "incomplete" flag (dropping is --min-completeness)
+    "dropped_trials": 0.05,     # share of presentations with dropped frames
+    "viewing_s": 1.0,           # median viewing time per trial, seconds
+    "hidden_reference": 0.5,    # mean hidden-reference rating below this share of the scale
+    "loo_r": 0.75,              # correlation with the leave-one-out panel mean (P.913 r1)
+    "repeat_r": 0.5,            # mean correlation between a rater's repetitions
+}
+
+FACT_COLUMNS = ("sessions", "files", "n_ratings", "n_planned", "completeness", "timing_mode",
+                "vsync", "preflight_skipped", "finished", "presentations", "dropped_frames",
+                "trials_with_drops", "requeued", "median_viewing_s", "median_toggles")
+
+
+def _median(values: Iterable[Any]) -> float:
+    arr = np.array([float(v) for v in values if v is not None and np.isfinite(float(v))])
+    return float(np.median(arr)) if arr.size else float("nan")
+
+
+def _viewing_ms(p: dict[str, Any]) -> float | None:
+    if p.get("viewing_ms") is not None:
+        return float(p["viewing_ms"])
+    parts = [p.get("ms_on_reference"), p.get("ms_on_test")]
+    if all(v is None for v in parts):
+        return None
+    return float(sum(float(v or 0.0) for v in parts))
+
+
+def _toggles(p: dict[str, Any]) -> float | None:
+    if p.get("n_toggles") is not None:
+        return float(p["n_toggles"])
+    times = p.get("toggle_times_ms")
+    return float(len(times)) if isinstance(times, list) else None
+
+
+def facts_from_sessions(records: list) -> pd.DataFrame:
+    """One row per participant from their session records (see :mod:`analysis.sessions`)."""
+    rows = []
+    by_participant: dict[str, list] = {}
+    for rec in records:
+        by_participant.setdefault(rec.participant, []).append(rec)
+    for participant, recs in by_participant.items():
+        pres = [p for r in recs for p in r.presentations]
+        if not pres:  # reader without presentation logs: the rating rows carry the basics
+            pres = [dict(row, outcome="rated") for r in recs for row in r.ratings]
+        rated = [p for p in pres if p.get("outcome", "rated") == "rated"]
+        drops = [int(p.get("dropped_frames") or 0) for p in pres]
+        vsync = [r.vsync for r in recs if r.vsync is not None]
+        modes = sorted({r.timing_mode for r in recs if r.timing_mode})
+        rows.append({
+            "rater": participant,
+            "sessions": len(recs),
+            "files": "; ".join(r.path for r in recs),
+            "n_planned": max(r.n_planned for r in recs),
+            "timing_mode": ", ".join(modes),
+            "vsync": (all(vsync) if vsync else None),
+            "preflight_skipped": any(r.preflight_skipped for r in recs),
+            "finished": all(r.finished_at is not None for r in recs),
+            "presentations": len(pres),
+            "dropped_frames": int(sum(drops)),
+            "trials_with_drops": int(sum(d > 0 for d in drops)),
+            "requeued": int(sum(p.get("outcome") == "requeued" for p in pres)),
+            "median_viewing_s": _median(_viewing_ms(p) for p in rated) / 1000.0,
+            "median_toggles": _median(_toggles(p) for p in rated),
+        })
+    return pd.DataFrame(rows).set_index("rater") if rows else pd.DataFrame()
+
+
+def facts_from_rows(frame: pd.DataFrame) -> pd.DataFrame:
+    """One row per participant from tidy rating rows (the columns a CSV has)."""
+    if frame.empty:
+        return pd.DataFrame()
+    out = pd.DataFrame(index=pd.Index(sorted(frame["participant"].astype(str).unique()),
+                                      name="rater"))
+    g = frame.assign(participant=frame["participant"].astype(str)).groupby("participant")
+    out["presentations"] = g.size()
+    if "dropped_frames" in frame.columns:
+        d = pd.to_numeric(frame["dropped_frames"], errors="coerce").fillna(0)
+        out["dropped_frames"] = d.groupby(frame["participant"].astype(str)).sum().astype(int)
+        out["trials_with_drops"] = (d > 0).groupby(frame["participant"].astype(str)).sum() \
+            .astype(int)
+    if {"ms_on_reference", "ms_on_test"} <= set(frame.columns):
+        v = pd.to_numeric(frame["ms_on_reference"], errors="coerce").fillna(0) + \
+            pd.to_numeric(frame["ms_on_test"], errors="coerce").fillna(0)
+        out["median_viewing_s"] = v.groupby(frame["participant"].astype(str)).median() / 1000
+    if "n_toggles" in frame.columns:
+        t = pd.to_numeric(frame["n_toggles"], errors="coerce")
+        out["median_toggles"] = t.groupby(frame["participant"].astype(str)).median()
+    if "session" in frame.columns:
+        out["sessions"] = g["session"].nunique()
+    return out
+
+
+# -- agreement figures ------------------------------------------------------------------
+def loo_correlation(means: np.ndarray, min_stimuli: int = 5) -> np.ndarray:
+    """Per rater, Pearson r between their ratings and the mean of all other raters (over the
+    stimuli they rated and someone else rated too). NaN with fewer than ``min_stimuli``
+    stimuli or no variance (a rater who gives one value to everything)."""
+    n_raters = means.shape[1]
+    finite = np.isfinite(means)
+    x = np.where(finite, means, 0.0)
+    total, count = x.sum(axis=1), finite.sum(axis=1)
+    out = np.full(n_raters, np.nan)
+    for s in range(n_raters):
+        others_n = count - finite[:, s]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            others = (total - x[:, s]) / others_n
+        ok = finite[:, s] & (others_n > 0)
+        if ok.sum() < min_stimuli:
+            continue
+        a, b = means[ok, s], others[ok]
+        if a.std() > 0 and b.std() > 0:
+            out[s] = float(np.corrcoef(a, b)[0, 1])
+    return out
+
+
+def hidden_reference_mean(rs: RatingSet) -> np.ndarray:
+    """Per rater, the mean rating given to hidden references (NaN: none rated)."""
+    hidden = rs.hidden_reference_mask
+    if not hidden.any():
+        return np.full(rs.n_raters, np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmean(rs.scores[hidden].transpose(1, 0, 2).reshape(rs.n_raters, -1),
+                          axis=1)
+
+
+def quality_table(rs: RatingSet, *, screening: pd.DataFrame | None = None,
+                  repeat_r: np.ndarray | None = None,
+                  min_completeness: float | None = None) -> pd.DataFrame:
+    """The per-rater data-quality table: facts, agreement, screening figures and flags.
+
+    Raters left out before the analysis (partial sessions below ``min_completeness``) keep
+    their row with status ``dropped``; ``screening`` (indexed by rater) adds the screening
+    statistics and the decision.
+    """
+    from .reliability import repetition_correlation
+
+    info = rs.rater_info.copy() if rs.rater_info is not None else pd.DataFrame(
+        index=pd.Index(rs.raters, name="rater"))
+    for col in FACT_COLUMNS:
+        if col not in info.columns:
+            info[col] = np.nan
+    info = info.reindex(list(dict.fromkeys([*info.index, *rs.raters])))
+    if "status" not in info.columns:
+        info["status"] = "used"
+    info["status"] = info["status"].fillna("used")
+    means = rs.rater_means()
+    loo = pd.Series(loo_correlation(means), index=rs.raters)
+    rep = pd.Series(repeat_r if repeat_r is not None else repetition_correlation(rs.scores),
+                    index=rs.raters)
+    span = rs.scale_max - rs.scale_min
+    hid = pd.Series((hidden_reference_mean(rs) - rs.scale_min) / span, index=rs.raters)
+    info["hidden_ref_mean_share"] = hid
+    info["loo_r"] = loo
+    info["repeat_r"] = rep
+    if screening is not None:
+        for col in screening.columns:
+            info[f"screen_{col}"] = screening[col]
+    info["flags"] = ["; ".join(_flags(row, min_completeness)) for _, row in info.iterrows()]
+    info.index.name = "rater"
+    return info
+
+
+def _flags(row: pd.Series, min_completeness: float | None) -> list[str]:
+    t = THRESHOLDS
+    out = []
+    c = row.get("completeness")
+    if c is not None and np.isfinite(c):
+        if min_completeness is not None and c < min_completeness:
+            out.append(f"completeness {c:.0%} < {min_completeness:.0%} (dropped)")
+        elif c < t["completeness"]:
+            out.append(f"completeness {c:.0%} < {t['completeness']:.0%}")
+    if row.get("vsync") is False:
+        out.append("vsync off")
+    if row.get("timing_mode") and "paced" in str(row.get("timing_mode")):
+        out.append(f"timing mode {row['timing_mode']} (no vsync; pilot only)")
+    if row.get("preflight_skipped") is True:
+        out.append("pre-flight skipped")
+    pres, drops = row.get("presentations"), row.get("trials_with_drops")
+    if pres and drops is not None and np.isfinite(drops) and pres > 0 and \
+            drops / pres > t["dropped_trials"]:
+        out.append(f"dropped frames in {drops / pres:.0%} of presentations "
+                   f"(> {t['dropped_trials']:.0%})")
+    req = row.get("requeued")
+    if req is not None and np.isfinite(req) and req > 0:
+        out.append(f"{int(req)} trial(s) re-queued")
+    v = row.get("median_viewing_s")
+    if v is not None and np.isfinite(v) and v < t["viewing_s"]:
+        out.append(f"median viewing {v:.2f} s < {t['viewing_s']:g} s")
+    h = row.get("hidden_ref_mean_share")
+    if h is not None and np.isfinite(h) and h < t["hidden_reference"]:
+        out.append(f"hidden references rated at {h:.0%} of the scale on average "
+                   f"(< {t['hidden_reference']:.0%})")
+    r = row.get("loo_r")
+    if r is not None and np.isfinite(r) and r < t["loo_r"]:
+        out.append(f"r with the others {r:.2f} < {t['loo_r']}")
+    elif row.get("status") == "used" and r is not None and not np.isfinite(r):
+        out.append("no agreement figure (too few ratings or no variance)")
+    rr = row.get("repeat_r")
+    if rr is not None and np.isfinite(rr) and rr < t["repeat_r"]:
+        out.append(f"repeat r {rr:.2f} < {t['repeat_r']}")
+    return out
+
+
+def drop_incomplete(rs: RatingSet, min_completeness: float) -> RatingSet:
+    """Leave out raters whose completeness is below ``min_completeness`` (0 keeps everyone).
+
+    Each one becomes an :class:`~analysis.data.Exclusion`; stimuli that only they rated are
+    left out too (reported as an input problem).
+    """
+    from dataclasses import replace
+
+    from .data import Exclusion, InputProblem
+    from .errors import AnalysisError
+
+    comp = rs.completeness()
+    drop = [k for k, c in enumerate(comp) if np.isfinite(c) and c < min_completeness]
+    if not drop:
+        return rs
+    info = rs.rater_info.copy() if rs.rater_info is not None else None
+    exclusions = list(rs.exclusions)
+    for k in drop:
+        rater = rs.raters[k]
+        n = planned = None
+        if info is not None and rater in info.index:
+            n, planned = info.loc[rater, "n_ratings"], info.loc[rater, "n_planned"]
+            info.loc[rater, "status"] = "dropped (partial)"
+        done = f"{int(n)} of {int(planned)} planned trials" if n is not None and \
+            np.isfinite(planned) else "part of the stimuli"
+        exclusions.append(Exclusion(
+            "partial rater", rater,
+            f"answered {done} ({comp[k]:.0%}), below --min-completeness {min_completeness:.0%}",
+            f"--min-completeness {min_completeness:g}"))
+    keep = [k for k in range(rs.n_raters) if k not in drop]
+    if len(keep) < 2:
+        raise AnalysisError(
+            f"only {len(keep)} rater(s) reach --min-completeness {min_completeness:g}; lower it "
+            "(e.g. --min-completeness 0) to analyse partial sessions")
+    out = rs.with_raters(keep)
+    out = replace(out, exclusions=exclusions, rater_info=info)
+    rated = np.isfinite(out.scores).any(axis=(1, 2))
+    if not rated.all():
+        lost = [s for s, r in zip(out.stimulus_ids, rated, strict=True) if not r]
+        out = replace(out, stimuli=out.stimuli.loc[rated], scores=out.scores[rated],
+                      problems=[*out.problems, InputProblem(
+                          "completeness", None,
+                          f"{len(lost)} stimulus/stimuli rated only by dropped partial raters "
+                          f"are left out (e.g. {', '.join(lost[:5])})")])
+    return out

@@ -1,0 +1,182 @@
+"""Session files in: which belong to the study, which do not, and what each participant did.
+
+Session files are read only through :mod:`study_app.session`: :func:`session_sources` finds
+them in files, folders and exported zips (checked against their checksums), and
+:func:`read_session` reads each in one read transaction, WAL included. Before any rating is
+used, every session is checked against the manifest: a withdrawn session, a session of another
+study (``study_id``), one run with another manifest (``manifest_sha256``) or one altered in
+transit is refused, listed as an :class:`~analysis.data.Exclusion` and never mixed into the
+ratings. Copies of one session (same session id in several files) are reduced to one; several
+sessions of one participant are merged, the earlier session's rating winning when both rated
+the same stimulus and repetition. Every choice is independent of the order of the files.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .data import Exclusion, InputProblem
+from .errors import AnalysisError
+
+log = logging.getLogger(__name__)
+
+SESSION_SUFFIXES = (".sqlite",)
+
+
+def _store():
+    try:  # the one allowed arrow into the study app: its session-store package
+        from study_app import session as store
+    except ImportError as exc:  # pragma: no cover - the study app ships with the toolkit
+        raise AnalysisError(f"session files need study_app.session ({exc})") from None
+    return store
+
+
+@dataclass
+class Session:
+    """What the analysis needs from one session file (read once, then closed)."""
+
+    path: str
+    session_id: str
+    participant: str
+    study_id: str
+    manifest_sha256: str | None
+    settings: dict[str, Any]
+    display: dict[str, Any]
+    preflight_skipped: bool
+    withdrawn: bool
+    started_at: str | None
+    finished_at: str | None
+    created_at: str | None
+    ratings: list[dict[str, Any]]
+    presentations: list[dict[str, Any]]
+    n_planned: int
+    problems: list[InputProblem] = field(default_factory=list)
+    damaged: str = ""  # why the file cannot be trusted (altered in transit); empty if fine
+
+    @property
+    def timing_mode(self) -> str:
+        """``vsync`` for participant runs, ``paced-pilot`` when the experimenter allowed
+        running without vsync; empty when the session predates the setting."""
+        return str(self.settings.get("timing_mode") or "")
+
+    @property
+    def vsync(self) -> bool | None:
+        value = self.display.get("vsync")
+        return None if value is None else bool(value)
+
+    @property
+    def order_key(self) -> tuple[str, str, str]:
+        """Sessions are ranked by start time, then session id, then path (deterministic)."""
+        return (self.started_at or self.created_at or "", self.session_id, self.path)
+
+
+@contextlib.contextmanager
+def session_files(paths: Sequence[str | Path]) -> Iterator[tuple[list, list[InputProblem]]]:
+    """The session sources in ``paths`` (files, folders, zips) and the notes about them.
+    A path that does not exist, or a folder without session files, is an error."""
+    store = _store()
+    with store.session_sources(paths) as (sources, found):
+        notes = []
+        for prob in found:
+            where = Path(prob.path)
+            if prob.message == "not found":
+                raise AnalysisError(f"session path {where} does not exist")
+            if "holds no session file" in prob.message:
+                raise AnalysisError(f"no session files (*.sqlite) in {where}")
+            notes.append(InputProblem(str(where), prob.row, prob.message))
+        if not sources:
+            raise AnalysisError("no session files (*.sqlite) in " + ", ".join(map(str, paths)))
+        yield sources, notes
+
+
+def read_one(source) -> Session:
+    """One session source as a :class:`Session`; :class:`AnalysisError` when the file is not a
+    readable session file."""
+    store = _store()
+    name = source.origin
+    try:
+        rec = store.read_session(source.path)
+    except (store.StudyError, OSError) as exc:
+        raise AnalysisError(f"{name}: not used: {str(exc).replace(str(source.path), name)}") \
+            from None
+    info = rec.info
+    problems = [InputProblem(name, p.row, p.message) for p in rec.problems]
+    problems += [InputProblem(name, None, w.removeprefix(f"{name}: ")) for w in source.warnings]
+    damaged = "; ".join(p.message for p in source.problems)
+    return Session(
+        path=name, session_id=str(info.session_id), participant=str(info.participant),
+        study_id=str(info.study_id), manifest_sha256=info.manifest_sha256,
+        settings=dict(info.settings or {}), display=dict(info.display or {}),
+        preflight_skipped=bool(info.preflight_skipped), withdrawn=bool(info.withdrawn),
+        started_at=info.started_at, finished_at=info.finished_at,
+        created_at=info.created_at, ratings=list(rec.ratings),
+        presentations=list(rec.presentations), n_planned=int(rec.n_planned),
+        problems=problems, damaged=damaged)
+
+
+# -- deciding what belongs ------------------------------------------------------------------
+@dataclass
+class SessionSelection:
+    """The sessions used, and everything refused or merged on the way."""
+
+    used: list[Session]
+    exclusions: list[Exclusion]
+    problems: list[InputProblem]
+
+
+def select_sessions(records: list[Session], study_id: str,
+                    manifest_sha256: str | None) -> SessionSelection:
+    """Refuse withdrawn and foreign sessions, collapse copies of one session."""
+    exclusions: list[Exclusion] = []
+    problems: list[InputProblem] = []
+    kept: list[Session] = []
+    for rec in sorted(records, key=lambda r: r.path):
+        if rec.damaged:
+            exclusions.append(Exclusion(
+                "refused session", rec.path, f"{rec.damaged}; ask for the file again",
+                "session files must match the checksums of their export"))
+        elif rec.withdrawn:
+            exclusions.append(Exclusion(
+                "refused session", rec.path,
+                f"participant {rec.participant} withdrew from the study; their ratings are "
+                "not used", "withdrawn sessions are never analysed"))
+        elif rec.study_id != study_id:
+            exclusions.append(Exclusion(
+                "refused session", rec.path,
+                f"belongs to study {rec.study_id!r}, not to this manifest's study "
+                f"{study_id!r}", "session study_id must equal the manifest's study_id"))
+        elif manifest_sha256 and rec.manifest_sha256 and \
+                rec.manifest_sha256 != manifest_sha256:
+            exclusions.append(Exclusion(
+                "refused session", rec.path,
+                f"was run with another manifest (sha256 {rec.manifest_sha256[:12]}..., this "
+                f"one is {manifest_sha256[:12]}...); if the manifest was edited after the "
+                "study, analyse with the manifest the participants saw",
+                "session manifest_sha256 must equal the manifest file's sha256"))
+        else:
+            if manifest_sha256 and not rec.manifest_sha256:
+                problems.append(InputProblem(rec.path, None, "session records no manifest "
+                                             "checksum; its study id matches, so it is used"))
+            kept.append(rec)
+    by_id: dict[str, list[Session]] = {}
+    for rec in kept:
+        by_id.setdefault(rec.session_id, []).append(rec)
+    used: list[Session] = []
+    for copies in by_id.values():
+        copies.sort(key=lambda r: (-len(r.ratings), r.path))
+        used.append(copies[0])
+        for other in copies[1:]:
+            exclusions.append(Exclusion(
+                "duplicate session", other.path,
+                f"another copy of session {other.session_id} (participant "
+                f"{other.participant}); the copy with the most ratings, {copies[0].path}, "
+                "is used", "one file per session id: most ratings, then file name"))
+    used.sort(key=lambda r: r.order_key)
+    for rec in used:
+        problems += rec.problems
+    return SessionSelection(used, exclusions, problems)

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from stimuli_manifests import StimuliError
+from stimuli_manifests.cli_runner import run_command
 
 from . import __version__
 from .errors import CGVQMError
@@ -23,12 +23,22 @@ from .metric import quality_label
 
 def _add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = False) -> None:
     if multi_variant:
+        p.add_argument("--metrics", metavar="LIST",
+                       help="comma-separated registry names (`cgvqm metrics` lists them; "
+                            "'all' = every available one; default cgvqm-2)")
         p.add_argument("--variant", action="append", choices=("cgvqm-2", "cgvqm-5"),
-                       help="metric variant; repeat to score several into one CSV "
-                            "(default cgvqm-2)")
+                       help="same as --metrics for the CGVQM variants (repeatable)")
     else:
-        p.add_argument("--variant", choices=("cgvqm-2", "cgvqm-5"), default="cgvqm-2",
-                       help="CGVQM-2 (stem + layer1, faster) or CGVQM-5 (all layers)")
+        p.add_argument("--metric", metavar="NAME",
+                       help="registry name (`cgvqm metrics`; default cgvqm-2)")
+        p.add_argument("--variant", choices=("cgvqm-2", "cgvqm-5"),
+                       help="CGVQM-2 (stem + layer1, faster) or CGVQM-5 (all layers); "
+                            "same as --metric")
+    p.add_argument("--display", default="standard_4k",
+                   help="viewing condition for FLIP's pixels per degree and ColorVideoVDP's "
+                        "display model (default standard_4k: 30-inch 4K at 0.75 m)")
+    p.add_argument("--ppd", type=float, help="pixels per visual degree (overrides --display's "
+                                              "geometry for FLIP and ColorVideoVDP)")
     p.add_argument("--weights", metavar="PATH",
                    help="omega/alpha file (upstream pickle or cgvqm-weights JSON) instead of "
                         "the variant's published weights; 'uniform' for a smoke test")
@@ -37,9 +47,17 @@ def _add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = Fal
                         "cache, then a download)")
     p.add_argument("--random-backbone", metavar="SEED", type=int,
                    help="use a seeded RANDOM backbone (testing only; every output says so)")
+    p.add_argument("--learned-weights", action="append", metavar="PART=PATH|DIR",
+                   help="local weights of lpips/lpips-alex/dists/pieapp: PART is vgg16, "
+                        "alexnet, lpips, lpips-alex, dists or pieapp; or a folder holding "
+                        "the files under their published names (repeatable; never downloaded)")
+    p.add_argument("--learned-sha256", action="append", metavar="PART=HEX",
+                   help="sha256 a learned-metric weights file must have (repeatable)")
     p.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
-    p.add_argument("--precision", choices=("fp32", "bf16", "fp16"), default="fp32",
-                   help="CUDA autocast precision; bf16/fp16 are faster but not bit-exact")
+    p.add_argument("--precision", choices=("fp32", "bf16", "fp16", "tf32"), default="fp32",
+                   help="fp32 (default, upstream-identical); bf16 (CPUs with AMX or "
+                        "AVX512-BF16, refused on others with the reason; GPUs), fp16 or tf32 "
+                        "(GPUs): faster, scores drift slightly (see the README)")
     p.add_argument("--patch-scale", type=int, default=4,
                    help="patch grid: H/s x W/s pixel patches (default 4, as upstream)")
     p.add_argument("--seamless", action="store_true",
@@ -63,11 +81,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
+    me = sub.add_parser("metrics", help="list the metric registry and availability here")
+    me.add_argument("--json", action="store_true", help="print one JSON array")
+
     sc = sub.add_parser("score", help="score one test video against its reference")
     sc.add_argument("--ref", required=True, help="reference video (file, PNG folder or .npy)")
     sc.add_argument("--test", required=True, help="test (distorted) video")
     sc.add_argument("--pool", choices=("max", "mean"), default="max",
-                    help="patch pooling: max (as calibrated, default) or mean (upstream demo)")
+                    help="CGVQM patch pooling: max (as calibrated, default) or mean "
+                         "(upstream demo)")
     sc.add_argument("--fps", type=float, help="frame rate of PNG folders / .npy inputs")
     sc.add_argument("--emap", metavar="OUT", help="write the error-map video (.mp4 or .mkv)")
     sc.add_argument("--emap-png", metavar="DIR", help="also write the error map as PNG frames")
@@ -79,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     ba.add_argument("--manifest", required=True, help="cgvq-manifest/1 JSON file")
     ba.add_argument("--out", required=True, help="scores CSV (appended to; reruns resume)")
     ba.add_argument("--pool", action="append", choices=("max", "mean"),
-                    help="pooling(s) to write (repeatable; default max)")
+                    help="CGVQM pooling(s) to write (repeatable; default max)")
     ba.add_argument("--root", help="override the manifest's video root")
     ba.add_argument("--include-references", action="store_true",
                     help="also score each hidden reference against itself")
@@ -109,15 +131,54 @@ def _on_conversion(args: argparse.Namespace) -> str:
     return "warn" if args.allow_convert else "error"
 
 
-def _metrics(args: argparse.Namespace, variants: list[str]) -> list[Any]:
-    import torch
-
-    from .metric import CGVQM
-
+def _threads(args: argparse.Namespace) -> None:
     if args.threads:
+        import torch
+
         if args.threads < 1:
             raise CGVQMError(f"--threads must be at least 1, got {args.threads}")
         torch.set_num_threads(args.threads)
+
+
+def _options(args: argparse.Namespace, pools: list[str]) -> Any:
+    from .metrics import MetricOptions, ViewingCondition
+
+    return MetricOptions(
+        device=args.device, viewing=ViewingCondition(args.display, args.ppd),
+        weights=args.weights, backbone=args.backbone, random_backbone=args.random_backbone,
+        precision=args.precision, patch_scale=args.patch_scale, batch_size=args.batch_size,
+        seamless=args.seamless, pools=tuple(pools), **_learned(args))
+
+
+def _learned(args: argparse.Namespace) -> dict[str, Any]:
+    """--learned-weights PART=PATH / DIR and --learned-sha256 PART=HEX as MetricOptions."""
+    from .metrics.learned.files import PARTS
+
+    files: dict[str, str] = {}
+    dirs: list[str] = []
+    sha: dict[str, str] = {}
+    for spec in args.learned_weights or []:
+        part, eq, path = spec.partition("=")
+        if eq and part.strip().lower() in PARTS:
+            files[part.strip().lower()] = path
+        elif Path(spec).expanduser().is_dir():
+            dirs.append(spec)
+        else:
+            raise CGVQMError(f"--learned-weights {spec!r}: give PART=PATH with PART one of "
+                             f"{', '.join(PARTS)}, or an existing folder")
+    for spec in args.learned_sha256 or []:
+        part, eq, value = spec.partition("=")
+        if not eq or part.strip().lower() not in PARTS:
+            raise CGVQMError(f"--learned-sha256 {spec!r}: give PART=HEX with PART one of "
+                             f"{', '.join(PARTS)}")
+        sha[part.strip().lower()] = value.strip()
+    return {"learned_weights": files, "learned_dirs": tuple(dirs), "learned_sha256": sha}
+
+
+def _metrics(args: argparse.Namespace, variants: list[str]) -> list[Any]:
+    from .metric import CGVQM
+
+    _threads(args)
     out = []
     for v in variants:
         out.append(CGVQM(v, weights=args.weights, backbone=args.backbone,
@@ -129,10 +190,95 @@ def _metrics(args: argparse.Namespace, variants: list[str]) -> list[Any]:
     return out  # random backbone / uniform weights: the library logs a warning line
 
 
+def _cmd_metrics(args: argparse.Namespace) -> int:
+    from .metrics import entries
+
+    rows = []
+    for e in entries():
+        a, sp = e.availability(), e.spec
+        rows.append({"name": sp.name, "title": sp.title, "direction": sp.direction,
+                     "kind": sp.kind, "range": sp.range_text(), "devices": list(sp.devices),
+                     "needs_weights": sp.needs_weights, "outputs": list(sp.outputs),
+                     "colour": sp.colour, "licence": sp.licence, "reference": sp.reference,
+                     "available": a.ok, "reason": a.reason})
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return 0
+    print(f"{'name':<10} {'direction':<14} {'kind':<6} {'range':<12} available here")
+    for r in rows:
+        avail = "yes" if r["available"] else f"no: {r['reason']}"
+        print(f"{r['name']:<10} {r['direction']:<14} {r['kind']:<6} {r['range']:<12} {avail}")
+    return 0
+
+
+def _score_row(res: Any, ref: str, test: str) -> dict[str, Any]:
+    from .batch import _canonical
+
+    prov = res.provenance
+    return {"stimulus": Path(test).stem, "reference": Path(ref).stem, "metric": res.variant,
+            "score": f"{res.q:.8g}", "direction": "higher-better", "pooling": res.pool,
+            "patches": res.n_patches, "seconds": f"{res.seconds:.3f}",
+            "backbone": prov["backbone"]["label"],
+            "backbone_sha256": prov["backbone"]["sha256"],
+            "weights_sha256": prov["weights"]["sha256"],
+            "settings": _canonical({"patch_scale": prov["patch_scale"],
+                                    "precision": prov["precision"], "mode": prov["mode"],
+                                    "device_type": prov["device"].split(":")[0]})}
+
+
+def _cmd_score_peer(args: argparse.Namespace, name: str) -> int:
+    """Any registry metric other than CGVQM: one pair, one line (or JSON)."""
+    from .batch import Appender, _canonical, read_done
+    from .metrics import build_scorers, score_reference
+
+    _threads(args)
+    options = _options(args, [args.pool])
+    (scorer,) = build_scorers([name], options)
+    (results,) = score_reference(args.ref, [args.test], [scorer], device=args.device,
+                                 fps=args.fps, allow_resample=args.allow_resample,
+                                 on_conversion=_on_conversion(args),
+                                 progress=sys.stderr.isatty())
+    (m,) = results
+    if args.json:
+        out = m.to_dict()
+        out.update({"settings": scorer.settings(), "provenance": scorer.provenance()})
+        print(json.dumps(out))
+    elif m.score is None:
+        print(f"{m.metric}: {m.note}")
+    else:
+        print(f"{m.metric} = {m.score:.6g} ({m.direction}; mean of "
+              f"{len(m.per_frame or [])} frames)" if m.per_frame else
+              f"{m.metric} = {m.score:.6g} ({m.direction})")
+    if args.csv:
+        prov = scorer.provenance()
+        read_done(Path(args.csv))
+        app = Appender(Path(args.csv))
+        try:
+            app.write([{"stimulus": Path(args.test).stem, "reference": Path(args.ref).stem,
+                        "metric": m.metric, "direction": m.direction, "note": m.note,
+                        "score": "" if m.score is None else f"{m.score:.8g}",
+                        "seconds": f"{m.extra.get('seconds', 0):.3f}",
+                        "settings": _canonical(scorer.settings()),
+                        **{k: prov.get(k, "") for k in ("backbone", "backbone_sha256",
+                                                         "weights_sha256")},
+                        "versions": _canonical({k: v for k, v in prov.items() if k not in (
+                            "backbone", "backbone_sha256", "weights_sha256")})}])
+        finally:
+            app.close()
+    return 0
+
+
 def _cmd_score(args: argparse.Namespace) -> int:
     from .batch import Appender, read_done
 
-    (metric,) = _metrics(args, [args.variant])
+    name = (args.metric or args.variant or "cgvqm-2").strip().lower()
+    if args.metric and args.variant and args.metric != args.variant:
+        raise CGVQMError("give --metric or --variant, not both")
+    if name not in ("cgvqm-2", "cgvqm-5"):
+        if args.emap or args.emap_png:
+            raise CGVQMError(f"error maps are written for CGVQM only, not {name}")
+        return _cmd_score_peer(args, name)
+    (metric,) = _metrics(args, [name])
     res = metric.score(args.ref, args.test, pool=args.pool, fps=args.fps,
                        allow_resample=args.allow_resample, emap=args.emap or False,
                        emap_png_dir=args.emap_png, on_conversion=_on_conversion(args),
@@ -141,6 +287,8 @@ def _cmd_score(args: argparse.Namespace) -> int:
         print(json.dumps(res.to_dict(patches=True)))
     else:
         tag = " [RANDOM BACKBONE]" if res.is_random_backbone else ""
+        if metric.weights.kind == "uniform":
+            tag += " [UNIFORM WEIGHTS]"
         if metric.seamless:
             tag += " [SEAMLESS: not upstream-identical]"
         print(f"{res.variant} q = {res.q:.3f} ({res.label}; {res.pool} pooling, "
@@ -151,14 +299,14 @@ def _cmd_score(args: argparse.Namespace) -> int:
         if args.emap:
             print(f"error map written to {args.emap}")
     if args.csv:
-        prov = res.provenance
+        from .batch import metric_name
+
         read_done(Path(args.csv))  # refuses a file with other columns
         app = Appender(Path(args.csv))
         try:
-            app.write([[Path(args.test).stem, Path(args.ref).stem, res.variant,
-                        f"{res.q:.6f}", res.pool, res.n_patches, f"{res.seconds:.3f}",
-                        prov["backbone"]["label"], prov["backbone"]["sha256"],
-                        prov["weights"]["sha256"]]])
+            row = _score_row(res, args.ref, args.test)
+            row["metric"] = metric_name(metric)
+            app.write([row])
         finally:
             app.close()
     return 0
@@ -166,15 +314,22 @@ def _cmd_score(args: argparse.Namespace) -> int:
 
 def _cmd_batch(args: argparse.Namespace) -> int:
     from .batch import score_manifest
+    from .metrics import parse_metric_list
 
-    variants = list(dict.fromkeys(args.variant or ["cgvqm-2"]))
-    metrics = _metrics(args, variants)
+    requested = [args.metrics] if args.metrics else []
+    requested += list(args.variant or [])
     pools = list(dict.fromkeys(args.pool or ["max"]))
-    s = score_manifest(args.manifest, args.out, metrics, pools=pools,
+    options = _options(args, pools)
+    names = parse_metric_list(requested or ["cgvqm-2"], options)
+    _threads(args)
+    s = score_manifest(args.manifest, args.out, names, options,
                        include_references=args.include_references, root=args.root,
                        group_size=args.group_size, allow_resample=args.allow_resample,
                        on_conversion=_on_conversion(args))
-    print(f"{s.scored} scored, {s.skipped} already in {args.out}, {s.rows} rows written")
+    print(f"{s.scored} scored, {s.skipped} already in {args.out}, {s.rows} rows written "
+          f"({', '.join(names)})")
+    for name in s.not_applicable:
+        print(f"{name}: not applicable at this stimulus size (rows written without a score)")
     return 0
 
 
@@ -234,6 +389,20 @@ def _cmd_weights(args: argparse.Namespace) -> int:
     return 2
 
 
+def _dispatch(args: argparse.Namespace) -> int:
+    if args.command == "metrics":
+        return _cmd_metrics(args)
+    if args.command == "score":
+        return _cmd_score(args)
+    if args.command == "batch":
+        return _cmd_batch(args)
+    if args.command == "calibrate":
+        from .calibration import cli as calibration_cli
+
+        return calibration_cli.run(args)
+    return _cmd_weights(args)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -249,21 +418,8 @@ def main(argv: list[str] | None = None) -> int:
         lg.setLevel(logging.INFO if args.verbose else logging.WARNING)
         lg.propagate = False
     try:
-        if args.command == "score":
-            return _cmd_score(args)
-        if args.command == "batch":
-            return _cmd_batch(args)
-        if args.command == "calibrate":
-            from .calibration import cli as calibration_cli
-
-            return calibration_cli.run(args)
-        return _cmd_weights(args)
-    except (CGVQMError, StimuliError) as exc:
-        print(f"cgvqm: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("cgvqm: interrupted (batch runs resume where they stopped)", file=sys.stderr)
-        return 130
+        return run_command("cgvqm", lambda: _dispatch(args), extra="metric",
+                           interrupted="interrupted (batch runs resume where they stopped)")
     finally:
         for lg, (level, propagate) in zip(loggers, saved, strict=True):
             lg.removeHandler(handler)

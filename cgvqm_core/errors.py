@@ -8,6 +8,8 @@ message that says what was wrong and what to do. The CLI turns it, and the video
 
 from __future__ import annotations
 
+from stimuli_manifests.errors import ToolkitError
 
-class CGVQMError(Exception):
+
+class CGVQMError(ToolkitError):
     """A problem with the metric's inputs, weights or options that the user can fix."""

@@ -24,6 +24,7 @@ from .emap import EmapRecorder, EmapVideoWriter, fit_tone_curve
 from .errors import CGVQMError
 from .features import FeatureNet, PatchScorer
 from .hub import Backbone, resolve_backbone
+from .precision import cpu_name
 from .stream import (
     StreamOutput,
     VideoInput,
@@ -110,6 +111,10 @@ class CGVQMResult:
     def is_random_backbone(self) -> bool:
         return self.provenance.get("backbone", {}).get("random_seed") is not None
 
+    @property
+    def is_uniform_weights(self) -> bool:
+        return self.provenance.get("weights", {}).get("kind") == "uniform"
+
     def to_dict(self, *, patches: bool = True) -> dict[str, Any]:
         """A JSON-ready record (the CLI's --json output)."""
         prov = self.provenance
@@ -133,15 +138,31 @@ class CGVQMResult:
         if anchored is not None:
             out["q_anchored"] = anchored
             out["label_anchored"] = quality_label(anchored)
+        if prov.get("precision", "fp32") != "fp32":
+            out["precision"] = f"{prov['precision']} on {prov['device']} (not bit-exact)"
         if prov.get("mode") == "seamless":
             out["mode"] = "seamless (not upstream-identical)"
+        flags = []
         if self.is_random_backbone:
-            out["warning"] = ("computed with a RANDOM backbone "
-                              f"({prov['backbone']['label']}): not a CGVQM score")
+            flags.append(f"a RANDOM backbone ({prov['backbone']['label']})")
+        if self.is_uniform_weights:
+            flags.append("UNIFORM feature weights")
+        out["uniform_weights"] = self.is_uniform_weights
+        if flags:
+            out["warning"] = f"computed with {' and '.join(flags)}: not a CGVQM score"
         if patches:
             out["patch_errors"] = self.patch_errors.tolist()
         out["provenance"] = prov
         return out
+
+
+def _device_name(device: torch.device) -> str:
+    """What ran the network: the GPU's name, or the CPU's model and thread count."""
+    if device.type == "cuda":
+        return torch.cuda.get_device_name(device)
+    if device.type == "cpu":
+        return f"{cpu_name()}, {torch.get_num_threads()} threads"
+    return device.type
 
 
 class CGVQM:
@@ -151,7 +172,10 @@ class CGVQM:
     pickle or project JSON; the variant then follows from the file) or ``"uniform"``.
     ``backbone`` is a state dict file or mapping (default: $CGVQM_BACKBONE, the torch hub
     cache, a download); ``random_backbone=SEED`` uses a seeded random network and marks every
-    result. ``device="cuda"`` with ``precision="bf16"/"fp16"`` uses autocast (not bit-exact).
+    result. ``precision`` is ``fp32`` (default, upstream-identical), ``bf16`` (CPUs with
+    AMX/AVX512-BF16 and GPUs), ``fp16`` or ``tf32`` (GPUs): faster, not bit-exact
+    (:mod:`.precision`; the measured drift is in the README); ``fp32_stem`` (default) keeps
+    the stem in fp32 under bf16/fp16, which removes most of the drift.
     ``seamless=True`` runs patches with a halo so features do not depend on the patch grid
     (:mod:`.seamless`; not upstream-identical, marked ``mode: seamless``, no error maps).
     """
@@ -171,6 +195,7 @@ class CGVQM:
         channels_last: bool | None = None,
         allow_download: bool = True,
         seamless: bool = False,
+        fp32_stem: bool = True,
     ) -> None:
         self.weights = resolve_weights(weights, variant, allow_download=allow_download)
         self.variant = self.weights.variant
@@ -181,7 +206,8 @@ class CGVQM:
         self.patch_scale = int(patch_scale)
         self.seamless = bool(seamless)
         self.net = FeatureNet(self.backbone, self.weights.n_levels, device=device,
-                              precision=precision, fuse_bn=fuse_bn, channels_last=channels_last)
+                              precision=precision, fuse_bn=fuse_bn, channels_last=channels_last,
+                              fp32_stem=fp32_stem)
         self.scorer = PatchScorer(self.net, self.weights.level_weights(), self.weights.alpha,
                                   batch_size=batch_size)
         self._omega_abs = np.abs(self.weights.omega).astype(np.float64)
@@ -198,7 +224,10 @@ class CGVQM:
             "n_levels": w.n_levels,
             "patch_scale": self.patch_scale,
             "device": str(self.net.device),
+            "device_name": _device_name(self.net.device),
             "precision": self.net.precision,
+            "precision_detail": dict(self.net.precision_info),
+            "channels_last": self.net.channels_last,
             "mode": "seamless" if self.seamless else "upstream",
             "backbone": {"arch": bb.arch, "label": bb.label, "source": bb.source,
                          "sha256": bb.sha256, "random_seed": bb.random_seed},

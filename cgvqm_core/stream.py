@@ -82,12 +82,40 @@ def open_input(video: VideoInput | FrameSource, *, fps: float | None = None, nam
         path = Path(video)
         rate = fps if (path.is_dir() or path.suffix.lower() == ".npy") else None
         try:
-            return open_video(path, fps=rate, on_conversion=on_conversion)  # type: ignore[arg-type]
+            src = open_video(path, fps=rate, on_conversion=on_conversion)  # type: ignore[arg-type]
         except StimuliError as exc:
             raise CGVQMError(str(exc)) from None
+        if src.info.kind == "frames":
+            _check_png_depth(src, on_conversion)
+        return src
     if hasattr(video, "info") and hasattr(video, "frames"):
         return video
     raise CGVQMError(f"{name}: unsupported video input of type {type(video).__name__}")
+
+
+def png_bit_depth(path: Path) -> int | None:
+    """Bits per sample from a PNG's header (PIL reports 16-bit RGB as 8-bit 'RGB')."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(26)
+    except OSError:
+        return None
+    if len(head) < 26 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        return None
+    return head[24]
+
+
+def _check_png_depth(src: Any, on_conversion: str) -> None:
+    files = getattr(src, "_frame_files", None) or []
+    depth = png_bit_depth(files[0]) if files else None
+    if depth is None or depth <= 8 or src.info.bit_depth > 8:
+        return
+    msg = (f"{src.info.path}: {depth}-bit PNG frames are read as 8-bit RGB (the low byte of "
+           "every sample is dropped)")
+    if on_conversion == "error":
+        raise CGVQMError(f"{msg}; convert them to 8-bit first or allow conversion "
+                         "(--allow-convert)")
+    log.warning("%s", msg)
 
 
 @dataclass(frozen=True)

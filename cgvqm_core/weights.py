@@ -157,8 +157,20 @@ def load_upstream_pickle(path: str | Path, *, expected_sha256: str | None = None
     if alpha_t.numel() != 1:
         raise CGVQMError(f"{path}: alpha must be a single number, got shape {tuple(alpha_t.shape)}")
     variant = variant_for_channels(omega.size)
-    return FeatureWeights(variant.name, omega, float(alpha_t.reshape(())), digest, str(path),
+    alpha = float(alpha_t.reshape(()))
+    _check_values(path, omega, alpha)
+    return FeatureWeights(variant.name, omega, alpha, digest, str(path),
                           "upstream-pickle", {"origin": f"IntelLabs/cgvqm@{UPSTREAM_COMMIT}"})
+
+
+def _check_values(path: Path, omega: np.ndarray, alpha: float) -> None:
+    """Refuse weights that cannot give a meaningful q (non-finite, or alpha <= 0, which
+    turns errors into gains and q above 100)."""
+    if not (np.all(np.isfinite(omega)) and np.isfinite(alpha)):
+        raise CGVQMError(f"{path}: omega/alpha contain non-finite numbers")
+    if not alpha > 0:
+        raise CGVQMError(f"{path}: alpha is {alpha:g}; CGVQM needs a positive scale alpha "
+                         "(errors would count as gains and q exceed 100)")
 
 
 # -- the project format ----------------------------------------------------------------------
@@ -211,10 +223,13 @@ def load_project_weights(path: str | Path) -> FeatureWeights:
     if doc.get("variant") not in (None, variant.name):
         raise CGVQMError(f"{path}: says variant {doc['variant']!r} but omega has "
                          f"{omega.size} entries ({variant.name})")
-    if not (np.all(np.isfinite(omega)) and np.isfinite(alpha)):
-        raise CGVQMError(f"{path}: omega/alpha contain non-finite numbers")
+    _check_values(path, omega, alpha)
+    provenance = doc.get("provenance") or {}
+    if not isinstance(provenance, dict):
+        raise CGVQMError(f"{path}: 'provenance' must be a JSON object (keys such as datasets, "
+                         f"split, seed), not a {type(provenance).__name__}")
     return FeatureWeights(variant.name, omega, alpha, sha256_bytes(data), str(path), "project",
-                          dict(doc.get("provenance") or {}))
+                          dict(provenance))
 
 
 def load_weights(path: str | Path, *, expected_sha256: str | None = None) -> FeatureWeights:

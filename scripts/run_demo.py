@@ -1,9 +1,14 @@
 """The end-to-end demo: from nothing to a report, with a simulated panel whose truth is known.
 
 1. ``cgvq-study synth``: synthetic CG stimuli (two GLSL scenes x six families x 4 levels);
-2. ``cgvq-study simulate``: 20 simulated raters, one of them an outlier, as session files;
-3. ``cgvqm batch`` (CGVQM-2 and CGVQM-5; a flagged random backbone when the pretrained one is
-   not available offline) plus PSNR and SSIM baselines -> ``scores.csv``;
+2. through the study server (``scripts/demo_server.py``): ``cgvq-study serve`` on 127.0.0.1,
+   ``invite``, 20 simulated raters (one of them an outlier) uploading at once through the
+   app's client (one offline for a while, the server SIGKILLed and restarted once), a
+   dashboard screenshot (``dashboard.png``), ``pull`` of every session as received;
+3. ``cgvqm batch --metrics all``: every metric of the registry available here (the PIQ-family
+   image metrics, FLIP, ColorVideoVDP, CGVQM-2 and CGVQM-5; CGVQM with a flagged random
+   backbone and uniform weights when the pretrained ones are not available offline)
+   -> ``scores.csv``;
 4. ``cgvq-analyze report`` -> ``report/report.html`` with ``dmos.csv`` beside it;
 5. a check of the analysis against the simulation's truth, printed and saved as
    ``demo_summary.json``.
@@ -27,11 +32,10 @@ import pandas as pd
 from scipy import stats
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import demo_baselines
+import demo_server
 
 REPO = Path(__file__).resolve().parents[1]
 PRETRAINED_BACKBONE = "r3d_18-b3b3357e.pth"
-VARIANTS = ("cgvqm-2", "cgvqm-5")
 
 
 def _run(step: str, cmd: list[str], log: list[dict]) -> subprocess.CompletedProcess:
@@ -92,14 +96,20 @@ def _cli(module: str) -> list[str]:
 
 
 def _score(args, manifest: Path, out: Path, log: list[dict]) -> tuple[Path, list[str]]:
-    """All metric scores in one CSV; returns it and notes on how CGVQM ran."""
+    """Every available registry metric in one ``cgvqm batch``; returns the CSV and notes."""
     notes: list[str] = []
-    frames: list[pd.DataFrame] = []
+    metrics = args.metrics
+    extra = list(args.cgvqm_arg or [])
+    backbone = None
     if args.no_cgvqm:
         notes.append("CGVQM was not run (--no-cgvqm).")
+        if metrics == "all":
+            from cgvqm_core.metrics import entries
+
+            metrics = ",".join(e.spec.name for e in entries() if e.availability().ok
+                               and not e.spec.name.startswith("cgvqm"))
     else:
         backbone = _pretrained_backbone_available()
-        extra = list(args.cgvqm_arg or [])
         if not backbone:
             extra += ["--random-backbone", str(args.seed)]
         if not any(a.startswith("--weights") for a in extra) and not (
@@ -110,36 +120,32 @@ def _score(args, manifest: Path, out: Path, log: list[dict]) -> tuple[Path, list
                          "fetched offline, so CGVQM ran with UNIFORM feature weights (metric "
                          "names end in '-uniform'); put the two weight files in "
                          "CGVQM_WEIGHTS_DIR or run 'cgvqm weights fetch' to use them.")
-        ran: list[str] = []
-        for variant in VARIANTS:
-            csv_path = out / f"scores_{variant}.csv"
-            res = _run(f"cgvqm batch {variant}",
-                       [*_cli("cgvqm_core.cli"), "batch", "--manifest", str(manifest),
-                        "--out", str(csv_path), "--variant", variant, *extra], log)
-            if res.returncode == 0 and csv_path.is_file():
-                frames.append(pd.read_csv(csv_path))
-                ran.append(variant.upper())
-            else:
-                notes.append(f"{variant.upper()} could not be computed: "
-                             f"{_last_error(res.stderr)}")
-        if ran and backbone:
-            notes.insert(0, f"{' and '.join(ran)} used the pretrained R3D-18 backbone from "
-                            f"{backbone}.")
-        elif ran:
-            notes.insert(0, f"{' AND '.join(ran)} RAN ON AN UNTRAINED (RANDOM, seed "
-                            f"{args.seed}) BACKBONE: the pretrained Kinetics-400 R3D-18 weights "
-                            "were not available offline (set CGVQM_BACKBONE to a local copy to "
-                            "use them). Their correlations with the simulated DMOS say nothing "
-                            "about the published metric.")
-    t0 = time.monotonic()
-    print("\n=== baselines: PSNR and SSIM", flush=True)
-    base = pd.DataFrame(demo_baselines.score_manifest(manifest))
-    frames.append(base)
-    log.append({"step": "baselines", "seconds": round(time.monotonic() - t0, 1),
-                "returncode": 0, "error": None})
-    scores = pd.concat(frames, ignore_index=True, sort=False)
     path = out / "scores.csv"
-    scores.to_csv(path, index=False)
+    path.unlink(missing_ok=True)
+    res = _run("cgvqm batch (all metrics)",
+               [*_cli("cgvqm_core.cli"), "batch", "--manifest", str(manifest), "--out",
+                str(path), "--metrics", metrics, *extra], log)
+    if res.returncode or not path.is_file():
+        raise SystemExit(f"demo stopped: metric scoring failed: {_last_error(res.stderr)}")
+    scores = pd.read_csv(path)
+    ran = sorted({m for m in scores["metric"] if m.startswith("cgvqm")})
+    if ran and backbone:
+        notes.insert(0, f"{' and '.join(ran)} used the pretrained R3D-18 backbone from "
+                        f"{backbone}.")
+    elif ran:
+        notes.insert(0, f"{' AND '.join(m.upper() for m in ran)} RAN ON AN UNTRAINED (RANDOM, "
+                        f"seed {args.seed}) BACKBONE: the pretrained Kinetics-400 R3D-18 "
+                        "weights were not available offline (set CGVQM_BACKBONE to a local "
+                        "copy to use them). Their correlations with the simulated DMOS say "
+                        "nothing about the published metric.")
+    na = scores[scores["score"].isna()]
+    for metric, g in na.groupby("metric"):
+        notes.append(f"{metric}: {g['note'].iloc[0]} (no score; make the stimuli larger "
+                     "with --size to include it).")
+    timing = scores.groupby("metric", sort=False)["seconds"].mean()
+    log.append({"step": "seconds per stimulus by metric",
+                "per_metric": {k: round(float(v), 3) for k, v in timing.items()
+                               if v == v}})
     return path, notes
 
 
@@ -156,13 +162,14 @@ def _notes(args, truth: dict, cgvqm_notes: list[str]) -> str:
         "synth'; six distortion families (path tracing, denoising, upscaling, splatting, "
         "frame interpolation, variable-rate shading) at 4 levels each.",
         f"Ratings: {o['raters']} simulated raters x {truth['repetitions']} repetitions "
-        "written as session files by 'cgvq-study simulate' (SUREAL's generative model: "
+        "written as session files by 'cgvq-study simulate' and uploaded as they were given "
+        "to 'cgvq-study serve', then pulled from it (SUREAL's generative model: "
         "true quality + rater bias + rater inconsistency x N(0,1) + content ambiguity x "
         f"N(0,1), clipped to the scale; seed {truth['seed']}).",
         f"Injected outlier rater(s): {', '.join(outliers) or 'none'}.",
         f"True quality: {truth['quality_model']['formula']}.",
         "The truth (quality per stimulus, biases, inconsistencies, ambiguities, outliers) is "
-        "in study/sessions/ground_truth.json.",
+        "in participants/ground_truth.json.",
     ]
     return "\n".join(lines) + "\n"
 
@@ -212,7 +219,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--bootstrap", type=int, default=1000)
     p.add_argument("--splits", type=int, default=1000)
-    p.add_argument("--no-cgvqm", action="store_true", help="skip CGVQM (baselines only)")
+    p.add_argument("--metrics", default="all",
+                   help="registry metrics to score (comma-separated; default all available)")
+    p.add_argument("--no-cgvqm", action="store_true", help="leave CGVQM out of the scores")
     p.add_argument("--cgvqm-arg", action="append", metavar="ARG",
                    help="extra argument for 'cgvqm batch' (repeatable), e.g. --weights")
     args = p.parse_args(argv)
@@ -220,7 +229,6 @@ def main(argv: list[str] | None = None) -> int:
     t_start = time.monotonic()
     out = Path(args.out).resolve()
     study = out / "study"
-    sessions = study / "sessions"
     manifest = study / "manifest.json"
     out.mkdir(parents=True, exist_ok=True)
     log: list[dict] = []
@@ -231,13 +239,15 @@ def main(argv: list[str] | None = None) -> int:
                          "--overwrite"], log)
     if res.returncode:
         return _fail(log)
-    res = _run("simulate", [*_cli("study_app.cli"), "simulate", "--manifest", str(manifest),
-                            "--raters", str(args.raters), "--outliers", str(args.outliers),
-                            "--seed", str(args.seed), "--out", str(sessions), "--overwrite"],
-               log)
-    if res.returncode:
+    try:
+        sessions, truth_path, server_facts = demo_server.collect(
+            study, out, raters=args.raters, outliers=args.outliers, seed=args.seed, log=log,
+            run=_run)
+    except SystemExit:
         return _fail(log)
-    truth = json.loads((sessions / "ground_truth.json").read_text())
+    if not server_facts.get("all_arrived"):
+        return _fail(log)
+    truth = json.loads(truth_path.read_text())
     scores, cgvqm_notes = _score(args, manifest, out, log)
     notes = out / "notes.md"
     notes.write_text(_notes(args, truth, cgvqm_notes), encoding="utf-8")
@@ -250,11 +260,17 @@ def main(argv: list[str] | None = None) -> int:
     if res.returncode:
         return _fail(log)
     check = _check(truth, report)
+    check["server"] = server_facts
     check["steps"] = log
     check["total_seconds"] = round(time.monotonic() - t_start, 1)
     (out / "demo_summary.json").write_text(json.dumps(check, indent=2) + "\n")
 
     print("\n=== demo summary")
+    print(f"  study server: {server_facts['sessions_pulled']} sessions pulled, every upload "
+          f"arrived; {server_facts['restarts']} restart; offline for a while: "
+          f"{server_facts['offline_participant']}; flags: {server_facts['flags'] or 'none'}"
+          + (f"; dashboard screenshot: {server_facts['dashboard_png']}"
+             if server_facts.get("dashboard_png") else ""))
     for line in cgvqm_notes:
         print(f"  NOTE: {line}")
     print(f"  injected outlier(s): {', '.join(check['injected_outliers']) or 'none'}; "
@@ -270,7 +286,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {m['metric']:>10}: PLCC {m.get('plcc', float('nan')):.3f}  "
               f"SRCC {m.get('srcc', float('nan')):.3f}")
     for step in log:
-        print(f"  {step['step']:<22} {step['seconds']:7.1f} s  "
+        if "per_metric" in step:
+            per = ", ".join(f"{k} {v:.2f}" for k, v in step["per_metric"].items())
+            print(f"  seconds per stimulus: {per}")
+            continue
+        print(f"  {step['step']:<26} {step['seconds']:7.1f} s  "
               f"{'ok' if step['returncode'] == 0 else 'FAILED: ' + str(step['error'])}")
     print(f"  total {check['total_seconds']:.0f} s; report: {report / 'report.html'}")
     return 0

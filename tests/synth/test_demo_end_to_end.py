@@ -27,7 +27,7 @@ def test_reduced_demo_finds_the_outlier_and_orders_levels(egl, tmp_path):
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
 
-    truth = json.loads((out / "study" / "sessions" / "ground_truth.json").read_text())
+    truth = json.loads((out / "participants" / "ground_truth.json").read_text())
     summary = json.loads((out / "report" / "summary.json").read_text())
     injected = truth["outliers"]
     assert len(injected) == 1
@@ -47,11 +47,24 @@ def test_reduced_demo_finds_the_outlier_and_orders_levels(egl, tmp_path):
     html = (out / "report" / "report.html").read_text()
     assert "SIMULATED DATA" in html
     scores = pd.read_csv(out / "scores.csv")
-    assert set(scores["metric"]) == {"PSNR", "SSIM", "cgvqm-2-uniform", "cgvqm-5-uniform"}
+    # every available registry metric, CGVQM flagged (untrained backbone, uniform weights)
+    assert {"psnr", "ssim", "ms-ssim", "gmsd", "flip", "cvvdp", "cgvqm-2-uniform",
+            "cgvqm-5-uniform"} <= set(scores["metric"])
+    assert set(scores["direction"]) == {"higher-better", "lower-better"}
+    assert set(scores.loc[scores["metric"] == "gmsd", "direction"]) == {"lower-better"}
     cgvqm = scores[scores["metric"].str.startswith("cgvqm")]
     assert set(cgvqm["backbone"]) == {"random-seed-11"}
     for _, per_metric in scores.groupby("metric"):
         assert set(per_metric["stimulus"]) == set(cond["stimulus"])
+    # at 32x32 the multi-scale metrics are undefined: rows say so instead of a number
+    ms = scores[scores["metric"] == "ms-ssim"]
+    assert ms["score"].isna().all() and ms["note"].str.startswith("not applicable").all()
+    assert scores.loc[scores["metric"] == "psnr", "score"].notna().all()
     assert "UNTRAINED" in html and "UNIFORM" in html
     demo = json.loads((out / "demo_summary.json").read_text())
     assert demo["outliers_found"] and demo["series"] == 4
+    # the ratings went through the study server: every session arrived and was pulled
+    server = demo["server"]
+    assert server["all_arrived"] and server["restarts"] == 1
+    assert server["sessions_pulled"] == 10 == len(list((out / "pulled").glob("*.sqlite")))
+    assert "/dashboard" in res.stdout and "killing the study server" in res.stdout

@@ -1,0 +1,28 @@
+"""Peer metrics of CGVQM behind one registry, all reading through one streaming source.
+
+    from cgvqm_core.metrics import MetricOptions, build_scorers, score_reference
+    scorers = build_scorers(["psnr", "ssim", "flip", "cvvdp"], MetricOptions())
+    per_test = score_reference("ref.mkv", ["test1.mkv", "test2.mkv"], scorers)
+
+``entries()`` lists every registered metric with its spec and availability here.
+"""
+
+from .engine import score_reference
+from .registry import (
+    HIGHER,
+    LOWER,
+    Availability,
+    Entry,
+    MetricOptions,
+    MetricScore,
+    MetricSpec,
+    build_scorers,
+    entries,
+    get_entry,
+    parse_metric_list,
+)
+from .viewing import ViewingCondition
+
+__all__ = ["HIGHER", "LOWER", "Availability", "Entry", "MetricOptions", "MetricScore",
+           "MetricSpec", "ViewingCondition", "build_scorers", "entries", "get_entry",
+           "parse_metric_list", "score_reference"]

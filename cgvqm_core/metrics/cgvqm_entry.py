@@ -1,0 +1,110 @@
+"""CGVQM-2 and CGVQM-5 as registry entries (the metric itself lives in :mod:`cgvqm_core.metric`).
+
+One result per pooling asked for (max, as calibrated, or mean, as the upstream demo), with the
+backbone and weights hashes; a random backbone or uniform weights are flagged in the metric
+name (``-uniform``) and the ``backbone`` column (``random-seed-N``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from .registry import (
+    HIGHER,
+    VIDEO,
+    Entry,
+    MetricOptions,
+    MetricScore,
+    MetricSpec,
+    VideoScorer,
+    module_available,
+    register,
+)
+
+
+def _spec(variant: str, levels: str) -> MetricSpec:
+    return MetricSpec(
+        name=variant, title=variant.upper(), family="cgvqm_entry", direction=HIGHER,
+        value_range=(None, 100), kind=VIDEO,
+        colour="RGB normalised as Kinetics-400 (torchvision's mean and std)",
+        licence="cgvqm_core (Apache-2.0); published weights IntelLabs/cgvqm (Apache-2.0); "
+                "R3D-18 Kinetics-400 weights from torchvision (BSD-3-Clause)",
+        reference=f"Jindal et al. 2025 ({levels})", needs_weights=True,
+        outputs=("score", "per_frame", "per_clip", "error_map"), min_size=4)
+
+
+class CGVQMScorer(VideoScorer):
+    def __init__(self, spec: MetricSpec, options: MetricOptions) -> None:
+        from ..metric import CGVQM
+
+        self.spec = spec
+        self.pools = tuple(options.pools)
+        self.metric = CGVQM(spec.name, weights=options.weights, backbone=options.backbone,
+                            random_backbone=options.random_backbone, device=options.device,
+                            precision=options.precision, patch_scale=options.patch_scale,
+                            batch_size=options.batch_size, seamless=options.seamless)
+
+    @property
+    def name(self) -> str:
+        from ..batch import metric_name
+
+        return metric_name(self.metric)
+
+    def settings(self) -> dict[str, Any]:
+        p = self.metric.provenance()
+        return {"variant": p["variant"], "patch_scale": p["patch_scale"],
+                "precision": p["precision"], "device": self.metric.net.device.type,
+                "mode": p["mode"]}
+
+    def provenance(self) -> dict[str, Any]:
+        p = self.metric.provenance()
+        return {"backbone": p["backbone"]["label"], "backbone_sha256": p["backbone"]["sha256"],
+                "weights_sha256": p["weights"]["sha256"], "torch": p["torch_version"]}
+
+    def not_applicable(self, height: int, width: int) -> str | None:
+        if min(height, width) < self.metric.patch_scale:
+            return (f"not applicable at {width}x{height}: patch scale "
+                    f"{self.metric.patch_scale} leaves patches of 0 pixels")
+        return None
+
+    def score_video(self, ref: Any, tests: Sequence[Any], *,
+                    progress: bool = False) -> list[list[MetricScore]]:
+        results = self.metric.score_many(ref, list(tests), pool=self.pools[0],
+                                         progress=progress)
+        prov = self.provenance()
+        out = []
+        for res in results:
+            row = []
+            for pool in self.pools:
+                row.append(MetricScore(
+                    self.name, self.spec.direction, res.quality(pool),
+                    per_frame=[float(x) for x in _per_frame(res, pool)], pooling=pool,
+                    extra={"patches": res.n_patches, "backbone": prov["backbone"],
+                           "backbone_sha256": prov["backbone_sha256"],
+                           "weights_sha256": prov["weights_sha256"],
+                           "random_backbone": res.is_random_backbone}))
+            out.append(row)
+        return out
+
+
+def _per_frame(res: Any, pool: str) -> list[float]:
+    from ..metric import pool_errors
+
+    flat = res.frame_errors.reshape(res.frame_errors.shape[0], -1)
+    return [pool_errors(row, pool) for row in flat]
+
+
+class CGVQMEntry(Entry):
+    def __init__(self, variant: str, levels: str) -> None:
+        self.spec = _spec(variant, levels)
+
+    def availability(self):  # type: ignore[no-untyped-def]
+        return module_available("torch")
+
+    def build(self, options: MetricOptions) -> CGVQMScorer:
+        return CGVQMScorer(self.spec, options)
+
+
+register(CGVQMEntry("cgvqm-2", "input, stem and layer1 of R3D-18"))
+register(CGVQMEntry("cgvqm-5", "all five stages of R3D-18"))

@@ -1,0 +1,294 @@
+"""The metric registry: what each metric is (spec), whether it can run here, how to build it.
+
+Every metric, CGVQM included, is an :class:`Entry` registered under a lower-case name. An
+entry says what the metric is (:class:`MetricSpec`: direction, range, kind, devices, weights,
+outputs, colour handling, licence), whether it can run on this machine (:meth:`Entry.availability`,
+with a one-line reason when not) and builds a :class:`Scorer` from the run's
+:class:`MetricOptions`. Scorers come in two kinds: :class:`FrameScorer` (an image metric,
+scored per frame and averaged over frames, the paper's protocol) and :class:`VideoScorer`
+(a metric that reads the whole stream itself). Both read through :mod:`.engine`, the same
+streaming source CGVQM uses.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import CGVQMError
+from .viewing import ViewingCondition
+
+HIGHER, LOWER = "higher-better", "lower-better"
+IMAGE, VIDEO = "image", "video"
+
+
+@dataclass(frozen=True)
+class MetricSpec:
+    """What a metric is; shown by ``cgvqm metrics`` and written with every score."""
+
+    name: str
+    title: str
+    family: str  # the module that implements it
+    direction: str  # HIGHER or LOWER
+    value_range: tuple[float | None, float | None]
+    kind: str  # IMAGE (per frame, mean over frames) or VIDEO
+    colour: str  # what the metric sees of the RGB frames
+    licence: str
+    reference: str
+    devices: tuple[str, ...] = ("cpu", "cuda")
+    needs_weights: bool = False
+    outputs: tuple[str, ...] = ("score", "per_frame")
+    min_size: int = 1  # smallest height and width it is defined for
+
+    def range_text(self) -> str:
+        lo, hi = self.value_range
+        return f"{'-inf' if lo is None else f'{lo:g}'}..{'inf' if hi is None else f'{hi:g}'}"
+
+
+@dataclass(frozen=True)
+class Availability:
+    ok: bool
+    reason: str = ""
+
+
+@dataclass
+class MetricOptions:
+    """Everything a run may set; each entry takes what concerns it."""
+
+    device: str = "cpu"
+    viewing: ViewingCondition = field(default_factory=ViewingCondition)
+    # CGVQM
+    weights: str | None = None
+    backbone: str | None = None
+    random_backbone: int | None = None
+    precision: str = "fp32"
+    patch_scale: int = 4
+    batch_size: int = 2
+    seamless: bool = False
+    pools: tuple[str, ...] = ("max",)
+    # learned image metrics (LPIPS, DISTS, PieAPP): weights file per part (vgg16, lpips...),
+    # folders holding them, and sha256s the user expects (see metrics.learned.files)
+    learned_weights: dict[str, str] = field(default_factory=dict)
+    learned_dirs: tuple[str, ...] = ()
+    learned_sha256: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass
+class MetricScore:
+    """One metric's result for one test video."""
+
+    metric: str
+    direction: str
+    score: float | None  # None when the metric does not apply (see ``note``)
+    per_frame: list[float] | None = None
+    pooling: str | None = None
+    note: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)  # patches, backbone, hashes...
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"metric": self.metric, "score": self.score,
+                               "direction": self.direction}
+        if self.pooling:
+            out["pooling"] = self.pooling
+        if self.note:
+            out["note"] = self.note
+        if self.per_frame is not None:
+            out["per_frame"] = self.per_frame
+        out.update(self.extra)
+        return out
+
+
+class Scorer(ABC):
+    """A metric ready to score, with the settings and provenance its numbers depend on."""
+
+    spec: MetricSpec
+
+    @property
+    def name(self) -> str:
+        """The metric name written in the scores file."""
+        return self.spec.name
+
+    def settings(self) -> dict[str, Any]:
+        """Every option that changes the number (part of the resume key)."""
+        return {}
+
+    def provenance(self) -> dict[str, Any]:
+        """Versions and hashes of what produced the number."""
+        return {}
+
+    def not_applicable(self, height: int, width: int) -> str | None:
+        """Why the metric is undefined at this frame size, or None."""
+        if min(height, width) < self.spec.min_size:
+            return (f"not applicable at {width}x{height}: {self.spec.title} needs at least "
+                    f"{self.spec.min_size}x{self.spec.min_size} pixels")
+        return None
+
+
+class FrameScorer(Scorer):
+    """An image metric: one number per frame, the video's score is their mean."""
+
+    @abstractmethod
+    def score_frames(self, test: Any, ref: Any) -> np.ndarray:
+        """(B,) float64 scores of test vs reference frames, both (B, 3, H, W) float in [0, 1]
+        on the scorer's device."""
+
+
+class VideoScorer(Scorer):
+    """A metric that reads whole streams (temporal models, patch grids)."""
+
+    @abstractmethod
+    def score_video(self, ref: Any, tests: Sequence[Any], *, progress: bool = False
+                    ) -> list[list[MetricScore]]:
+        """Per test source, its results (one per pooling when a metric has several)."""
+
+
+class Entry(ABC):
+    """A registered metric: its spec, availability here, and a scorer factory."""
+
+    spec: MetricSpec
+
+    def availability(self) -> Availability:
+        return Availability(True)
+
+    def availability_for(self, options: MetricOptions) -> Availability:
+        """Availability for a run with these options (e.g. weight files given on the
+        command line); by default the same as :meth:`availability`."""
+        return self.availability()
+
+    @abstractmethod
+    def build(self, options: MetricOptions) -> Scorer: ...
+
+
+def module_available(name: str, extra: str = "metric") -> Availability:
+    """Available when ``name`` can be imported (found without importing it)."""
+    try:
+        found = importlib.util.find_spec(name) is not None
+    except (ImportError, ValueError):
+        found = False
+    if found:
+        return Availability(True)
+    return Availability(False, f"the {name} package is not installed "
+                               f"(pip install 'cgvq-toolkit[{extra}]')")
+
+
+def package_version(dist: str) -> str | None:
+    from importlib import metadata
+
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return None
+
+
+_REGISTRY: dict[str, Entry] = {}
+_LOADED = False
+
+
+def register(entry: Entry) -> Entry:
+    if entry.spec.name in _REGISTRY:
+        raise ValueError(f"metric {entry.spec.name} registered twice")
+    _REGISTRY[entry.spec.name] = entry
+    return entry
+
+
+def _load() -> None:
+    global _LOADED
+    if _LOADED:
+        return
+    _LOADED = True
+    import importlib
+
+    # registration order is listing order: image metrics, then video metrics, CGVQM last
+    for module in ("piq_family", "flip_entry", "learned", "cvvdp_entry", "vmaf",
+                   "cgvqm_entry"):
+        importlib.import_module(f"{__package__}.{module}")
+
+
+def entries() -> list[Entry]:
+    """Every registered metric, in registry order."""
+    _load()
+    return list(_REGISTRY.values())
+
+
+def get_entry(name: str) -> Entry:
+    _load()
+    key = name.strip().lower()
+    if key not in _REGISTRY:
+        raise CGVQMError(f"unknown metric {name!r}; `cgvqm metrics` lists them "
+                         f"({', '.join(_REGISTRY)})")
+    return _REGISTRY[key]
+
+
+def parse_metric_list(text: str | Sequence[str],
+                      options: MetricOptions | None = None) -> list[str]:
+    """Names from 'a,b,c' (or a list of such), lower-cased, unique, in order; 'all' expands
+    to every metric available (with ``options``, when given)."""
+    parts = [text] if isinstance(text, str) else list(text)
+    names: list[str] = []
+    for part in parts:
+        for n in str(part).split(","):
+            n = n.strip().lower()
+            if not n:
+                continue
+            if n == "all":
+                names += [e.spec.name for e in entries()
+                          if (e.availability_for(options) if options else e.availability()).ok]
+            else:
+                get_entry(n)
+                names.append(n)
+    if not names:
+        raise CGVQMError("no metric named; `cgvqm metrics` lists them")
+    return list(dict.fromkeys(names))
+
+
+def check_device(device: str) -> None:
+    """Refuse a device this PyTorch cannot use, in one line."""
+    import torch
+
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, ValueError):
+        raise CGVQMError(f"unknown device {device!r}; use cpu or cuda") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise CGVQMError("--device cuda was asked for but this PyTorch has no usable CUDA "
+                         "device; use --device cpu")
+    if dev.type not in ("cpu", "cuda"):
+        raise CGVQMError(f"device {device!r} is not supported; use cpu or cuda")
+
+
+def build_scorers(names: Sequence[str], options: MetricOptions) -> list[Scorer]:
+    """Scorers for the named metrics; an unavailable one is an error with its reason."""
+    check_device(options.device)
+    out = []
+    for n in names:
+        e = get_entry(n)
+        a = e.availability_for(options)
+        if not a.ok:
+            raise CGVQMError(f"metric {e.spec.name} is not available here: {a.reason}")
+        out.append(e.build(options))
+    return out
+
+
+def lazy(factory: Callable[[], Any]) -> Callable[[], Any]:
+    """Memoised zero-argument factory (heavy imports happen on first use)."""
+    cache: list[Any] = []
+
+    def get() -> Any:
+        if not cache:
+            cache.append(factory())
+        return cache[0]
+
+    return get
+
+
+def path_or_env(explicit: str | None, env: str) -> Path | None:
+    import os
+
+    value = explicit or os.environ.get(env)
+    return Path(value).expanduser() if value else None

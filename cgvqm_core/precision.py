@@ -1,0 +1,163 @@
+"""Which numeric precisions the network may run in on which device, and why.
+
+fp32 is the default everywhere and the only upstream-identical choice. The others trade
+bit-exactness for speed; each changes scores slightly (the drift measured against fp32 is in
+the README, section "Speed, memory, devices"):
+
+- ``bf16``: convolutions in bfloat16 with fp32 accumulation (oneDNN on CPU, cuDNN on CUDA);
+  the input normalisation, level 0, the unit normalisation across channels and the
+  differences stay in fp32. On CPU it is offered only where the processor does bf16 in
+  hardware (AMX-BF16 or AVX512-BF16): elsewhere oneDNN would emulate it, slower than fp32
+  and still not exact, so it is refused with the reason (no silent fallback, so a run
+  never reports a precision it did not use).
+- ``fp16``: as bf16 with float16; CUDA only (CPUs with AVX512-FP16/AMX-FP16 are rare and the
+  path is not measured there).
+- ``tf32``: CUDA only: fp32 tensors, convolutions on the tensor cores' TF32 mode (PyTorch's
+  default for cuDNN convolutions). ``fp32`` on CUDA turns TF32 off while it runs, so that it
+  agrees with the CPU.
+
+Detection reads PyTorch's own CPU feature probe (cpuinfo) and falls back to the ``flags`` line
+of /proc/cpuinfo.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import platform
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from .errors import CGVQMError
+
+PRECISIONS = ("fp32", "bf16", "fp16", "tf32")
+#: what each precision computes the convolutions in
+DTYPES = {"fp32": torch.float32, "tf32": torch.float32, "bf16": torch.bfloat16,
+          "fp16": torch.float16}
+CPUINFO = Path("/proc/cpuinfo")
+
+
+@dataclass(frozen=True)
+class CpuBf16:
+    """Whether this CPU does bfloat16 arithmetic in hardware, and how that was found."""
+
+    amx_bf16: bool
+    avx512_bf16: bool
+    source: str  # "torch-cpuinfo", "/proc/cpuinfo" or "unknown"
+
+    @property
+    def supported(self) -> bool:
+        return self.amx_bf16 or self.avx512_bf16
+
+    @property
+    def isa(self) -> str:
+        """The instruction set bf16 convolutions will use ('' when none)."""
+        return "amx_bf16" if self.amx_bf16 else ("avx512_bf16" if self.avx512_bf16 else "")
+
+    def reason(self) -> str:
+        if self.supported:
+            return f"this CPU has {self.isa.upper().replace('_', '-')}"
+        if self.source == "unknown":
+            return "could not read this CPU's features (no PyTorch probe, no /proc/cpuinfo)"
+        return "this CPU has neither AMX-BF16 nor AVX512-BF16 (bf16 would be emulated, slower " \
+               "than fp32)"
+
+
+def _cpuinfo_field(name: str) -> str | None:
+    """The first ``name : value`` line of /proc/cpuinfo (None where there is none)."""
+    try:
+        text = CPUINFO.read_text(encoding="ascii", errors="replace")
+    except OSError:
+        return None
+    for line in text.splitlines():
+        key, _, value = line.partition(":")
+        if key.strip() == name:
+            return value.strip()
+    return None
+
+
+def _flags_from_cpuinfo() -> set[str] | None:
+    flags = _cpuinfo_field("flags")
+    return None if flags is None else set(flags.split())
+
+
+def _probe_torch() -> dict[str, object] | None:
+    """PyTorch's cpuinfo-based feature dict (a private API: guarded, optional)."""
+    probe = getattr(getattr(torch._C, "_cpu", None), "_get_cpu_capability", None)
+    if probe is None:
+        return None
+    try:
+        caps = probe()
+    except Exception:  # a private API: any failure means "not available"
+        return None
+    if not isinstance(caps, dict) or "avx512_bf16" not in caps:
+        return None
+    return caps
+
+
+@functools.cache
+def cpu_bf16() -> CpuBf16:
+    """Detect AMX-BF16 / AVX512-BF16 (cached: the CPU does not change while we run)."""
+    caps = _probe_torch()
+    if caps is not None:
+        return CpuBf16(bool(caps.get("amx_bf16")), bool(caps.get("avx512_bf16")),
+                       "torch-cpuinfo")
+    flags = _flags_from_cpuinfo()
+    if flags is not None:
+        return CpuBf16("amx_bf16" in flags, "avx512_bf16" in flags, str(CPUINFO))
+    return CpuBf16(False, False, "unknown")
+
+
+@functools.cache
+def cpu_name() -> str:
+    """The processor's model name, for provenance."""
+    caps = _probe_torch()
+    name = caps.get("cpu_name") if caps else None
+    return str(name or _cpuinfo_field("model name") or platform.machine() or "unknown CPU")
+
+
+def check(precision: str, device: torch.device) -> dict[str, object]:
+    """Refuse a precision the device cannot run well; return what provenance should say."""
+    if precision not in PRECISIONS:
+        raise CGVQMError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    info: dict[str, object] = {"precision": precision,
+                               "compute_dtype": str(DTYPES[precision]).removeprefix("torch."),
+                               "bit_exact": precision == "fp32"}
+    if device.type == "cpu":
+        if precision in ("fp16", "tf32"):
+            raise CGVQMError(f"precision {precision} is offered on CUDA only; on CPU use fp32 "
+                             "(exact) or bf16 (on CPUs with AMX-BF16 or AVX512-BF16)")
+        if precision == "bf16":
+            cap = cpu_bf16()
+            if not cap.supported:
+                raise CGVQMError(f"--precision bf16 refused on CPU: {cap.reason()}; use fp32 "
+                                 "(the default) or a GPU (--device cuda)")
+            info.update(cpu_isa=cap.isa, detected_by=cap.source)
+    elif device.type == "cuda":
+        if precision == "bf16" and not torch.cuda.is_bf16_supported():
+            raise CGVQMError("--precision bf16 refused: this GPU has no bf16 support; use fp16 "
+                             "or fp32")
+        info["tf32"] = precision == "tf32"
+    elif precision != "fp32":
+        raise CGVQMError(f"precision {precision} is not offered on {device.type}; use fp32")
+    if precision != "fp32":
+        info["accumulate"] = "fp32"
+    return info
+
+
+@contextlib.contextmanager
+def tf32_mode(device: torch.device, allow: bool) -> Iterator[None]:
+    """On CUDA, set cuDNN's and cuBLAS's TF32 switches for the duration (restored after)."""
+    if device.type != "cuda":
+        yield
+        return
+    saved = torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32
+    torch.backends.cudnn.allow_tf32 = allow
+    torch.backends.cuda.matmul.allow_tf32 = allow
+    try:
+        yield
+    finally:
+        torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = saved

@@ -71,6 +71,8 @@ class MetricScores:
     frame: pd.DataFrame
     problems: list[InputProblem] = field(default_factory=list)
     flags: dict[str, str] = field(default_factory=dict)
+    #: metric -> why it gave no score (rows with an empty score and the scorer's note)
+    not_applicable: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         f = self.frame
@@ -184,12 +186,20 @@ def load_metric_scores(paths: list[str | Path]) -> MetricScores:
                             "one metric has one direction")
     f["score"] = pd.to_numeric(f["score"], errors="coerce")
     bad = ~np.isfinite(f["score"].to_numpy(dtype=float))
+    # an empty score with the scorer's note is a metric that does not apply (too small a
+    # frame, say), not a broken input
+    counts: dict[str, list] = {}
     for _, row in f[bad].iterrows():
         note = row.get("note")
-        why = f" ({note})" if isinstance(note, str) and note.strip() else ""
+        if isinstance(note, str) and note.strip() and pd.isna(row.get("score")):
+            entry = counts.setdefault(row["metric"], [0, note.strip()])
+            entry[0] += 1
+            continue
         problems.append(InputProblem(row["_source"], int(row["_row"]),
                                      f"score of {row['metric']} for {row['stimulus']} is missing "
-                                     f"or not a number{why}; row left out"))
+                                     f"or not a number; row left out"))
+    not_applicable = {m: f"{why} ({n} stimul{'us' if n == 1 else 'i'} without a score)"
+                      for m, (n, why) in counts.items()}
     flags = provenance_flags(f)
     f = f[~bad]
     dup = f.duplicated(["metric", "stimulus"], keep="first")
@@ -201,7 +211,7 @@ def load_metric_scores(paths: list[str | Path]) -> MetricScores:
     if "backbone" not in f.columns:
         f["backbone"] = None
     f["oriented"] = np.where(f["direction"] == "lower-better", -f["score"], f["score"])
-    return MetricScores(f.reset_index(drop=True), problems, flags)
+    return MetricScores(f.reset_index(drop=True), problems, flags, not_applicable)
 
 
 # -- resampling ------------------------------------------------------------------------------
@@ -282,6 +292,7 @@ class MetricValidation:
     williams: pd.DataFrame = field(default_factory=pd.DataFrame)  # Williams' p matrix
     boot: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     boot_ref: dict[str, dict[str, float]] = field(default_factory=dict)  # bootstrap world
+    not_applicable: dict[str, str] = field(default_factory=dict)  # metric -> why no score
 
 
 @dataclass
@@ -405,7 +416,8 @@ def validate_metrics(
     return MetricValidation(table, pd.DataFrame(method_rows), pvals, pvals < alpha,
                             {n: f.mapping for n, f in fitted.items()}, data, problems,
                             dict(scores.flags), alpha, comparisons, williams,
-                            {n: f.boot for n, f in fitted.items()}, refs)
+                            {n: f.boot for n, f in fitted.items()}, refs,
+                            dict(scores.not_applicable))
 
 
 def _fit_one(name: str, pos: np.ndarray, q: np.ndarray, y_all: np.ndarray,

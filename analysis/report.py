@@ -124,6 +124,7 @@ def summary(a: Analysis) -> dict[str, Any]:
         out["metrics"] = _records(m.table)
         out["metrics_per_method"] = _records(m.per_method)
         out["untrained_backbone"] = dict(m.untrained)
+        out["not_applicable"] = dict(m.not_applicable)
         out["significance_p"] = {
             r: {c: _num(m.significance.loc[r, c]) for c in m.significance.columns}
             for r in m.significance.index}
@@ -490,6 +491,11 @@ def write_html(a: Analysis, out: Path, figures: dict[str, tuple[Path, str]],
             parts.append("<div class='warn'>Flagged metrics (not the published metric): "
                          + "; ".join(f"{esc(k)}: {esc(v)}" for k, v in m.untrained.items())
                          + "</div>")
+        if m.not_applicable:
+            parts.append("<p>Not applicable to these stimuli (no score, so not in the table "
+                         "where no stimulus was scored): "
+                         + "; ".join(f"{esc(k)}: {esc(v)}" for k, v in m.not_applicable.items())
+                         + "</p>")
         shown = _with_ci(m.table)
         shown["flag"] = ["FLAGGED (see above)" if f else "" for f in shown["flag"].fillna("")]
         parts.append(_table_html(shown))

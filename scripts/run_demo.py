@@ -38,7 +38,9 @@ REPO = Path(__file__).resolve().parents[1]
 PRETRAINED_BACKBONE = "r3d_18-b3b3357e.pth"
 
 
-def _run(step: str, cmd: list[str], log: list[dict]) -> subprocess.CompletedProcess:
+def _run(step: str, cmd: list[str], log: list[dict], *,
+         optional: bool = False) -> subprocess.CompletedProcess:
+    """Run one step; an ``optional`` step that fails is reported as 'not available'."""
     print(f"\n=== {step}: {' '.join(Path(c).name if i == 0 else c for i, c in enumerate(cmd))}",
           flush=True)
     t0 = time.monotonic()
@@ -56,10 +58,16 @@ def _run(step: str, cmd: list[str], log: list[dict]) -> subprocess.CompletedProc
                                       tail.decode("utf-8", errors="replace"))
     seconds = time.monotonic() - t0
     log.append({"step": step, "seconds": round(seconds, 1), "returncode": res.returncode,
-                "error": _last_error(res.stderr) if res.returncode else None})
-    print(f"--- {step}: {'ok' if res.returncode == 0 else 'FAILED'} in {seconds:.1f} s",
-          flush=True)
+                "error": _last_error(res.stderr) if res.returncode else None,
+                "optional": optional})
+    print(f"--- {step}: {_outcome(res.returncode, optional)} in {seconds:.1f} s", flush=True)
     return res
+
+
+def _outcome(returncode: int, optional: bool) -> str:
+    if returncode == 0:
+        return "ok"
+    return "not available (the demo goes on without it)" if optional else "FAILED"
 
 
 def _last_error(stderr: str) -> str:
@@ -87,7 +95,8 @@ def _published_weights_available(log: list[dict]) -> bool:
     With CGVQM_OFFLINE=1 the fetch looks only at the cache and CGVQM_WEIGHTS_DIR.
     """
     res = _run("looking for the published CGVQM weights",
-               [*_cli("cgvqm_core.cli"), "weights", "fetch", "--no-backbone"], log)
+               [*_cli("cgvqm_core.cli"), "weights", "fetch", "--no-backbone"], log,
+               optional=True)
     return res.returncode == 0
 
 
@@ -290,8 +299,10 @@ def main(argv: list[str] | None = None) -> int:
             per = ", ".join(f"{k} {v:.2f}" for k, v in step["per_metric"].items())
             print(f"  seconds per stimulus: {per}")
             continue
-        print(f"  {step['step']:<26} {step['seconds']:7.1f} s  "
-              f"{'ok' if step['returncode'] == 0 else 'FAILED: ' + str(step['error'])}")
+        outcome = _outcome(step["returncode"], step.get("optional", False))
+        if step["returncode"]:
+            outcome = f"{outcome.split(' (')[0]}: {step['error']}"
+        print(f"  {step['step']:<26} {step['seconds']:7.1f} s  {outcome}")
     print(f"  total {check['total_seconds']:.0f} s; report: {report / 'report.html'}")
     return 0
 

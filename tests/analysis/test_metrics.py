@@ -171,6 +171,24 @@ def test_metric_csv_problems_and_pooling(tmp_path: Path) -> None:
     assert v.table.loc[0, "n"] == 19
 
 
+def test_a_metric_that_does_not_apply_is_not_an_input_problem(tmp_path: Path) -> None:
+    d = _dmos(20)
+    why = "not applicable at 128x128: MS-SSIM needs at least 161x161 pixels"
+    na = _scores(d, "ms-ssim", np.nan, note=why)
+    broken = _scores(d, "psnr", np.arange(20.0) + 1, note="")
+    broken.loc[4, "score"] = np.nan  # empty without a reason: a broken row
+    path = tmp_path / "scores.csv"
+    pd.concat([na, broken]).to_csv(path, index=False)
+    ms = load_metric_scores([path])
+    assert ms.metrics == ["psnr"]
+    assert [p.row for p in ms.problems] == [26]  # header + 20 ms-ssim rows + 5th psnr row
+    assert set(ms.not_applicable) == {"ms-ssim"}
+    assert why in ms.not_applicable["ms-ssim"] and "20 stimuli" in ms.not_applicable["ms-ssim"]
+    v = validate_metrics(d, ms, n_boot=20)
+    assert v.not_applicable == ms.not_applicable
+    assert list(v.table["metric"][:1]) == ["psnr"] and v.table.loc[0, "n"] == 19
+
+
 def test_metric_csv_errors(tmp_path: Path) -> None:
     bad = tmp_path / "bad.csv"
     bad.write_text("stimulus,value\nS1,3\n")
@@ -277,8 +295,8 @@ def test_reads_the_layout_cgvqm_batch_writes(tmp_path: Path) -> None:
     assert set(ms.metrics) == {"psnr", "flip", "cgvqm-2-uniform (mean)"}
     assert "uniform" in ms.flags["cgvqm-2-uniform (mean)"]
     assert "random" in ms.flags["cgvqm-2-uniform (mean)"]
-    (missing,) = ms.problems
-    assert "too small" in missing.message
+    assert not ms.problems  # a stated reason makes it "not applicable", not a broken row
+    assert ms.not_applicable["psnr"].startswith("too small (1 stimulus")
     v = validate_metrics(d, ms, n_boot=60)
     t = v.table.set_index("metric")
     assert (t.loc[["psnr", "flip"], "srcc"] > 0.5).all()

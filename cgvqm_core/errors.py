@@ -13,3 +13,13 @@ from stimuli_manifests.errors import ToolkitError
 
 class CGVQMError(ToolkitError):
     """A problem with the metric's inputs, weights or options that the user can fix."""
+
+
+def key_mismatch(missing: list[str], unexpected: list[str]) -> str:
+    """How a refused state dict differs from the expected one (counts and a few names)."""
+    parts = []
+    if missing:
+        parts.append(f"missing {len(missing)} (e.g. {', '.join(missing[:3])})")
+    if unexpected:
+        parts.append(f"unexpected {len(unexpected)} (e.g. {', '.join(unexpected[:3])})")
+    return "; ".join(parts)

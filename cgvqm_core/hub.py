@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 
 from .backbone import build_backbone, expected_keys
-from .errors import CGVQMError
+from .errors import CGVQMError, key_mismatch
 from .weights import offline
 
 log = logging.getLogger(__name__)
@@ -76,12 +76,8 @@ def check_state_dict(sd: Mapping[str, torch.Tensor], arch: str, origin: str) -> 
     missing = sorted(set(want) - have - optional)
     unexpected = sorted(have - set(want))
     if missing or unexpected:
-        parts = []
-        if missing:
-            parts.append(f"missing {len(missing)} (e.g. {', '.join(missing[:3])})")
-        if unexpected:
-            parts.append(f"unexpected {len(unexpected)} (e.g. {', '.join(unexpected[:3])})")
-        raise CGVQMError(f"{origin}: not a torchvision {arch} state dict: " + "; ".join(parts))
+        raise CGVQMError(f"{origin}: not a torchvision {arch} state dict: "
+                         + key_mismatch(missing, unexpected))
     for k, shape in want.items():
         if k in sd and tuple(sd[k].shape) != shape:
             raise CGVQMError(f"{origin}: {k} has shape {tuple(sd[k].shape)}, expected {shape}")

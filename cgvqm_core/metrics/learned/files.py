@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ...errors import CGVQMError
+from ...errors import CGVQMError, key_mismatch
 
 if TYPE_CHECKING:
     import torch
@@ -280,12 +280,7 @@ def features_state(f: WeightsFile, full: Mapping[str, tuple[int, ...]]) -> dict[
     missing = sorted(wanted - keys)
     unexpected = sorted(keys - set(full))
     if missing or unexpected:
-        parts = []
-        if missing:
-            parts.append(f"missing {len(missing)} (e.g. {', '.join(missing[:3])})")
-        if unexpected:
-            parts.append(f"unexpected {len(unexpected)} (e.g. {', '.join(unexpected[:3])})")
-        raise CGVQMError(f"{origin}: not a {f.part.fmt}: " + "; ".join(parts))
+        raise CGVQMError(f"{origin}: not a {f.part.fmt}: " + key_mismatch(missing, unexpected))
     for k in keys:
         t = sd[k]
         if not isinstance(t, torch.Tensor) or tuple(t.shape) != full[k]:

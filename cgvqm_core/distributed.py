@@ -20,6 +20,7 @@ import json
 import logging
 import os
 import signal
+import socket
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -71,21 +72,37 @@ def connected(settings: RaySettings) -> Iterator[None]:
     if ray.is_initialized():
         yield
         return
+    _check_reachable(settings.address)
     try:
         if settings.address == LOCAL:
             ray.init(address="local", include_dashboard=False, logging_level=logging.WARNING)
         else:
             ray.init(address=settings.address, logging_level=logging.WARNING)
     except (ConnectionError, RuntimeError, ValueError) as exc:
-        where = ("start a local Ray instance" if settings.address == LOCAL else
-                 f"join the Ray cluster at {settings.address}")
-        raise CGVQMError(f"--ray: could not {where} ({_first_line(exc)}); start the cluster "
-                         "with `ray start --head` on its head node, or give --ray without an "
-                         "address for a local instance") from None
+        if settings.address == LOCAL:
+            raise CGVQMError(f"--ray: could not start a local Ray instance "
+                             f"({_first_line(exc)})") from None
+        raise CGVQMError(f"--ray: could not join the Ray cluster at {settings.address} "
+                         f"({_first_line(exc)}); start it with `ray start --head` on its head "
+                         "node; a cluster with token authentication also needs "
+                         "RAY_AUTH_MODE=token and its token (~/.ray/auth_token) here") from None
     try:
         yield
     finally:
         ray.shutdown()
+
+
+def _check_reachable(address: str) -> None:
+    """A HOST:PORT where nothing listens is one line now, not minutes of Ray's retries."""
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if address in (LOCAL, "auto") or not sep or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=5).close()
+    except OSError as exc:
+        raise CGVQMError(f"--ray {address}: nothing answers there ({exc.strerror or exc}); "
+                         "is `ray start --head` running on that node, and is the port open "
+                         "from here?") from None
 
 
 def check_resources(settings: RaySettings) -> int:

@@ -10,13 +10,14 @@ CGVQM-2 (random backbone seed 0, uniform weights: speed does not depend on their
   (and so one torch thread) per task, ``cgvqm batch --ray``'s code path.
 
 Printed: wall time of each run (Ray's start-up apart), each unit's seconds measured inside
-its task (and by the local run), Ray's overhead per unit (wall x workers - the tasks'
-seconds, over the units: scheduling, transfers, worker start-up and idle workers at the
-end), whether the scores equal the local run's, and a model of a larger set (--dataset-refs x
---dataset-tests) on N = 1, 2, 4, 8 GPUs: the time of a unit from the README's measured H100
-pairs per minute (4 tests per reference, per precision) when it has them, plus the overhead
-measured here; the measured CPU unit time scaled to that unit size otherwise. A unit is one
-reference, so N devices take ceil(references / N) unit times.
+its task (and by the local run), Ray's overhead per unit (the wall time beyond the ideal
+one, the units' own seconds spread over the workers, per unit on the busiest worker:
+scheduling, transfers, the workers' imports and metric set-up), whether the scores equal
+the local run's, and a model of a larger set (--dataset-refs x --dataset-tests) on N = 1, 2,
+4, 8 devices: the measured CPU unit time scaled to that unit size, and the H100 unit time
+from the README's measured pairs per minute (4 tests per reference, per precision) when it
+has them, each plus the overhead measured here. A unit is one reference, so N devices take
+ceil(references / N) unit times.
 
     python benchmarks/bench_ray.py                              # 3 x 4 x 30x256x256
     python benchmarks/bench_ray.py --size 128 --frames 16       # quick look
@@ -105,7 +106,8 @@ def run_ray(manifest: Path, out: Path, options: MetricOptions, workers: int) -> 
     from cgvqm_core.ray_options import RaySettings
 
     t0 = time.perf_counter()
-    ray.init(num_cpus=workers, include_dashboard=False, logging_level="WARNING")
+    ray.init(address="local", num_cpus=workers, include_dashboard=False,
+             logging_level="WARNING")
     start = time.perf_counter() - t0
     try:
         t0 = time.perf_counter()
@@ -117,6 +119,15 @@ def run_ray(manifest: Path, out: Path, options: MetricOptions, workers: int) -> 
     if s.failed:
         raise SystemExit(f"Ray run failed: {s.failed}")
     return {"start_s": start, "wall_s": wall, "unit_s": list(s.unit_seconds.values())}
+
+
+def makespan(unit_s: list[float], workers: int) -> float:
+    """The wall time the units' own seconds allow on ``workers`` (longest first, each to the
+    least busy worker): what a run without any overhead would take."""
+    busy = [0.0] * workers
+    for u in sorted(unit_s, reverse=True):
+        busy[busy.index(min(busy))] += u
+    return max(busy)
 
 
 def readme_gpu_rates(variant: str) -> dict[str, float]:
@@ -176,13 +187,16 @@ def main() -> int:
         for w in (int(x) for x in args.workers.split(",")):
             out = root / f"ray{w}.csv"
             r = run_ray(manifest, out, options, w)
-            over = (r["wall_s"] * min(w, args.refs) - sum(r["unit_s"])) / args.refs
+            ideal = makespan(r["unit_s"], w)
+            over = (r["wall_s"] - ideal) / math.ceil(len(r["unit_s"]) / w)
+            r["ideal_makespan_s"] = ideal
             same = scores(out) == expected
             r.update({"overhead_per_unit_s": over, "identical_to_local": same})
             print(f"ray, {w} worker(s): {r['wall_s']:.1f} s (+ {r['start_s']:.1f} s to start "
                   f"Ray) = x{local_s / r['wall_s']:.2f} against local; units "
-                  f"{', '.join(f'{u:.2f}' for u in r['unit_s'])} s inside the task; overhead "
-                  f"{over:.2f} s per unit; scores identical to local: {'yes' if same else 'NO'}")
+                  f"{', '.join(f'{u:.2f}' for u in r['unit_s'])} s inside the task (ideal "
+                  f"wall {ideal:.1f} s); overhead {over:.2f} s per unit; scores identical to "
+                  f"local: {'yes' if same else 'NO'}")
             fig[f"ray_{w}"] = r
     one = fig.get("ray_1", next(v for k, v in fig.items() if k.startswith("ray_")))
     unit_cpu = statistics.median(one["unit_s"])

@@ -109,7 +109,7 @@ def cluster(module_env: Path):
 
     shm = shutil.disk_usage("/dev/shm").free if Path("/dev/shm").is_dir() else 0
     store = int(min(500e6, max(100e6, shm // 4)))
-    ray.init(num_cpus=2, include_dashboard=False, object_store_memory=store,
+    ray.init(address="local", num_cpus=2, include_dashboard=False, object_store_memory=store,
              logging_level="WARNING")
     try:
         yield module_env

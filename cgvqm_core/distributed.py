@@ -127,14 +127,12 @@ def check_resources(settings: RaySettings) -> int:
     return sum(per_node)
 
 
-def _remote(fn: Callable[..., Any], settings: RaySettings, *, retries: int | None = None
-            ) -> Any:
+def _remote(fn: Callable[..., Any], settings: RaySettings) -> Any:
     """``fn`` as a Ray task with the unit's resources; errors raised by our code are not
     retried (they would fail again), a dead worker is (``max_retries``)."""
     return ray.remote(fn).options(
         num_cpus=settings.cpus_per_unit, num_gpus=settings.gpus_per_unit,
-        max_retries=settings.max_retries if retries is None else retries,
-        retry_exceptions=False)
+        max_retries=settings.max_retries, retry_exceptions=False)
 
 
 # -- the worker side ------------------------------------------------------------------------
@@ -316,7 +314,7 @@ def score_units(units: Sequence[WorkUnit], out: str | Path, settings: RaySetting
     summary = RaySummary(units=len(units))
     if not units:
         return summary
-    check_resources(settings)
+    log.info("ray: %d task(s) at a time on this cluster", check_resources(settings))
     u0 = units[0]
     plan = _worker_plan(u0.metrics, _options(u0), settings)
     task = _remote(_unit_task, settings)

@@ -167,7 +167,6 @@ def test_a_killed_worker_costs_only_its_unit(study, local_scores, cluster, tmp_p
     assert rc == 0, err
     with pytest.raises(ProcessLookupError):  # the first try at SRC02 killed its worker
         os.kill(int(marker.read_text()), 0)
-    print(err)
     assert scores(out) == scores(local_scores)
 
 
@@ -183,7 +182,6 @@ def test_a_unit_failing_every_time_is_named_and_the_others_land(local_scores, cl
     assert len(lines) == 1 and "SRC02" in lines[0] and "1 of 3" in lines[0], err
     expected = {k: v for k, v in scores(local_scores).items() if v[1] != "SRC02"}
     assert scores(out) == expected  # the same files, so the same keys and numbers
-    print(err)
 
 
 def _no_ray_site(tmp_path: Path) -> Path:
@@ -221,6 +219,13 @@ def test_bad_ray_options_are_one_line(capsys, tmp_path):
                      *extra]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and words in err, err
+
+
+@needs_ray
+def test_a_request_no_node_meets_is_refused_at_once(study, cluster, tmp_path, capsys):
+    assert batch(study, tmp_path / "s.csv", "--ray", "--ray-cpus-per-unit", "3") == 2
+    err = capsys.readouterr().err
+    assert err.count("cgvqm: error:") == 1 and "no node of the cluster has 3 CPU(s)" in err
 
 
 @needs_ray

@@ -133,6 +133,21 @@ def _poolings(s: Scorer, options: MetricOptions) -> list[str | None]:
     return list(options.pools) if isinstance(s, CGVQMScorer) else [None]
 
 
+def scorer_plan(scorers: Sequence[Scorer], options: MetricOptions
+                ) -> list[tuple[dict[str, Any], list[str | None]]]:
+    """Per scorer, its identity and the poolings it writes: with a unit's inputs, these give
+    the keys of all of the unit's rows (plain data, so a worker can send them back)."""
+    return [(scorer_identity(s, options), _poolings(s, options)) for s in scorers]
+
+
+def unit_keys(unit: WorkUnit, plan: Sequence[tuple[dict[str, Any], list[str | None]]]
+              ) -> list[str]:
+    """The resume keys of every row ``unit`` writes (see :func:`scorer_plan`)."""
+    alignment = {"allow_resample": unit.allow_resample, "on_conversion": unit.on_conversion}
+    return [row_key(ident, p, unit.reference, t, alignment)
+            for t in unit.tests for ident, pools in plan for p in pools]
+
+
 def _row(stimulus: str, reference: str, m: MetricScore, ident: dict[str, Any], key: str,
          ref_sha: str, test_sha: str) -> dict[str, Any]:
     settings = dict(ident["settings"])

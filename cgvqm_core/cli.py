@@ -11,6 +11,7 @@ import argparse
 import json
 import logging
 import sys
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,7 @@ from stimuli_manifests.cli_runner import run_command
 from . import __version__
 from .errors import CGVQMError
 from .metric import quality_label
+from .ray_options import add_ray_arguments, load_distributed, ray_settings
 
 
 def _add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = False) -> None:
@@ -108,6 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
     ba.add_argument("--group-size", type=int, default=4,
                     help="test videos scored together against one reference (default 4)")
     _add_metric_options(ba, multi_variant=True)
+    add_ray_arguments(ba)
 
     we = sub.add_parser("weights", help="fetch, verify or describe the metric's weights")
     wsub = we.add_subparsers(dest="weights_command", metavar="ACTION")
@@ -316,20 +319,28 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     from .batch import score_manifest
     from .metrics import parse_metric_list
 
+    cluster = ray_settings(args, args.device)
+    distributed = load_distributed() if cluster else None  # no Ray: say so before any work
     requested = [args.metrics] if args.metrics else []
     requested += list(args.variant or [])
     pools = list(dict.fromkeys(args.pool or ["max"]))
     options = _options(args, pools)
     names = parse_metric_list(requested or ["cgvqm-2"], options)
     _threads(args)
-    s = score_manifest(args.manifest, args.out, names, options,
-                       include_references=args.include_references, root=args.root,
-                       group_size=args.group_size, allow_resample=args.allow_resample,
-                       on_conversion=_on_conversion(args))
+    run = score_manifest if distributed is None else partial(distributed.score_manifest,
+                                                             settings=cluster)
+    s = run(args.manifest, args.out, names, options,
+            include_references=args.include_references, root=args.root,
+            group_size=args.group_size, allow_resample=args.allow_resample,
+            on_conversion=_on_conversion(args))
     print(f"{s.scored} scored, {s.skipped} already in {args.out}, {s.rows} rows written "
           f"({', '.join(names)})")
     for name in s.not_applicable:
         print(f"{name}: not applicable at this stimulus size (rows written without a score)")
+    if distributed is not None:
+        print(f"ray: {s.submitted} of {s.units} work unit(s) run on {len(s.nodes)} node(s)")
+        if s.failed:
+            raise CGVQMError(s.failure_message(args.out))
     return 0
 
 

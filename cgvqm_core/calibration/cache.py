@@ -16,7 +16,8 @@ import json
 import logging
 import os
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,23 @@ CACHE_FORMAT = "cgvqm-feature-cache/1"
 
 #: computes m for several test videos sharing one reference: (ref, tests) -> [(P_i, N)]
 FeatureFn = Callable[[str, Sequence[str]], list[np.ndarray]]
+
+
+@dataclass(frozen=True)
+class FeatureJob:
+    """Test videos sharing one reference, with the content sha256s their cache keys use (so
+    that a worker on another machine can check it reads the same files)."""
+
+    label: str  # the reference's id (or path), for messages
+    reference: str
+    reference_sha256: str
+    tests: tuple[str, ...]
+    test_sha256: tuple[str, ...]
+
+
+#: runs jobs anywhere, in any order, yielding (job index, m per test) as each one finishes;
+#: the cache stays the only writer of its entries and index (see FeatureCache.build)
+JobRunner = Callable[[Sequence[FeatureJob]], Iterable[tuple[int, list[np.ndarray]]]]
 
 
 def _atomic_write(path: Path, write: Callable[[Any], None], mode: str = "wb") -> None:
@@ -131,22 +149,27 @@ class FeatureCache:
         _atomic_write(self.entry_path(key), lambda fh: np.save(fh, m, allow_pickle=False))
 
     def build(self, items: pd.DataFrame, compute: FeatureFn, *, group_size: int = 4,
-              show_progress: bool = True) -> list[np.ndarray]:
+              show_progress: bool = True, runner: JobRunner | None = None
+              ) -> list[np.ndarray]:
         """m for every row of ``items`` (columns test_path, ref_path; optional test_sha256,
-        ref_sha256, stimulus, dataset), computing only what the cache lacks.
+        ref_sha256, stimulus, reference, dataset), computing only what the cache lacks.
 
         Test videos sharing a reference are computed together (``group_size`` at a time), so
-        the reference goes through the backbone once per group.
+        the reference goes through the backbone once per group. With a ``runner`` (e.g. Ray
+        tasks) each reference is one job and the runner computes it where it likes; entries
+        are still written here, as each job comes back.
         """
         self.folder.mkdir(parents=True, exist_ok=True)
         doc = self.read_index()
         keys: list[str] = []
+        shas: list[tuple[str, str]] = []
         hashing = tqdm(total=len(items), desc="hashing videos", unit="video",
                        disable=not show_progress, leave=False)
         for row in items.itertuples(index=False):
             t = self.video_hash(row.test_path, getattr(row, "test_sha256", None))
             r = self.video_hash(row.ref_path, getattr(row, "ref_sha256", None))
             keys.append(self.key(t, r))
+            shas.append((t, r))
             hashing.update()
         hashing.close()
         out: list[np.ndarray | None] = [self.load_entry(k) for k in keys]
@@ -168,34 +191,59 @@ class FeatureCache:
         by_ref: dict[str, list[int]] = {}
         for i in pending:
             by_ref.setdefault(str(items.iloc[i]["ref_path"]), []).append(i)
+        step = max(1, group_size)
+        chunks: list[list[int]] = []
+        for idx in by_ref.values():
+            if runner is not None:
+                chunks.append(idx)  # one job per reference; the runner groups its tests
+            else:
+                chunks += [idx[s: s + step] for s in range(0, len(idx), step)]
+        jobs = [self._job(items, chunk, shas) for chunk in chunks]
+        results = (runner(jobs) if runner is not None else
+                   ((j, compute(job.reference, list(job.tests))) for j, job in enumerate(jobs)))
         bar = tqdm(total=len(pending), desc="features", unit="video",
                    disable=not show_progress or not pending)
-        for ref, idx in by_ref.items():
-            for start in range(0, len(idx), max(1, group_size)):
-                chunk = idx[start: start + max(1, group_size)]
-                ms = compute(ref, [str(items.iloc[i]["test_path"]) for i in chunk])
-                if len(ms) != len(chunk):
-                    raise CGVQMError(f"feature function returned {len(ms)} arrays for "
-                                     f"{len(chunk)} videos")
-                for i, m in zip(chunk, ms, strict=True):
-                    self.save_entry(keys[i], m)
-                    row = items.iloc[i]
-                    doc["entries"][keys[i]] = {
-                        "file": self.entry_path(keys[i]).name,
-                        "stimulus": str(row.get("stimulus", "")),
-                        "dataset": str(row.get("dataset", "")),
-                        "test": str(row["test_path"]), "reference": str(row["ref_path"]),
-                        "n_patches": int(np.shape(m)[0]),
-                    }
-                self._write_index(doc)
-                bar.update(len(chunk))
-        bar.close()
+        try:
+            for j, ms in results:
+                self._store(doc, items, keys, chunks[j], ms)
+                bar.update(len(chunks[j]))
+        finally:
+            bar.close()
         for i in todo:
             out[i] = self.load_entry(keys[i])
             if out[i] is None:
                 raise CGVQMError(f"feature cache entry for {items.iloc[i]['test_path']} could "
                                  f"not be read back from {self.folder}")
         return out  # type: ignore[return-value]
+
+    @staticmethod
+    def _job(items: pd.DataFrame, chunk: list[int], shas: list[tuple[str, str]]
+             ) -> FeatureJob:
+        row = items.iloc[chunk[0]]
+        ref = str(row["ref_path"])
+        label = "/".join(str(row.get(c, "") or "") for c in ("dataset", "reference")
+                         if row.get(c, "")) or ref
+        return FeatureJob(label, ref, shas[chunk[0]][1],
+                          tuple(str(items.iloc[i]["test_path"]) for i in chunk),
+                          tuple(shas[i][0] for i in chunk))
+
+    def _store(self, doc: dict[str, Any], items: pd.DataFrame, keys: list[str],
+               chunk: list[int], ms: list[np.ndarray]) -> None:
+        """Write one job's entries, then the index (so an interruption loses no entry)."""
+        if len(ms) != len(chunk):
+            raise CGVQMError(f"feature function returned {len(ms)} arrays for "
+                             f"{len(chunk)} videos")
+        for i, m in zip(chunk, ms, strict=True):
+            self.save_entry(keys[i], m)
+            row = items.iloc[i]
+            doc["entries"][keys[i]] = {
+                "file": self.entry_path(keys[i]).name,
+                "stimulus": str(row.get("stimulus", "")),
+                "dataset": str(row.get("dataset", "")),
+                "test": str(row["test_path"]), "reference": str(row["ref_path"]),
+                "n_patches": int(np.shape(m)[0]),
+            }
+        self._write_index(doc)
 
 
 def _folder_hash(folder: Path) -> str:

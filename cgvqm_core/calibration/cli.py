@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 from stimuli_manifests import StimuliError
 
 from ..errors import CGVQMError
+from ..ray_options import add_ray_arguments, load_distributed, ray_settings
 from .arguments import (
     ANCHOR_METHODS,
     DMOS_SCALES,
@@ -24,7 +25,7 @@ from .arguments import (
 )
 
 if TYPE_CHECKING:
-    from .pipeline import CalibrationOutcome
+    from .pipeline import CalibrationOutcome, FeatureSource
 
 
 def default_cache() -> Path:
@@ -104,6 +105,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="accept test videos whose fps differs from the reference's")
     f.add_argument("--allow-convert", action="store_true",
                    help="convert 10-bit or alpha input to 8-bit RGB instead of refusing it")
+    add_ray_arguments(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p
 
@@ -140,22 +142,30 @@ def _run(args: argparse.Namespace) -> int:
     from .pipeline import build_data, calibrate, metric_features
 
     _check(args)
+    cluster = ray_settings(args, args.device)
+    distributed = load_distributed() if cluster else None  # no Ray: say so before any work
     specs = [DatasetSpec.parse(t) for t in args.dataset]
     show = not args.quiet
     # the studies first: their mistakes show before the network is built
     items = load_datasets(specs, dmos_scale=args.dmos_scale,
                           include_references=args.include_references)
-    source = metric_features(args.variant, backbone=args.backbone,
-                             random_backbone=args.random_backbone, device=args.device,
-                             precision=args.precision, patch_scale=args.patch_scale,
-                             batch_size=args.batch_size, allow_resample=args.allow_resample,
-                             on_conversion="warn" if args.allow_convert else "error")
-    if source.backbone.get("random_seed") is not None:
-        print(f"cgvqm: warning: RANDOM backbone (seed {source.backbone['random_seed']}): the "
-              "fitted weights are for testing only, and the weights file says so",
-              file=sys.stderr)
+    feature_args = {"variant": args.variant, "backbone": args.backbone,
+                    "random_backbone": args.random_backbone, "device": args.device,
+                    "precision": args.precision, "patch_scale": args.patch_scale,
+                    "batch_size": args.batch_size, "allow_resample": args.allow_resample,
+                    "on_conversion": "warn" if args.allow_convert else "error"}
     cache_root = Path(args.cache) if args.cache else default_cache()
-    data = build_data(items, source, cache_root, show_progress=show)
+    if distributed is None:
+        source = metric_features(**feature_args)
+        _warn_random(source)
+        data = build_data(items, source, cache_root, show_progress=show)
+    else:
+        if args.backbone:  # the workers' working folder is not this one
+            feature_args["backbone"] = os.path.abspath(args.backbone)
+        with distributed.connected(cluster):
+            source = distributed.feature_source(feature_args, cluster)
+            _warn_random(source)
+            data = build_data(items, source, cache_root, show_progress=show)
     n_scenes = data.items.groupby("dataset")["scene"].nunique()
     print(f"{len(data.items)} videos, {data.M.shape[1]} patches at most, "
           f"{data.M.shape[2]} channels; scenes per dataset: "
@@ -174,6 +184,13 @@ def _run(args: argparse.Namespace) -> int:
         feature_settings=source.settings, backbone=source.backbone, out=args.out)
     _print_outcome(outcome, args)
     return 0
+
+
+def _warn_random(source: FeatureSource) -> None:
+    if source.backbone.get("random_seed") is not None:
+        print(f"cgvqm: warning: RANDOM backbone (seed {source.backbone['random_seed']}): the "
+              "fitted weights are for testing only, and the weights file says so",
+              file=sys.stderr)
 
 
 def _print_outcome(outcome: CalibrationOutcome, args: argparse.Namespace) -> None:

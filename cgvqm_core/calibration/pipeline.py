@@ -17,7 +17,7 @@ from .. import __version__
 from ..errors import CGVQMError
 from ..weights import VARIANTS, FeatureWeights, save_weights
 from .anchoring import apply_anchor, fit_anchor, refit_alpha
-from .cache import FeatureCache, FeatureFn, pack
+from .cache import FeatureCache, FeatureFn, JobRunner, pack
 from .data import DatasetSpec, load_datasets
 from .fitting import FitConfig, FitResult, fit, pooled_errors
 from .splits import scene_split
@@ -41,6 +41,7 @@ class FeatureSource:
     settings: dict[str, Any]  # variant, n_channels, backbone_sha256, ... (the cache key)
     backbone: dict[str, Any] = field(default_factory=dict)  # provenance of the backbone
     supersets: list[dict[str, Any]] = field(default_factory=list)  # caches to slice from
+    runner: JobRunner | None = None  # computes the jobs elsewhere (Ray) instead of compute
 
 
 def metric_features(variant: str, *, backbone: str | Path | None = None,
@@ -80,7 +81,8 @@ def build_data(items: pd.DataFrame, source: FeatureSource, cache_root: str | Pat
     """Fill the cache for ``items`` and pack the features for fitting."""
     cache = FeatureCache(cache_root, source.settings,
                          supersets=[FeatureCache(cache_root, s) for s in source.supersets])
-    arrays = cache.build(items, source.compute, show_progress=show_progress)
+    arrays = cache.build(items, source.compute, show_progress=show_progress,
+                         runner=source.runner)
     M, counts = pack(arrays)
     return CalibrationData(items.reset_index(drop=True), M, counts)
 

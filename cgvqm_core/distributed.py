@@ -1,0 +1,451 @@
+"""Work units on a Ray cluster: ``cgvqm batch --ray`` and ``cgvqm calibrate --ray``.
+
+One Ray task per reference with all of its test videos (its features are computed once), as
+in a local run. Tasks carry paths and sha256s only, never decoded frames: every node reads
+the videos itself from storage all nodes see at the same paths, and checks their sha256
+first, so a node with other files fails loudly instead of scoring them. Results come back to
+the driver (this process), which is the only writer: score rows go through the scores CSV's
+``Appender`` and feature arrays through ``FeatureCache``, as each task finishes. A dead driver
+therefore resumes from its CSV or cache like a local run; a dead worker costs its task, which
+Ray reruns (``max_retries``); a task that fails on every try is reported by name while the
+others still land.
+
+Numbers are those of a local run: the same code scores the same unit, with as many torch
+threads as CPUs the task reserves (bitwise equal for equal device, precision and threads).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import socket
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, TypeVar
+
+import ray
+import ray.exceptions
+from tqdm.auto import tqdm
+
+from stimuli_manifests import sha256_path
+from stimuli_manifests.cli_runner import one_line
+from stimuli_manifests.errors import ToolkitError
+
+from .batch import (
+    Appender,
+    BatchSummary,
+    WorkUnit,
+    _canonical,
+    manifest_units,
+    read_done,
+    run_unit,
+    scorer_plan,
+    unit_keys,
+)
+from .errors import CGVQMError
+from .metrics.registry import MetricOptions, build_scorers
+from .ray_options import LOCAL, RaySettings
+
+log = logging.getLogger(__name__)
+
+#: test-only: a JSON file {unit label: marker path}; the first try at that unit (while the
+#: marker does not exist) kills its own worker with SIGKILL, as a crash would
+FAULTS_ENV = "CGVQM_TEST_FAULTS"
+
+T = TypeVar("T")
+
+
+# -- the cluster ----------------------------------------------------------------------------
+
+@contextmanager
+def connected(settings: RaySettings) -> Iterator[None]:
+    """Ray for the duration: a local instance, or the cluster at ``settings.address``.
+
+    A Ray already initialised in this process (a notebook, a test) is used as it is and left
+    running; otherwise the connection is closed (a local instance stopped) at the end.
+    """
+    if ray.is_initialized():
+        yield
+        return
+    _check_reachable(settings.address)
+    try:
+        if settings.address == LOCAL:
+            ray.init(address="local", include_dashboard=False, logging_level=logging.WARNING)
+        else:
+            ray.init(address=settings.address, logging_level=logging.WARNING)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        if settings.address == LOCAL:
+            raise CGVQMError(f"--ray: could not start a local Ray instance "
+                             f"({_first_line(exc)})") from None
+        raise CGVQMError(f"--ray: could not join the Ray cluster at {settings.address} "
+                         f"({_first_line(exc)}); start it with `ray start --head` on its head "
+                         "node; a cluster with token authentication also needs "
+                         "RAY_AUTH_MODE=token and its token (~/.ray/auth_token) here") from None
+    try:
+        yield
+    finally:
+        ray.shutdown()
+
+
+def _check_reachable(address: str) -> None:
+    """A HOST:PORT where nothing listens is one line now, not minutes of Ray's retries."""
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if address in (LOCAL, "auto") or not sep or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=5).close()
+    except OSError as exc:
+        raise CGVQMError(f"--ray {address}: nothing answers there ({exc.strerror or exc}); "
+                         "is `ray start --head` running on that node, and is the port open "
+                         "from here?") from None
+
+
+def check_resources(settings: RaySettings) -> int:
+    """Refuse a request no node can satisfy (its tasks would wait forever); return how many
+    tasks the cluster can run at once."""
+    nodes = [n.get("Resources", {}) for n in ray.nodes() if n.get("Alive")]
+    fits = [r for r in nodes if r.get("CPU", 0) >= settings.cpus_per_unit
+            and r.get("GPU", 0) >= settings.gpus_per_unit]
+    if not fits:
+        best_cpu = max((r.get("CPU", 0) for r in nodes), default=0)
+        best_gpu = max((r.get("GPU", 0) for r in nodes), default=0)
+        raise CGVQMError(f"--ray: no node of the cluster has {settings.cpus_per_unit:g} CPU(s) "
+                         f"and {settings.gpus_per_unit:g} GPU(s) for a task (the largest has "
+                         f"{best_cpu:g} CPUs, {best_gpu:g} GPUs); lower --ray-cpus-per-unit "
+                         "or --ray-gpus-per-unit, or add nodes")
+    per_node = []
+    for r in fits:
+        n = r.get("CPU", 0) // settings.cpus_per_unit
+        if settings.gpus_per_unit:
+            n = min(n, r.get("GPU", 0) // settings.gpus_per_unit)
+        per_node.append(int(n))
+    return sum(per_node)
+
+
+def _remote(fn: Callable[..., Any], settings: RaySettings) -> Any:
+    """``fn`` as a Ray task with the unit's resources; errors raised by our code are not
+    retried (they would fail again), a dead worker is (``max_retries``)."""
+    return ray.remote(fn).options(
+        num_cpus=settings.cpus_per_unit, num_gpus=settings.gpus_per_unit,
+        max_retries=settings.max_retries, retry_exceptions=False)
+
+
+# -- the worker side ------------------------------------------------------------------------
+
+_BUILT: dict[str, Any] = {}  # the last scorers / feature source built in this worker process
+
+
+def _reuse(key: str, build: Callable[[], T]) -> T:
+    """Build once per worker process (a worker runs many units with the same settings)."""
+    if key not in _BUILT:
+        _BUILT.clear()
+        _BUILT[key] = build()
+    return _BUILT[key]
+
+
+def _start_task(label: str, cpus: int) -> float:
+    import torch
+
+    _test_fault(label)
+    torch.set_num_threads(cpus)
+    return time.perf_counter()
+
+
+def _test_fault(label: str) -> None:
+    spec = os.environ.get(FAULTS_ENV)
+    if not spec:
+        return
+    try:
+        marker = json.loads(Path(spec).read_text(encoding="utf-8")).get(label)
+    except (OSError, ValueError):
+        return
+    if marker and not Path(marker).exists():
+        Path(marker).write_text(str(os.getpid()))
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+def _done_by(start: float) -> dict[str, Any]:
+    return {"seconds": time.perf_counter() - start, "node": ray.util.get_node_ip_address(),
+            "pid": os.getpid()}
+
+
+def _scorers(metrics: list[str], options: dict[str, Any]) -> list[Any]:
+    from .batch import options_from_dict
+
+    return _reuse(_canonical(["scorers", metrics, options]),
+                  lambda: build_scorers(metrics, options_from_dict(options)))
+
+
+def _plan_task(metrics: list[str], options: dict[str, Any], cpus: int) -> list[Any]:
+    """Identity and poolings of each scorer, as a worker builds them (the driver's keys)."""
+    from .batch import options_from_dict
+
+    _start_task("", cpus)
+    return scorer_plan(_scorers(metrics, options), options_from_dict(options))
+
+
+def _unit_task(unit: dict[str, Any], done: list[str], cpus: int) -> dict[str, Any]:
+    """Score one unit (inputs' sha256 checked here); its rows and how long it took."""
+    start = _start_task(unit["reference_id"], cpus)
+    u = WorkUnit.from_dict(unit)
+    rows = run_unit(u, scorers=_scorers(u.metrics, u.options), done=set(done), verify=True)
+    return {"rows": rows, **_done_by(start)}
+
+
+def _source(feature_args: dict[str, Any]) -> Any:
+    from .calibration.pipeline import metric_features
+
+    return _reuse(_canonical(["features", feature_args]),
+                  lambda: metric_features(**feature_args))
+
+
+def _feature_settings_task(feature_args: dict[str, Any], cpus: int) -> dict[str, Any]:
+    _start_task("", cpus)
+    s = _source(feature_args)
+    return {"settings": s.settings, "backbone": s.backbone, "supersets": s.supersets}
+
+
+def _features_task(job: dict[str, Any], feature_args: dict[str, Any], group_size: int,
+                   cpus: int) -> dict[str, Any]:
+    """m of one reference's test videos, computed ``group_size`` at a time as locally."""
+    start = _start_task(job["label"], cpus)
+    _verify_content([(job["reference"], job["reference_sha256"]),
+                     *zip(job["tests"], job["test_sha256"], strict=True)])
+    compute = _source(feature_args).compute
+    tests, step = list(job["tests"]), max(1, group_size)
+    arrays = [m for s in range(0, len(tests), step)
+              for m in compute(job["reference"], tests[s: s + step])]
+    return {"arrays": arrays, **_done_by(start)}
+
+
+def _verify_content(files: Sequence[tuple[str, str]]) -> None:
+    """The feature cache keys files by content: refuse a file that is not that content."""
+    from .calibration.cache import _folder_hash
+
+    for path, sha in files:
+        p = Path(path)
+        if not p.exists():
+            raise CGVQMError(f"{path}: not found on this node ({ray.util.get_node_ip_address()}"
+                             "); every node must see the videos at the same paths")
+        if sha256_path(p) != sha and not (p.is_dir() and _folder_hash(p) == sha):
+            raise CGVQMError(f"{path} on node {ray.util.get_node_ip_address()} is not the "
+                             f"file the driver hashed (sha256 {sha[:12]}...); every node must "
+                             "see the same files")
+
+
+# -- the driver side ------------------------------------------------------------------------
+
+@dataclass
+class RaySummary(BatchSummary):
+    """A batch summary plus what the cluster did."""
+
+    units: int = 0  # work units in the manifest
+    submitted: int = 0  # units sent to Ray (the others were complete in the CSV)
+    failed: list[str] = field(default_factory=list)  # "SRC02: why", one per failed unit
+    unit_seconds: dict[str, float] = field(default_factory=dict)  # measured inside the task
+    nodes: set[str] = field(default_factory=set)  # addresses of the nodes that ran units
+
+    def failure_message(self, out: str | Path) -> str:
+        return (f"{len(self.failed)} of {self.submitted} work unit(s) failed on Ray (the "
+                f"others are in {out}; rerun to retry the failed ones): "
+                + "; ".join(self.failed))
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return one_line(text.splitlines()[0] if text else type(exc).__name__)
+
+
+def _reason(exc: BaseException, settings: RaySettings) -> str:
+    """One line on why a task failed: our error's message, or how its worker died."""
+    if isinstance(exc, ray.exceptions.RayTaskError):
+        cause = getattr(exc, "cause", None)
+        if isinstance(cause, ToolkitError):
+            return one_line(cause)
+        if cause is not None:
+            return f"{type(cause).__name__}: {_first_line(cause)}"
+    if isinstance(exc, ray.exceptions.WorkerCrashedError | ray.exceptions.NodeDiedError
+                  | ray.exceptions.OutOfMemoryError):
+        return (f"its worker died on each of {settings.max_retries + 1} tries "
+                f"({type(exc).__name__}: {_first_line(exc)})")
+    return f"{type(exc).__name__}: {_first_line(exc)}"
+
+
+def as_completed(pending: dict[Any, T], settings: RaySettings
+                 ) -> Iterator[tuple[T, dict[str, Any] | None, str | None]]:
+    """(item, result, None) or (item, None, why it failed) for each task as it finishes."""
+    while pending:
+        ready, _ = ray.wait(list(pending), num_returns=1)
+        for ref in ready:
+            item = pending.pop(ref)
+            try:
+                result, why = ray.get(ref), None
+            except ray.exceptions.RayError as exc:
+                result, why = None, _reason(exc, settings)[:400]
+            yield item, result, why
+
+
+def _worker_plan(metrics: Sequence[str], options: MetricOptions, settings: RaySettings
+                 ) -> list[Any]:
+    """The scorers' identities as a worker sees them (the driver may lack the GPU, weights
+    or backbone file the workers use), so keys here are the keys the workers write."""
+    from .batch import options_to_dict
+
+    task = _remote(_plan_task, settings)
+    try:
+        return ray.get(task.remote(list(metrics), options_to_dict(options),
+                                   settings.cpus_per_unit))
+    except ray.exceptions.RayError as exc:
+        raise CGVQMError(f"--ray: a worker could not build the metrics: "
+                         f"{_reason(exc, settings)}") from None
+
+
+def score_units(units: Sequence[WorkUnit], out: str | Path, settings: RaySettings, *,
+                progress: bool = True) -> RaySummary:
+    """Run the units whose rows are not all in ``out`` as Ray tasks; append rows as each
+    finishes. Needs a connected Ray (:func:`connected`)."""
+    out = Path(out)
+    done = read_done(out)
+    summary = RaySummary(units=len(units))
+    if not units:
+        return summary
+    log.info("ray: %d task(s) at a time on this cluster", check_resources(settings))
+    u0 = units[0]
+    plan = _worker_plan(u0.metrics, _options(u0), settings)
+    task = _remote(_unit_task, settings)
+    pending: dict[Any, tuple[WorkUnit, set[str]]] = {}
+    skipped = 0
+    for u in units:
+        keys = set(unit_keys(u, plan))
+        if keys <= done:
+            skipped += len(u.tests)
+            continue
+        ref = task.remote(u.to_dict(), sorted(keys & done), settings.cpus_per_unit)
+        pending[ref] = (u, keys)
+    summary.submitted = len(pending)
+    summary.skipped = skipped
+    appender = Appender(out)
+    bar = tqdm(total=sum(len(u.tests) for u in units), initial=skipped, desc="cgvqm batch (ray)",
+               unit="video", disable=not progress)
+    try:
+        for (u, keys), result, why in as_completed(pending, settings):
+            bar.update(len(u.tests))
+            if result is not None and not {r["key"] for r in result["rows"]} <= keys:
+                why = (f"node {result['node']} computed other resume keys than the first "
+                       "worker (a different backbone, weights or torch version there); its "
+                       "rows are not written")
+            if why is not None:
+                summary.failed.append(f"{u.reference_id}: {why}")
+                log.info("work unit %s failed: %s", u.reference_id, why)
+                continue
+            assert result is not None
+            rows = result["rows"]
+            appender.write(rows)
+            scored = {r["stimulus"] for r in rows}
+            summary.scored += len(scored)
+            summary.skipped += len(u.tests) - len(scored)
+            summary.rows += len(rows)
+            summary.unit_seconds[u.reference_id] = result["seconds"]
+            summary.nodes.add(result["node"])
+            for r in rows:
+                done.add(r["key"])
+                if r["note"] and r["metric"] not in summary.not_applicable:
+                    summary.not_applicable.append(r["metric"])
+    finally:
+        bar.close()
+        appender.close()
+    return summary
+
+
+def _absolute(path: str | None) -> str | None:
+    return os.path.abspath(path) if path and Path(path).exists() else path
+
+
+def absolute_options(options: MetricOptions) -> MetricOptions:
+    """The options with every local file (weights, backbone, learned weights) as an absolute
+    path, so that workers, whose working folder differs, find the same files."""
+    return replace(options, weights=_absolute(options.weights),
+                   backbone=_absolute(options.backbone),
+                   learned_weights={k: str(_absolute(v))
+                                    for k, v in options.learned_weights.items()},
+                   learned_dirs=tuple(str(_absolute(d)) for d in options.learned_dirs))
+
+
+def _options(unit: WorkUnit) -> MetricOptions:
+    from .batch import options_from_dict
+
+    return options_from_dict(unit.options)
+
+
+def score_manifest(manifest: str | Path, out: str | Path, metrics: Sequence[str],
+                   options: MetricOptions, settings: RaySettings, *,
+                   include_references: bool = False, root: str | Path | None = None,
+                   group_size: int = 4, allow_resample: bool = False,
+                   on_conversion: str = "warn", progress: bool = True) -> RaySummary:
+    """:func:`cgvqm_core.batch.score_manifest` on Ray (same units, keys, rows and CSV)."""
+    read_done(Path(out))  # a file of another layout is refused before any work
+    units = manifest_units(manifest, metrics, absolute_options(options),
+                           include_references=include_references, root=root,
+                           group_size=group_size, allow_resample=allow_resample,
+                           on_conversion=on_conversion, progress=progress)
+    for u in units:  # a worker's working folder is not this one
+        u.reference = replace(u.reference, path=os.path.abspath(u.reference.path))
+        u.tests = [replace(t, path=os.path.abspath(t.path)) for t in u.tests]
+    with connected(settings):
+        return score_units(units, out, settings, progress=progress)
+
+
+# -- calibration features -------------------------------------------------------------------
+
+def feature_source(feature_args: dict[str, Any], settings: RaySettings, *,
+                   group_size: int = 4) -> Any:
+    """A calibration ``FeatureSource`` whose jobs (one per reference) run as Ray tasks.
+
+    ``feature_args`` are :func:`~cgvqm_core.calibration.pipeline.metric_features`'s keyword
+    arguments; the cache's settings come from a worker (which has the backbone). The cache
+    still writes every entry, here, as each reference comes back. Needs a connected Ray.
+    """
+    from .calibration.pipeline import FeatureSource
+
+    check_resources(settings)
+    try:
+        info = ray.get(_remote(_feature_settings_task, settings).remote(
+            feature_args, settings.cpus_per_unit))
+    except ray.exceptions.RayError as exc:
+        raise CGVQMError(f"--ray: a worker could not build the metric's network: "
+                         f"{_reason(exc, settings)}") from None
+
+    def compute(ref: str, tests: Sequence[str]) -> list[Any]:
+        raise CGVQMError("features of this source are computed by Ray tasks (its runner)")
+
+    def runner(jobs: Sequence[Any]) -> Iterator[tuple[int, list[Any]]]:
+        task = _remote(_features_task, settings)
+        pending = {task.remote(_job_dict(j), feature_args, group_size,
+                               settings.cpus_per_unit): i for i, j in enumerate(jobs)}
+        failed = []
+        for i, result, why in as_completed(pending, settings):
+            if why is not None:
+                failed.append(f"{jobs[i].label}: {why}")
+                log.info("features of %s failed: %s", jobs[i].label, why)
+                continue
+            assert result is not None
+            yield i, result["arrays"]
+        if failed:
+            raise CGVQMError(f"{len(failed)} of {len(jobs)} reference(s) failed on Ray (the "
+                             "others' features are cached; rerun to retry): "
+                             + "; ".join(failed))
+
+    return FeatureSource(compute, info["settings"], info["backbone"], info["supersets"],
+                         runner=runner)
+
+
+def _job_dict(job: Any) -> dict[str, Any]:
+    return {"label": job.label, "reference": os.path.abspath(job.reference),
+            "reference_sha256": job.reference_sha256,
+            "tests": [os.path.abspath(t) for t in job.tests],
+            "test_sha256": list(job.test_sha256)}

@@ -1,0 +1,86 @@
+"""The ``--ray`` options of ``cgvqm batch`` and ``cgvqm calibrate``, without importing Ray.
+
+Ray is an optional extra (``[cluster]``): these options are parsed and checked here, and
+:mod:`cgvqm_core.distributed` (which imports Ray) is loaded only when ``--ray`` is given, so
+that a missing Ray is one line naming the extra rather than a failure of every command.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from types import ModuleType
+
+from stimuli_manifests.extras import explain_missing
+
+from .errors import CGVQMError
+
+#: ``--ray`` without an address: start a Ray instance on this machine
+LOCAL = "local"
+
+
+@dataclass(frozen=True)
+class RaySettings:
+    """Where the work units run and what each one asks the cluster for."""
+
+    address: str = LOCAL  # LOCAL, "auto" (the cluster this node belongs to) or HOST:PORT
+    cpus_per_unit: int = 1  # also the unit's torch threads
+    gpus_per_unit: float = 0.0  # 0 on CPU; 1 (or a fraction to share a GPU) with cuda
+    max_retries: int = 3  # tries after a worker dies (a crash, an out-of-memory kill)
+
+
+def add_ray_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("many machines (Ray; needs the [cluster] extra)")
+    g.add_argument("--ray", nargs="?", const=LOCAL, metavar="ADDRESS",
+                   help="run one reference (with all its test videos) per Ray task: without "
+                        "ADDRESS on a Ray instance started here; 'auto' or HOST:PORT joins a "
+                        "running cluster (`ray start --head`). Every node must see the videos "
+                        "at the same paths; this machine writes the results")
+    g.add_argument("--ray-cpus-per-unit", type=int, default=1, metavar="N",
+                   help="CPUs each task reserves, and its PyTorch threads (default 1)")
+    g.add_argument("--ray-gpus-per-unit", type=float, metavar="G",
+                   help="GPUs each task reserves with --device cuda (default 1; a fraction "
+                        "such as 0.5 puts two tasks on one GPU)")
+    g.add_argument("--ray-retries", type=int, default=3, metavar="N",
+                   help="times a task is rerun after its worker died (default 3)")
+
+
+def ray_settings(args: argparse.Namespace, device: str) -> RaySettings | None:
+    """The checked settings, or None without ``--ray``."""
+    if args.ray is None:
+        if args.ray_gpus_per_unit is not None:
+            raise CGVQMError("--ray-gpus-per-unit needs --ray")
+        return None
+    address = args.ray.strip()
+    if not address:
+        raise CGVQMError("--ray ADDRESS is empty; give 'auto', HOST:PORT, or no address")
+    if args.ray_cpus_per_unit < 1:
+        raise CGVQMError(f"--ray-cpus-per-unit must be at least 1, got {args.ray_cpus_per_unit}")
+    if args.ray_retries < 0:
+        raise CGVQMError(f"--ray-retries must be 0 or more, got {args.ray_retries}")
+    kind, _, index = device.partition(":")
+    if kind == "cuda":
+        if index:
+            raise CGVQMError(f"with --ray give --device cuda, not {device}: Ray gives each "
+                             "task its GPU(s)")
+        gpus = 1.0 if args.ray_gpus_per_unit is None else args.ray_gpus_per_unit
+        if gpus <= 0:
+            raise CGVQMError(f"--ray-gpus-per-unit must be above 0 with --device cuda, "
+                             f"got {gpus:g}")
+    else:
+        if args.ray_gpus_per_unit:
+            raise CGVQMError("--ray-gpus-per-unit needs --device cuda")
+        gpus = 0.0
+    return RaySettings(address, args.ray_cpus_per_unit, gpus, args.ray_retries)
+
+
+def load_distributed() -> ModuleType:
+    """:mod:`cgvqm_core.distributed`, or the one-line error naming the ``[cluster]`` extra."""
+    try:
+        from . import distributed
+    except ModuleNotFoundError as exc:
+        missing = explain_missing(exc, what="--ray")
+        if missing is None:
+            raise
+        raise missing from None
+    return distributed

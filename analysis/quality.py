@@ -196,8 +196,8 @@ def _flags(row: pd.Series, min_completeness: float | None) -> list[str]:
         out.append("vsync off")
     if row.get("timing_mode") and "paced" in str(row.get("timing_mode")):
         out.append(f"timing mode {row['timing_mode']} (no vsync; pilot only)")
-    if row.get("preflight_skipped") is True:
-        out.append("pre-flight skipped")
+    if row.get("preflight_skipped") is True and "simulated" not in str(row.get("timing_mode")):
+        out.append("pre-flight skipped")  # a simulated rater has no display to check
     pres, drops = row.get("presentations"), row.get("trials_with_drops")
     if pres and drops is not None and np.isfinite(drops) and pres > 0 and \
             drops / pres > t["dropped_trials"]:

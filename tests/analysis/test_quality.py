@@ -4,6 +4,7 @@ pre-flight, dropped frames, re-queued trials, viewing time) and how they agree, 
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from analysis.inputs import load_ratings, ratings_from_frame
@@ -94,3 +95,12 @@ def test_agreement_figures_from_ratings_alone() -> None:
     refs = st.ratings[(st.ratings["participant"] == "P01") & st.ratings["is_hidden_reference"]]
     assert hid[s] == pytest.approx(refs["rating"].mean())
     assert np.isfinite(q["repeat_r"]).all()
+
+
+def test_a_simulated_session_is_not_flagged_for_its_missing_pre_flight() -> None:
+    from analysis.quality import _flags
+
+    real = pd.Series({"preflight_skipped": True, "timing_mode": "vsync"})
+    simulated = pd.Series({"preflight_skipped": True, "timing_mode": "simulated"})
+    assert _flags(real, None) == ["pre-flight skipped"]
+    assert _flags(simulated, None) == []

@@ -529,7 +529,8 @@ def write_html(a: Analysis, out: Path, figures: dict[str, tuple[Path, str]],
                  + _table_html(a.dmos()[cols], max_rows=5000) + "</details>")
     parts.append("<h2 id='quality'>Data quality</h2><p>One row per participant with valid "
                  "ratings, also those left out. timing = the session's timing mode (vsync; "
-                 "paced-pilot when the experimenter allowed no vsync) and whether vsync was "
+                 "paced-pilot when the experimenter allowed no vsync; simulated for "
+                 "simulated raters, who have no pre-flight) and whether vsync was "
                  "on; r others = Pearson r with the mean of all other raters; repeat r = "
                  "mean r between the rater's repetitions. Flag thresholds: "
                  + esc(", ".join(f"{k} {v:g}" for k, v in THRESHOLDS.items()))

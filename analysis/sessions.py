@@ -61,8 +61,12 @@ class Session:
     @property
     def timing_mode(self) -> str:
         """``vsync`` for participant runs, ``paced-pilot`` when the experimenter allowed
-        running without vsync; empty when the session predates the setting."""
-        return str(self.settings.get("timing_mode") or "")
+        running without vsync, ``simulated`` for ``cgvq-study simulate``'s raters (no
+        display); empty when the session predates the setting."""
+        mode = self.settings.get("timing_mode")
+        if not mode and self.settings.get("simulated"):
+            return "simulated"
+        return str(mode or "")
 
     @property
     def vsync(self) -> bool | None:

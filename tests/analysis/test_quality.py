@@ -104,3 +104,14 @@ def test_a_simulated_session_is_not_flagged_for_its_missing_pre_flight() -> None
     simulated = pd.Series({"preflight_skipped": True, "timing_mode": "simulated"})
     assert _flags(real, None) == ["pre-flight skipped"]
     assert _flags(simulated, None) == []
+
+
+def test_simulated_sessions_say_so_in_their_timing_mode() -> None:
+    from analysis.sessions import Session
+
+    fields = {f: None for f in Session.__dataclass_fields__}
+    rec = Session(**{**fields, "settings": {"simulated": True}})
+    assert rec.timing_mode == "simulated"
+    rec = Session(**{**fields, "settings": {"simulated": True, "timing_mode": "vsync"}})
+    assert rec.timing_mode == "vsync"
+    assert Session(**{**fields, "settings": {}}).timing_mode == ""

@@ -1,6 +1,6 @@
 """Session files in: which belong to the study, which do not, and what each participant did.
 
-Session files are read only through :mod:`study_app.session`: :func:`session_sources` finds
+Session files are read only through :mod:`session_store`: :func:`session_sources` finds
 them in files, folders and exported zips (checked against their checksums), and
 :func:`read_session` reads each in one read transaction, WAL included. Before any rating is
 used, every session is checked against the manifest: a withdrawn session, a session of another
@@ -30,9 +30,9 @@ SESSION_SUFFIXES = (".sqlite",)
 
 def _store():
     try:  # the one allowed arrow into the study app: its session-store package
-        from study_app import session as store
+        import session_store as store
     except ImportError as exc:  # pragma: no cover - the study app ships with the toolkit
-        raise AnalysisError(f"session files need study_app.session ({exc})") from None
+        raise AnalysisError(f"session files need session_store ({exc})") from None
     return store
 
 

@@ -133,10 +133,10 @@ def run_one(fps: int, seconds: float, size: int, workdir: Path, *, harden: bool 
             ) -> dict:
     from flip_probe import Canary, FlipProbe
 
+    from session_store import SessionStore
+    from session_store.study_folder import load_study
     from study_app import realtime
     from study_app.app import RunOptions, run_study
-    from study_app.session import SessionStore
-    from study_app.study import load_study
 
     study = load_study(make_study(workdir / f"study{fps}", fps, size, 3.0))
     probe = FlipProbe().install()

@@ -25,11 +25,11 @@ from typing import ClassVar
 
 import numpy as np
 
+from session_store.invite import read_invites
 from stimuli_manifests import fill_checksums, load_manifest, parse_manifest, save_manifest
 from study_app.remote import ServerClient
-from study_app.remote.invite import read_invites
-from study_app.server.operations import invite
 from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
+from study_server.operations import invite
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -70,7 +70,7 @@ class TimedClient(ServerClient):
 
 def serve(study: Path) -> tuple[subprocess.Popen, str]:
     env = {**os.environ, "PYTHONPATH": str(REPO), "CGVQ_ADMIN_TOKEN": "bench-admin-token-0123"}
-    proc = subprocess.Popen([sys.executable, "-m", "study_app.cli", "serve", str(study),
+    proc = subprocess.Popen([sys.executable, "-m", "cgvq_cli.study_cli", "serve", str(study),
                              "--port", "0", "--stats-every", "30", "--rate", "1000",
                              "--burst", "1000"], env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)

@@ -27,7 +27,7 @@ def _launch(module: str, prog: str, extra: str | None) -> int:
 
 
 def study() -> None:
-    sys.exit(_launch("study_app.cli", "cgvq-study", None))
+    sys.exit(_launch("cgvq_cli.study_cli", "cgvq-study", None))
 
 
 def analyze() -> None:

@@ -12,7 +12,7 @@ across test videos, error-map videos and safe weight loading.
 import os
 import sys
 
-__version__ = "0.1.0"
+from .version import __version__
 
 # Large CPU tensors on transparent huge pages: the metric allocates many activations of tens
 # of MB, and first-touch page faults otherwise cost as much as the arithmetic on them. Only

@@ -44,19 +44,6 @@ EXTRA_COLUMNS = ("note", "reference_sha256", "stimulus_sha256", "versions", "key
 SCORE_COLUMNS = SCORES.header([*SCORES.optional, *EXTRA_COLUMNS])
 
 
-def metric_name(metric: Any) -> str:
-    """CGVQM's metric name: ``cgvqm-2`` / ``cgvqm-5`` for the published weights; other
-    weights get a suffix, and seamless tiling (not upstream-identical) adds ``-seamless``."""
-    w = metric.weights
-    if w.kind == "upstream-pickle":
-        name = metric.variant
-    elif w.kind == "uniform":
-        name = f"{metric.variant}-uniform"
-    else:
-        name = f"{metric.variant}-{Path(w.source).stem}"
-    return f"{name}-seamless" if metric.seamless else name
-
-
 @dataclass(frozen=True)
 class InputFile:
     """A video of a work unit: its manifest id, path and sha256."""
@@ -107,7 +94,8 @@ def options_from_dict(d: dict[str, Any]) -> MetricOptions:
 
 # -- keys and rows ------------------------------------------------------------------------
 
-def _canonical(obj: Any) -> str:
+def canonical_json(obj: Any) -> str:
+    """One JSON text per value (sorted keys, no spaces): what resume keys are hashes of."""
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
 
 
@@ -124,7 +112,7 @@ def row_key(identity: dict[str, Any], pooling: str | None, ref: InputFile, test:
     doc = {**identity, "pooling": pooling or "", "reference": ref.id,
            "reference_sha256": ref.sha256, "stimulus": test.id, "stimulus_sha256": test.sha256,
            "alignment": alignment}
-    return hashlib.sha256(_canonical(doc).encode()).hexdigest()
+    return hashlib.sha256(canonical_json(doc).encode()).hexdigest()
 
 
 def _poolings(s: Scorer, options: MetricOptions) -> list[str | None]:
@@ -162,9 +150,9 @@ def _row(stimulus: str, reference: str, m: MetricScore, ident: dict[str, Any], k
         # a scorer's hashes come with each result (CGVQM) or from its provenance (peers)
         **{k: m.extra.get(k, ident["provenance"].get(k, ""))
            for k in ("backbone", "backbone_sha256", "weights_sha256")},
-        "settings": _canonical(settings), "note": m.note,
+        "settings": canonical_json(settings), "note": m.note,
         "reference_sha256": ref_sha, "stimulus_sha256": test_sha,
-        "versions": _canonical(prov), "key": key,
+        "versions": canonical_json(prov), "key": key,
     }
 
 

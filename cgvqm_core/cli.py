@@ -17,10 +17,10 @@ from typing import Any
 
 from stimuli_manifests.cli_runner import run_command
 
-from . import __version__
 from .errors import CGVQMError
 from .metric import quality_label
-from .ray_options import add_ray_arguments, load_distributed, ray_settings
+from .ray_options import add_ray_arguments, ray_settings
+from .version import __version__
 
 
 def _add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = False) -> None:
@@ -302,7 +302,7 @@ def _cmd_score(args: argparse.Namespace) -> int:
         if args.emap:
             print(f"error map written to {args.emap}")
     if args.csv:
-        from .batch import metric_name
+        from .metrics.cgvqm_entry import metric_name
 
         read_done(Path(args.csv))  # refuses a file with other columns
         app = Appender(Path(args.csv))
@@ -319,16 +319,19 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     from .batch import score_manifest
     from .metrics import parse_metric_list
 
-    cluster = ray_settings(args, args.device)
-    distributed = load_distributed() if cluster else None  # no Ray: say so before any work
+    cluster = ray_settings(args, args.device)  # no Ray: says so before any work
     requested = [args.metrics] if args.metrics else []
     requested += list(args.variant or [])
     pools = list(dict.fromkeys(args.pool or ["max"]))
     options = _options(args, pools)
     names = parse_metric_list(requested or ["cgvqm-2"], options)
     _threads(args)
-    run = score_manifest if distributed is None else partial(distributed.score_manifest,
-                                                             settings=cluster)
+    if cluster is None:
+        run = score_manifest
+    else:
+        from .distributed import score_manifest as score_on_ray
+
+        run = partial(score_on_ray, settings=cluster)
     s = run(args.manifest, args.out, names, options,
             include_references=args.include_references, root=args.root,
             group_size=args.group_size, allow_resample=args.allow_resample,
@@ -337,7 +340,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
           f"({', '.join(names)})")
     for name in s.not_applicable:
         print(f"{name}: not applicable at this stimulus size (rows written without a score)")
-    if distributed is not None:
+    if cluster is not None:
         print(f"ray: {s.submitted} of {s.units} work unit(s) run on {len(s.nodes)} node(s)")
         if s.failed:
             raise CGVQMError(s.failure_message(args.out))

@@ -32,7 +32,6 @@ import ray
 import ray.exceptions
 from tqdm.auto import tqdm
 
-from stimuli_manifests import sha256_path
 from stimuli_manifests.cli_runner import one_line
 from stimuli_manifests.errors import ToolkitError
 
@@ -40,7 +39,7 @@ from .batch import (
     Appender,
     BatchSummary,
     WorkUnit,
-    _canonical,
+    canonical_json,
     manifest_units,
     read_done,
     run_unit,
@@ -127,7 +126,7 @@ def check_resources(settings: RaySettings) -> int:
     return sum(per_node)
 
 
-def _remote(fn: Callable[..., Any], settings: RaySettings) -> Any:
+def as_task(fn: Callable[..., Any], settings: RaySettings) -> Any:
     """``fn`` as a Ray task with the unit's resources; errors raised by our code are not
     retried (they would fail again), a dead worker is (``max_retries``)."""
     return ray.remote(fn).options(
@@ -140,7 +139,7 @@ def _remote(fn: Callable[..., Any], settings: RaySettings) -> Any:
 _BUILT: dict[str, Any] = {}  # the last scorers / feature source built in this worker process
 
 
-def _reuse(key: str, build: Callable[[], T]) -> T:
+def reuse_in_worker(key: str, build: Callable[[], T]) -> T:
     """Build once per worker process (a worker runs many units with the same settings)."""
     if key not in _BUILT:
         _BUILT.clear()
@@ -148,7 +147,7 @@ def _reuse(key: str, build: Callable[[], T]) -> T:
     return _BUILT[key]
 
 
-def _start_task(label: str, cpus: int) -> float:
+def start_task(label: str, cpus: int) -> float:
     import torch
 
     _test_fault(label)
@@ -169,7 +168,7 @@ def _test_fault(label: str) -> None:
         os.kill(os.getpid(), signal.SIGKILL)
 
 
-def _done_by(start: float) -> dict[str, Any]:
+def finished_by(start: float) -> dict[str, Any]:
     return {"seconds": time.perf_counter() - start, "node": ray.util.get_node_ip_address(),
             "pid": os.getpid()}
 
@@ -177,7 +176,7 @@ def _done_by(start: float) -> dict[str, Any]:
 def _scorers(metrics: list[str], options: dict[str, Any]) -> list[Any]:
     from .batch import options_from_dict
 
-    return _reuse(_canonical(["scorers", metrics, options]),
+    return reuse_in_worker(canonical_json(["scorers", metrics, options]),
                   lambda: build_scorers(metrics, options_from_dict(options)))
 
 
@@ -185,57 +184,16 @@ def _plan_task(metrics: list[str], options: dict[str, Any], cpus: int) -> list[A
     """Identity and poolings of each scorer, as a worker builds them (the driver's keys)."""
     from .batch import options_from_dict
 
-    _start_task("", cpus)
+    start_task("", cpus)
     return scorer_plan(_scorers(metrics, options), options_from_dict(options))
 
 
 def _unit_task(unit: dict[str, Any], done: list[str], cpus: int) -> dict[str, Any]:
     """Score one unit (inputs' sha256 checked here); its rows and how long it took."""
-    start = _start_task(unit["reference_id"], cpus)
+    start = start_task(unit["reference_id"], cpus)
     u = WorkUnit.from_dict(unit)
     rows = run_unit(u, scorers=_scorers(u.metrics, u.options), done=set(done), verify=True)
-    return {"rows": rows, **_done_by(start)}
-
-
-def _source(feature_args: dict[str, Any]) -> Any:
-    from .calibration.pipeline import metric_features
-
-    return _reuse(_canonical(["features", feature_args]),
-                  lambda: metric_features(**feature_args))
-
-
-def _feature_settings_task(feature_args: dict[str, Any], cpus: int) -> dict[str, Any]:
-    _start_task("", cpus)
-    s = _source(feature_args)
-    return {"settings": s.settings, "backbone": s.backbone, "supersets": s.supersets}
-
-
-def _features_task(job: dict[str, Any], feature_args: dict[str, Any], group_size: int,
-                   cpus: int) -> dict[str, Any]:
-    """m of one reference's test videos, computed ``group_size`` at a time as locally."""
-    start = _start_task(job["label"], cpus)
-    _verify_content([(job["reference"], job["reference_sha256"]),
-                     *zip(job["tests"], job["test_sha256"], strict=True)])
-    compute = _source(feature_args).compute
-    tests, step = list(job["tests"]), max(1, group_size)
-    arrays = [m for s in range(0, len(tests), step)
-              for m in compute(job["reference"], tests[s: s + step])]
-    return {"arrays": arrays, **_done_by(start)}
-
-
-def _verify_content(files: Sequence[tuple[str, str]]) -> None:
-    """The feature cache keys files by content: refuse a file that is not that content."""
-    from .calibration.cache import _folder_hash
-
-    for path, sha in files:
-        p = Path(path)
-        if not p.exists():
-            raise CGVQMError(f"{path}: not found on this node ({ray.util.get_node_ip_address()}"
-                             "); every node must see the videos at the same paths")
-        if sha256_path(p) != sha and not (p.is_dir() and _folder_hash(p) == sha):
-            raise CGVQMError(f"{path} on node {ray.util.get_node_ip_address()} is not the "
-                             f"file the driver hashed (sha256 {sha[:12]}...); every node must "
-                             "see the same files")
+    return {"rows": rows, **finished_by(start)}
 
 
 # -- the driver side ------------------------------------------------------------------------
@@ -261,7 +219,7 @@ def _first_line(exc: BaseException) -> str:
     return one_line(text.splitlines()[0] if text else type(exc).__name__)
 
 
-def _reason(exc: BaseException, settings: RaySettings) -> str:
+def failure_reason(exc: BaseException, settings: RaySettings) -> str:
     """One line on why a task failed: our error's message, or how its worker died."""
     if isinstance(exc, ray.exceptions.RayTaskError):
         cause = getattr(exc, "cause", None)
@@ -286,7 +244,7 @@ def as_completed(pending: dict[Any, T], settings: RaySettings
             try:
                 result, why = ray.get(ref), None
             except ray.exceptions.RayError as exc:
-                result, why = None, _reason(exc, settings)[:400]
+                result, why = None, failure_reason(exc, settings)[:400]
             yield item, result, why
 
 
@@ -296,13 +254,13 @@ def _worker_plan(metrics: Sequence[str], options: MetricOptions, settings: RaySe
     or backbone file the workers use), so keys here are the keys the workers write."""
     from .batch import options_to_dict
 
-    task = _remote(_plan_task, settings)
+    task = as_task(_plan_task, settings)
     try:
         return ray.get(task.remote(list(metrics), options_to_dict(options),
                                    settings.cpus_per_unit))
     except ray.exceptions.RayError as exc:
         raise CGVQMError(f"--ray: a worker could not build the metrics: "
-                         f"{_reason(exc, settings)}") from None
+                         f"{failure_reason(exc, settings)}") from None
 
 
 def score_units(units: Sequence[WorkUnit], out: str | Path, settings: RaySettings, *,
@@ -317,7 +275,7 @@ def score_units(units: Sequence[WorkUnit], out: str | Path, settings: RaySetting
     log.info("ray: %d task(s) at a time on this cluster", check_resources(settings))
     u0 = units[0]
     plan = _worker_plan(u0.metrics, _options(u0), settings)
-    task = _remote(_unit_task, settings)
+    task = as_task(_unit_task, settings)
     pending: dict[Any, tuple[WorkUnit, set[str]]] = {}
     skipped = 0
     for u in units:
@@ -398,54 +356,3 @@ def score_manifest(manifest: str | Path, out: str | Path, metrics: Sequence[str]
         u.tests = [replace(t, path=os.path.abspath(t.path)) for t in u.tests]
     with connected(settings):
         return score_units(units, out, settings, progress=progress)
-
-
-# -- calibration features -------------------------------------------------------------------
-
-def feature_source(feature_args: dict[str, Any], settings: RaySettings, *,
-                   group_size: int = 4) -> Any:
-    """A calibration ``FeatureSource`` whose jobs (one per reference) run as Ray tasks.
-
-    ``feature_args`` are :func:`~cgvqm_core.calibration.pipeline.metric_features`'s keyword
-    arguments; the cache's settings come from a worker (which has the backbone). The cache
-    still writes every entry, here, as each reference comes back. Needs a connected Ray.
-    """
-    from .calibration.pipeline import FeatureSource
-
-    check_resources(settings)
-    try:
-        info = ray.get(_remote(_feature_settings_task, settings).remote(
-            feature_args, settings.cpus_per_unit))
-    except ray.exceptions.RayError as exc:
-        raise CGVQMError(f"--ray: a worker could not build the metric's network: "
-                         f"{_reason(exc, settings)}") from None
-
-    def compute(ref: str, tests: Sequence[str]) -> list[Any]:
-        raise CGVQMError("features of this source are computed by Ray tasks (its runner)")
-
-    def runner(jobs: Sequence[Any]) -> Iterator[tuple[int, list[Any]]]:
-        task = _remote(_features_task, settings)
-        pending = {task.remote(_job_dict(j), feature_args, group_size,
-                               settings.cpus_per_unit): i for i, j in enumerate(jobs)}
-        failed = []
-        for i, result, why in as_completed(pending, settings):
-            if why is not None:
-                failed.append(f"{jobs[i].label}: {why}")
-                log.info("features of %s failed: %s", jobs[i].label, why)
-                continue
-            assert result is not None
-            yield i, result["arrays"]
-        if failed:
-            raise CGVQMError(f"{len(failed)} of {len(jobs)} reference(s) failed on Ray (the "
-                             "others' features are cached; rerun to retry): "
-                             + "; ".join(failed))
-
-    return FeatureSource(compute, info["settings"], info["backbone"], info["supersets"],
-                         runner=runner)
-
-
-def _job_dict(job: Any) -> dict[str, Any]:
-    return {"label": job.label, "reference": os.path.abspath(job.reference),
-            "reference_sha256": job.reference_sha256,
-            "tests": [os.path.abspath(t) for t in job.tests],
-            "test_sha256": list(job.test_sha256)}

@@ -19,12 +19,12 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from . import __version__
 from .emap import EmapRecorder, EmapVideoWriter, fit_tone_curve
 from .errors import CGVQMError
 from .features import FeatureNet, PatchScorer
 from .hub import Backbone, resolve_backbone
 from .precision import cpu_name
+from .scale_anchor import anchoring_for, apply_anchor
 from .stream import (
     StreamOutput,
     VideoInput,
@@ -34,6 +34,7 @@ from .stream import (
     reference_geometry,
     run,
 )
+from .version import __version__
 from .weights import FeatureWeights, resolve_weights
 
 log = logging.getLogger(__name__)
@@ -101,8 +102,6 @@ class CGVQMResult:
     def q_anchored(self) -> float | None:
         """q on the study's 0..100 scale, when the weights carry a calibration anchoring
         fitted for this pooling (``cgvqm calibrate``); otherwise None."""
-        from .calibration.anchoring import anchoring_for, apply_anchor
-
         weights_prov = self.provenance.get("weights", {}).get("provenance")
         anchor = anchoring_for(weights_prov, self.pool)
         return None if anchor is None else float(apply_anchor(anchor, self.q))

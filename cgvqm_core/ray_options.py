@@ -1,15 +1,16 @@
 """The ``--ray`` options of ``cgvqm batch`` and ``cgvqm calibrate``, without importing Ray.
 
-Ray is an optional extra (``[cluster]``): these options are parsed and checked here, and
-:mod:`cgvqm_core.distributed` (which imports Ray) is loaded only when ``--ray`` is given, so
-that a missing Ray is one line naming the extra rather than a failure of every command.
+Ray is an optional extra (``[cluster]``): these options are parsed and checked here, and the
+modules that import Ray (:mod:`cgvqm_core.distributed`,
+:mod:`cgvqm_core.calibration.ray_features`) are imported by the commands only when ``--ray``
+is given, after :func:`require_ray`, so that a missing Ray is one line naming the extra
+rather than a failure of every command.
 """
 
 from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass
-from types import ModuleType
 
 from stimuli_manifests.extras import explain_missing
 
@@ -46,7 +47,8 @@ def add_ray_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def ray_settings(args: argparse.Namespace, device: str) -> RaySettings | None:
-    """The checked settings, or None without ``--ray``."""
+    """The checked settings, or None without ``--ray``; with ``--ray``, Ray must be installed
+    (:func:`require_ray`)."""
     if args.ray is None:
         if args.ray_gpus_per_unit is not None:
             raise CGVQMError("--ray-gpus-per-unit needs --ray")
@@ -71,16 +73,17 @@ def ray_settings(args: argparse.Namespace, device: str) -> RaySettings | None:
         if args.ray_gpus_per_unit:
             raise CGVQMError("--ray-gpus-per-unit needs --device cuda")
         gpus = 0.0
+    require_ray()
     return RaySettings(address, args.ray_cpus_per_unit, gpus, args.ray_retries)
 
 
-def load_distributed() -> ModuleType:
-    """:mod:`cgvqm_core.distributed`, or the one-line error naming the ``[cluster]`` extra."""
+def require_ray() -> None:
+    """Refuse ``--ray`` without Ray installed, in one line naming the ``[cluster]`` extra (before
+    any work, rather than when the first task would start)."""
     try:
-        from . import distributed
+        import ray  # noqa: F401
     except ModuleNotFoundError as exc:
         missing = explain_missing(exc, what="--ray")
         if missing is None:
             raise
         raise missing from None
-    return distributed

@@ -3,7 +3,7 @@
 import multiprocessing
 import sys
 
-from study_app.cli import main
+from cgvq_cli.study_cli import main
 
 if __name__ == "__main__":
     multiprocessing.freeze_support()

@@ -32,7 +32,7 @@ HEADLESS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-us
 
 
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "study_app.cli", *args]
+    return [sys.executable, "-m", "cgvq_cli.study_cli", *args]
 
 
 def _free_port() -> int:

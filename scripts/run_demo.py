@@ -242,7 +242,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     log: list[dict] = []
 
-    res = _run("synth", [*_cli("study_app.cli"), "synth", "--out", str(study), "--size",
+    res = _run("synth", [*_cli("cgvq_cli.study_cli"), "synth", "--out", str(study), "--size",
                          str(args.size), "--seconds", str(args.seconds), "--scenes",
                          args.scenes, "--methods", args.methods, "--seed", str(args.seed),
                          "--overwrite"], log)

@@ -25,6 +25,7 @@ EXTRA_OF_MODULE: dict[str, str] = {
     "starlette": "server",
     "fastapi": "server",
     "jinja2": "server",
+    "study_server": "server",  # absent only from the frozen participant app
     "selenium": "dev",
     "flip_evaluator": "metric",
 }

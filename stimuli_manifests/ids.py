@@ -6,10 +6,23 @@ gets the same HRC number for every source, as in VQEG test plans.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import Protocol
 
-if TYPE_CHECKING:
-    from .model import Manifest
+
+class _Source(Protocol):
+    """What id assignment reads and sets on a reference (the manifest's ``Reference``)."""
+
+    id: str | None
+
+
+class _Processed(Protocol):
+    """What id assignment reads and sets on a condition (the manifest's ``Condition``)."""
+
+    id: str | None
+    reference: str
+    method: str
+    level: int
 
 
 def src_id(index: int) -> str:
@@ -30,24 +43,26 @@ def hrc_numbers(pairs: list[tuple[str, int]]) -> dict[tuple[str, int], int]:
     return numbers
 
 
-def assign_missing_ids(manifest: Manifest) -> None:
+def assign_missing_ids(references: Sequence[_Source], conditions: Sequence[_Processed]
+                       ) -> None:
     """Fill in ids the user left out; ids the user gave are kept as they are.
 
     References without an id become ``SRCnn`` (numbered by position). A condition's
     ``reference`` may name a reference by id or, when references have no ids, by its
     1-based position as ``"SRCnn"``; conditions without an id become ``<SRC>_HRCmm``.
+    Ids are set with ``object.__setattr__``, without re-running the models' validation.
     """
-    taken = {r.id for r in manifest.references if r.id is not None}
-    for i, ref in enumerate(manifest.references, start=1):
+    taken = {r.id for r in references if r.id is not None}
+    for i, ref in enumerate(references, start=1):
         if ref.id is None:
             candidate = src_id(i)
             while candidate in taken:
                 candidate += "x"
             object.__setattr__(ref, "id", candidate)
             taken.add(candidate)
-    hrcs = hrc_numbers([(c.method, c.level) for c in manifest.conditions])
-    taken |= {c.id for c in manifest.conditions if c.id is not None}
-    for cond in manifest.conditions:
+    hrcs = hrc_numbers([(c.method, c.level) for c in conditions])
+    taken |= {c.id for c in conditions if c.id is not None}
+    for cond in conditions:
         if cond.id is None:
             candidate = pvs_id(cond.reference, hrcs[(cond.method, cond.level)])
             while candidate in taken:

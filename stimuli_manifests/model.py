@@ -13,8 +13,13 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-FORMAT = "cgvq-manifest/1"
-FORMAT_NAME, FORMAT_MAJOR = "cgvq-manifest", 1
+from .formats import VersionedFormat
+from .ids import assign_missing_ids
+
+MANIFEST_FORMAT = VersionedFormat(
+    "cgvq-manifest", 1, field="manifest format", document="document",
+    advice="upgrade the toolkit or convert the manifest")
+FORMAT = MANIFEST_FORMAT.version
 
 _ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
 # Participant-facing texts a study folder may hold beside its manifest; their sha256 go into
@@ -181,21 +186,12 @@ class Manifest(_Strict):
     @field_validator("format")
     @classmethod
     def _check_format(cls, value: str) -> str:
-        name, _, major = value.partition("/")
-        if name != FORMAT_NAME or not major.isdigit():
-            raise ValueError(f"format must be {FORMAT!r}, got {value!r}")
-        if int(major) != FORMAT_MAJOR:
-            raise ValueError(
-                f"manifest format major version {major} is not supported by this version of "
-                f"the toolkit (it reads {FORMAT!r}); upgrade the toolkit or convert the manifest"
-            )
+        MANIFEST_FORMAT.check(value)  # a FormatVersionError is a ValueError: a field error
         return value
 
     @model_validator(mode="after")
     def _check_ids(self) -> Manifest:
-        from .ids import assign_missing_ids
-
-        assign_missing_ids(self)
+        assign_missing_ids(self.references, self.conditions)
         ref_ids = [r.id for r in self.references]
         dup = _duplicates(ref_ids)
         if dup:

@@ -13,16 +13,15 @@ Only the standard library is used here, so the participant's base install can wr
 from __future__ import annotations
 
 import csv
-import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from .errors import TableError
+from .formats import FormatVersionError, VersionedFormat
 
 FORMAT_COLUMN = "format"
-_VERSION = re.compile(r"^(?P<name>[a-z][a-z0-9-]*)/(?P<major>\d+)(?:\.(?P<minor>\d+))?$")
 
 
 @dataclass(frozen=True)
@@ -37,10 +36,15 @@ class TableFormat:
     what: str = ""
 
     @property
+    def versioned(self) -> VersionedFormat:
+        """The table's name and version as a :class:`VersionedFormat` (the shared check)."""
+        return VersionedFormat(self.name, self.major, self.minor, field=FORMAT_COLUMN,
+                               document="table")
+
+    @property
     def version(self) -> str:
         """The value written into the ``format`` column (``name/major`` or ``name/major.minor``)."""
-        return f"{self.name}/{self.major}" if self.minor == 0 else \
-            f"{self.name}/{self.major}.{self.minor}"
+        return self.versioned.version
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -75,15 +79,10 @@ class TableFormat:
             raise TableError(f"{source}: rows of several formats ({', '.join(sorted(seen))}); "
                              "write one file per format")
         value = seen.pop()
-        m = _VERSION.match(value)
-        if m is None or m["name"] != self.name:
-            raise TableError(f"{source}: format {value!r} is not a {self.name} table "
-                             f"(expected {self.version})")
-        if int(m["major"]) != self.major:
-            raise TableError(
-                f"{source}: format {value} is not supported by this toolkit (it reads "
-                f"{self.name}/{self.major}); use the toolkit version that wrote the file or "
-                "upgrade")
+        try:
+            self.versioned.check(value)
+        except FormatVersionError as exc:
+            raise TableError(f"{source}: {exc}") from None
         return value
 
     def check(self, columns: Sequence[str], format_values: Iterable[Any] | None,

@@ -25,13 +25,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from session_store import PlannedTrial, SessionStore, TrialResult
+from session_store.errors import StudyError
+from session_store.study_folder import BRIEFING_NAME, CONSENT_NAME, Study
 from stimuli_manifests import StimuliError, probe_video
 
 from . import __version__, realtime
 from .decode import DecodedPair, Prefetcher, decode_pair, pair_bytes
 from .display import MIN_WINDOW, PACED_PILOT, Display
 from .duration import describe_duration
-from .errors import StudyError
 from .keys import RATING, SCROLL, VIEWING, Keymap, merge
 from .layout import RatingLayout, ViewingLayout, rating_layout, text_screen_layout, viewing_layout
 from .preflight import (
@@ -48,7 +50,7 @@ from .preflight import (
 from .render import VideoTexture
 from .reveal import reveal_in_file_manager
 from .run_lock import RunLock
-from .schedule import make_schedule, participant_seed, pick_practice
+from .schedule import make_schedule, participant_seed, pick_practice, schedule_items
 from .screens import content
 from .screens.draw import (
     LABEL_REFERENCE,
@@ -61,9 +63,7 @@ from .screens.draw import (
 from .screens.markdown import parse_markdown
 from .screens.text_state import TextScreenState
 from .screens.textflow import flow_blocks
-from .session import PlannedTrial, SessionStore, TrialResult
 from .slider import Slider
-from .study import BRIEFING_NAME, CONSENT_NAME, Study
 from .trial import RATE, VIEW, Command, TrialMachine
 
 __all__ = ["Display", "OnGpu", "RunOptions", "RunOutcome", "draw_viewing", "needs_requeue",
@@ -314,7 +314,7 @@ class App:
             n_left = total - answered
         else:
             seed = self._seed()
-            plan = make_schedule(self.study.schedule_items(), self.m.protocol.repetitions, seed)
+            plan = make_schedule(schedule_items(self.m), self.m.protocol.repetitions, seed)
             first = plan[0]
             answered, total, n_left = 0, len(plan), len(plan)
         checks, geom = self._preflight(first)
@@ -500,7 +500,7 @@ class App:
 
     # -- practice and main loop -------------------------------------------------------
     def _practice(self) -> None:
-        items = pick_practice(self.study.schedule_items(), self.opts.practice,
+        items = pick_practice(schedule_items(self.m), self.opts.practice,
                               self.store.info.seed)
         min_view = self._min_view()
         self._screen(content.practice_intro(len(items), VIEWING, RATING, min_view,

@@ -15,9 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from session_store.errors import StudyError
 from stimuli_manifests import StimuliError, probe_video, read_video
-
-from .errors import StudyError
 
 log = logging.getLogger(__name__)
 

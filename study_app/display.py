@@ -18,8 +18,9 @@ import time
 import warnings
 from typing import Any
 
+from session_store.errors import StudyError
+
 from .clock import FlipPacer
-from .errors import StudyError
 from .preflight import Monitor, PixelGeometry
 from .vsync import MIN_FLIPS, RefreshEstimate, estimate_refresh
 

@@ -17,8 +17,7 @@ import zipfile
 from dataclasses import replace
 from pathlib import Path
 
-from .errors import StudyError
-from .session import (
+from session_store import (
     SessionProblem,
     VerifyReport,
     check_participant_id,
@@ -28,7 +27,8 @@ from .session import (
     verify_session,
     write_ratings_csv,
 )
-from .session.sources import CHECKSUM_MEMBER
+from session_store.errors import StudyError
+from session_store.sources import CHECKSUM_MEMBER
 
 CSV_SUFFIX = "_ratings.csv"
 

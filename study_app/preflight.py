@@ -13,9 +13,9 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from session_store.errors import StudyError
 from stimuli_manifests import DisplayRequirements, validate_manifest
 
-from .errors import StudyError
 from .vsync import RefreshEstimate
 
 # Decoding one stimulus pair must fit comfortably into the time a participant spends rating,

@@ -18,7 +18,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from .errors import StudyError
+from session_store.errors import StudyError
 
 LOCK_SUFFIX = ".lock"
 

@@ -14,8 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import StudyError
-from .session import PlannedTrial
+from session_store import PlannedTrial
+from session_store.errors import StudyError
+from stimuli_manifests import Manifest
 
 
 @dataclass(frozen=True)
@@ -25,6 +26,11 @@ class ScheduleItem:
     id: str
     reference: str
     is_hidden_reference: bool
+
+
+def schedule_items(manifest: Manifest) -> list[ScheduleItem]:
+    """Every stimulus of a manifest (hidden references included) as a schedule item."""
+    return [ScheduleItem(s.id, s.reference, s.is_hidden_reference) for s in manifest.stimuli()]
 
 
 def participant_seed(study_id: str, participant: str) -> int:

@@ -17,7 +17,7 @@ for the method's levels 1..L (level 1 = strongest distortion, severity 1), per-m
 ``A_m`` and ``gamma_m`` in :data:`QUALITY_CURVES`; hidden references get
 :data:`HIDDEN_REFERENCE_QUALITY`. Other scales are mapped linearly.
 
-Every simulated participant is one session file made by :class:`~study_app.session.SessionStore`
+Every simulated participant is one session file made by :class:`~session_store.SessionStore`
 with the app's own trial schedule, so the analysis reads it exactly like a real one. The truth
 is written beside the sessions (``ground_truth.json`` and ``ground_truth_stimuli.csv``).
 """
@@ -38,13 +38,13 @@ from typing import Any, Literal
 import numpy as np
 from tqdm.auto import tqdm
 
+from session_store import SessionStore, TrialResult
+from session_store.errors import StudyError
 from stimuli_manifests import LoadedManifest, Stimulus, load_manifest
 
 from . import __version__
-from .errors import StudyError
 from .remote import ServerClient, ServerUnavailable, Uploader, UploadStatus
 from .schedule import ScheduleItem, make_schedule
-from .session import SessionStore, TrialResult
 
 log = logging.getLogger(__name__)
 

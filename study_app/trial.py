@@ -14,8 +14,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from session_store import TrialResult, utc_now
+
 from .clock import FlipStats, blank_refreshes, frame_index, refreshes_elapsed
-from .session import TrialResult, utc_now
 from .slider import Slider
 
 VIEW, RATE = "view", "rate"

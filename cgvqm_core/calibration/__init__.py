@@ -3,8 +3,9 @@
 Pipeline: :mod:`.data` (manifest + DMOS CSV -> videos and targets), :mod:`.cache` (per-patch
 channel features, computed once, resumable), :mod:`.fitting` (the upstream objective,
 vectorised), :mod:`.splits` and :mod:`.validation` (scene-disjoint repeated splits),
-:mod:`.anchoring` (monotone map onto the 0..100 scale), :mod:`.pipeline` (all of it, to a
-weights file) and :mod:`.cli` (``cgvqm calibrate``).
+:mod:`.anchoring` (fitting the monotone map onto the 0..100 scale), :mod:`.pipeline` (all of
+it, to a weights file), :mod:`.ray_features` (the features on a Ray cluster) and :mod:`.cli`
+(``cgvqm calibrate``).
 
 Names are imported on first use, so that ``cgvqm`` can register its ``calibrate``
 subcommand without loading pandas and scipy for the other subcommands.
@@ -15,9 +16,11 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+# name -> the module that defines it, relative to this package (applying an anchoring is the
+# metric's own, one level up)
 _WHERE = {
-    "anchoring_for": "anchoring", "apply_anchor": "anchoring", "fit_anchor": "anchoring",
-    "refit_alpha": "anchoring",
+    "anchoring_for": ".scale_anchor", "apply_anchor": ".scale_anchor",
+    "fit_anchor": "anchoring", "refit_alpha": "anchoring",
     "DatasetSpec": "arguments",
     "FeatureCache": "cache", "pack": "cache",
     "load_dataset": "data", "load_datasets": "data", "read_dmos_csv": "data",

@@ -11,8 +11,8 @@ the rating scale's label at 75 means ("Perceptible but not annoying"):
    between its steps. Both are clipped to [0, 100].
 
 The map is stored with the weights (key ``anchoring`` of the provenance, format
-``cgvqm-anchor/1``) and applied with :func:`apply_anchor` to q computed with the same
-pooling.
+``cgvqm-anchor/1``) and applied to q computed with the same pooling by the metric itself
+(:func:`cgvqm_core.scale_anchor.apply_anchor`).
 """
 
 from __future__ import annotations
@@ -24,9 +24,8 @@ from scipy.optimize import isotonic_regression, least_squares
 from scipy.special import expit
 
 from ..errors import CGVQMError
+from ..scale_anchor import ANCHOR_FORMAT
 from .arguments import ANCHOR_METHODS as METHODS
-
-ANCHOR_FORMAT = "cgvqm-anchor/1"
 
 
 def refit_alpha(pooled_error: np.ndarray, target: np.ndarray) -> float:
@@ -77,30 +76,3 @@ def fit_anchor(q: np.ndarray, target: np.ndarray, method: str = "logistic", *,
             ys.append(float(fitted.x[start]))
         return {**base, "kind": "isotonic", "x": xs, "y": ys}
     raise CGVQMError(f"unknown anchoring method {method!r}; choose {' or '.join(METHODS)}")
-
-
-def apply_anchor(anchor: dict[str, Any], q: np.ndarray | float) -> np.ndarray:
-    """Map raw q through a stored anchoring (non-decreasing, result in [0, 100])."""
-    if str(anchor.get("format", "")).split("/")[0] != ANCHOR_FORMAT.split("/")[0]:
-        raise CGVQMError(f"not a score anchoring ({anchor.get('format')!r})")
-    if anchor.get("format") != ANCHOR_FORMAT:
-        raise CGVQMError(f"anchoring format {anchor.get('format')!r} is not supported "
-                         f"(this version reads {ANCHOR_FORMAT!r}); upgrade the toolkit")
-    q = np.asarray(q, dtype=np.float64)
-    if anchor["kind"] == "logistic":
-        lo, hi = anchor["lo"], anchor["hi"]
-        out = lo + (hi - lo) * expit((q - anchor["center"]) / anchor["scale"])
-    elif anchor["kind"] == "isotonic":
-        out = np.interp(q, anchor["x"], anchor["y"])
-    else:
-        raise CGVQMError(f"unknown anchoring kind {anchor['kind']!r}")
-    return np.clip(out, 0.0, 100.0)
-
-
-def anchoring_for(provenance: dict[str, Any] | None, pool: str) -> dict[str, Any] | None:
-    """The anchoring stored in a weights file's provenance, if it was fitted for ``pool``
-    (an anchoring fitted on max-pooled q does not apply to mean-pooled q)."""
-    anchor = (provenance or {}).get("anchoring")
-    if not isinstance(anchor, dict) or anchor.get("pool") != pool:
-        return None
-    return anchor

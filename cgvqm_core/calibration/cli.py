@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 from stimuli_manifests import StimuliError
 
 from ..errors import CGVQMError
-from ..ray_options import add_ray_arguments, load_distributed, ray_settings
+from ..ray_options import add_ray_arguments, ray_settings
 from .arguments import (
     ANCHOR_METHODS,
     DMOS_SCALES,
@@ -142,8 +142,7 @@ def _run(args: argparse.Namespace) -> int:
     from .pipeline import build_data, calibrate, metric_features
 
     _check(args)
-    cluster = ray_settings(args, args.device)
-    distributed = load_distributed() if cluster else None  # no Ray: say so before any work
+    cluster = ray_settings(args, args.device)  # no Ray: says so before any work
     specs = [DatasetSpec.parse(t) for t in args.dataset]
     show = not args.quiet
     # the studies first: their mistakes show before the network is built
@@ -155,15 +154,18 @@ def _run(args: argparse.Namespace) -> int:
                     "batch_size": args.batch_size, "allow_resample": args.allow_resample,
                     "on_conversion": "warn" if args.allow_convert else "error"}
     cache_root = Path(args.cache) if args.cache else default_cache()
-    if distributed is None:
+    if cluster is None:
         source = metric_features(**feature_args)
         _warn_random(source)
         data = build_data(items, source, cache_root, show_progress=show)
     else:
+        from ..distributed import connected
+        from .ray_features import feature_source
+
         if args.backbone:  # the workers' working folder is not this one
             feature_args["backbone"] = os.path.abspath(args.backbone)
-        with distributed.connected(cluster):
-            source = distributed.feature_source(feature_args, cluster)
+        with connected(cluster):
+            source = feature_source(feature_args, cluster)
             _warn_random(source)
             data = build_data(items, source, cache_root, show_progress=show)
     n_scenes = data.items.groupby("dataset")["scene"].nunique()

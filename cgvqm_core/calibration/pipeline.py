@@ -13,10 +13,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .. import __version__
 from ..errors import CGVQMError
+from ..scale_anchor import apply_anchor
+from ..version import __version__
 from ..weights import VARIANTS, FeatureWeights, save_weights
-from .anchoring import apply_anchor, fit_anchor, refit_alpha
+from .anchoring import fit_anchor, refit_alpha
 from .cache import FeatureCache, FeatureFn, JobRunner, pack
 from .data import DatasetSpec, load_datasets
 from .fitting import FitConfig, FitResult, fit, pooled_errors

@@ -19,7 +19,8 @@ import numpy as np
 import pandas as pd
 
 from ..errors import CGVQMError
-from .anchoring import apply_anchor, fit_anchor, refit_alpha
+from ..scale_anchor import apply_anchor
+from .anchoring import fit_anchor, refit_alpha
 from .fitting import FitConfig, fit, pooled_errors
 from .splits import Split, repeated_splits
 from .stats import correlations, interval

@@ -8,7 +8,8 @@ name (``-uniform``) and the ``backbone`` column (``random-seed-N``).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from .registry import (
     HIGHER,
@@ -21,6 +22,22 @@ from .registry import (
     module_available,
     register,
 )
+
+if TYPE_CHECKING:
+    from ..metric import CGVQM
+
+
+def metric_name(metric: CGVQM) -> str:
+    """CGVQM's metric name: ``cgvqm-2`` / ``cgvqm-5`` for the published weights; other
+    weights get a suffix, and seamless tiling (not upstream-identical) adds ``-seamless``."""
+    w = metric.weights
+    if w.kind == "upstream-pickle":
+        name = metric.variant
+    elif w.kind == "uniform":
+        name = f"{metric.variant}-uniform"
+    else:
+        name = f"{metric.variant}-{Path(w.source).stem}"
+    return f"{name}-seamless" if metric.seamless else name
 
 
 def _spec(variant: str, levels: str) -> MetricSpec:
@@ -47,8 +64,6 @@ class CGVQMScorer(VideoScorer):
 
     @property
     def name(self) -> str:
-        from ..batch import metric_name
-
         return metric_name(self.metric)
 
     def settings(self) -> dict[str, Any]:

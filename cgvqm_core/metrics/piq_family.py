@@ -70,7 +70,7 @@ class IQAScorer(FrameScorer):
         return {"frames": "mean", "input": "rgb01-float32"}
 
     def provenance(self) -> dict[str, Any]:
-        from .. import __version__
+        from ..version import __version__
 
         return {"implementation": f"cgvqm_core {__version__} (PIQ 0.8 definitions)"}
 

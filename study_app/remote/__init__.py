@@ -14,8 +14,9 @@ install and the frozen app stay lean. One module per concern:
 - :mod:`.admin`: the experimenter's ``pull`` of every session as received.
 """
 
+from session_store.invite import Invite, read_invite
+
 from .http import ServerClient, ServerRefused, ServerUnavailable
-from .invite import Invite, read_invite
 from .uploader import SyncResult, Uploader, UploadStatus, sync_session
 
 __all__ = [

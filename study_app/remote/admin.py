@@ -1,7 +1,7 @@
 """The experimenter's side: ``pull`` every session from the server, as received.
 
 Each participant's entries are fetched page by page and replayed into a new session file
-with :class:`~study_app.session.Replica` (which checks the chain again), so the files are
+with :class:`~session_store.Replica` (which checks the chain again), so the files are
 regular session files for ``verify`` and ``cgvq-analyze``. The server's flags travel along:
 they are printed and kept in ``server_listing.json`` beside the files.
 """
@@ -18,12 +18,13 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlencode
 
-from ..errors import StudyError
-from ..session import OutboxEntry, Replica, VerifyReport, read_session, verify_session
-from ..session.ids import check_participant_id
-from ..session.ratings_csv import write_ratings_csv
+from session_store import OutboxEntry, Replica, VerifyReport, read_session, verify_session
+from session_store.errors import StudyError
+from session_store.ids import check_participant_id
+from session_store.protocol import ADMIN_SESSIONS, admin_entries_path
+from session_store.ratings_csv import write_ratings_csv
+
 from .http import ServerClient
-from .protocol import ADMIN_SESSIONS, admin_entries_path
 
 log = logging.getLogger(__name__)
 

@@ -22,9 +22,10 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 from urllib.parse import quote
 
-from ..errors import StudyError
+from session_store.errors import StudyError
+from session_store.protocol import participant_path
+
 from .http import ServerClient, ServerUnavailable
-from .protocol import participant_path
 
 log = logging.getLogger(__name__)
 
@@ -121,7 +122,7 @@ def study_plan(client: ServerClient, participant: str, cache: str | Path) -> Dow
                       for f in info["files"])
     except (KeyError, TypeError, ValueError):
         raise StudyError("the study server's file list is malformed") from None
-    from ..session.ids import check_participant_id
+    from session_store.ids import check_participant_id
 
     try:
         check_participant_id(study_id)

@@ -20,8 +20,8 @@ from contextlib import contextmanager
 from http.client import HTTPException, HTTPResponse
 from typing import Any
 
-from ..errors import StudyError
-from .invite import check_server_url
+from session_store.errors import StudyError
+from session_store.invite import check_server_url
 
 log = logging.getLogger(__name__)
 

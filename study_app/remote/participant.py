@@ -19,10 +19,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import StudyError
+from session_store.errors import StudyError
+from session_store.invite import Invite
+
 from .download import check_disk_space, download_study, human_bytes, study_plan
 from .http import ServerClient, ServerUnavailable
-from .invite import Invite
 from .uploader import Uploader
 
 log = logging.getLogger(__name__)
@@ -113,7 +114,7 @@ def upload_report(uploader: Uploader, timeout: float = FLUSH_AT_END_S) -> tuple[
 def check_invite_args(server: str | None, participant: str | None, token: str | None,
                       invite_file: str | Path | None) -> Invite:
     """The invite from ``--invite FILE`` or ``--server/--participant/--token``."""
-    from .invite import read_invite
+    from session_store.invite import read_invite
 
     if invite_file is not None:
         if server or token:

@@ -22,15 +22,16 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
+from session_store import outbox
+from session_store.chain import canonical
+from session_store.errors import StudyError
+from session_store.protocol import CLIENT_BATCH_BYTES, MAX_BATCH_ENTRIES, PROTOCOL, participant_path
+from session_store.records import utc_now
+from session_store.replica import tables_match_outbox
+from session_store.schema import open_existing
+
 from .. import __version__
-from ..errors import StudyError
-from ..session import outbox
-from ..session.chain import canonical
-from ..session.records import utc_now
-from ..session.replica import tables_match_outbox
-from ..session.schema import open_existing
 from .http import ServerClient, ServerRefused, ServerUnavailable
-from .protocol import CLIENT_BATCH_BYTES, MAX_BATCH_ENTRIES, PROTOCOL, participant_path
 
 log = logging.getLogger(__name__)
 

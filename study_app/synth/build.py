@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
+from session_store.errors import StudyError
 from stimuli_manifests import (
     Condition,
     DisplayRequirements,
@@ -31,7 +32,6 @@ from stimuli_manifests import (
     write_video,
 )
 
-from ..errors import StudyError
 from .color import to_display
 from .denoise import atrous_denoise
 from .interpolate import interpolate_frames

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..errors import StudyError
+from session_store.errors import StudyError
 
 # Scenes rendered when the user names none (the GLSL programs in shaders/).
 DEFAULT_SCENES = ("colonnade", "lattice")

@@ -14,9 +14,8 @@ from importlib import resources
 
 import numpy as np
 
+from session_store.errors import StudyError
 from shaders import shader_source
-
-from ..errors import StudyError
 
 log = logging.getLogger(__name__)
 

@@ -31,13 +31,13 @@ def write_session(path: Path, rows, *, study_id: str, manifest_sha256: str | Non
                   dropped: dict[int, int] | None = None, viewing_ms: float = 4000.0,
                   withdraw: bool = False, finish: bool = True, session_id: str | None = None,
                   created_at: str | None = None) -> Path:
-    """A real session file (through study_app.session) holding ``rows`` of one participant.
+    """A real session file (through session_store) holding ``rows`` of one participant.
 
     ``all_trials``: (stimulus, reference, repetition, is_hidden) of the whole plan; the rows
     answered come first, the rest stay unanswered (a partial session). ``requeue``: answer
     positions whose first attempt is re-queued; ``dropped``: position -> dropped frames.
     """
-    session = pytest.importorskip("study_app.session")
+    session = pytest.importorskip("session_store")
     answered = [(r.stimulus, r.reference, int(r.repetition), bool(r.is_hidden_reference))
                 for r in rows.itertuples()]
     rest = [t for t in (all_trials or []) if (t[0], t[2]) not in {(a[0], a[2])

@@ -19,7 +19,7 @@ from stimuli_manifests import load_manifest, save_manifest
 
 from .conftest import write_session
 
-pytest.importorskip("study_app.session")
+pytest.importorskip("session_store")
 
 
 def _trials(manifest) -> list[tuple[str, str, int, bool]]:

@@ -91,11 +91,11 @@ def test_repetition_column_optional() -> None:
 
 
 # -- session files ---------------------------------------------------------------------------
-session = pytest.importorskip("study_app.session")
+session = pytest.importorskip("session_store")
 needs_writer = pytest.mark.skipif(
     not all(hasattr(session, n) for n in ("SessionStore", "PlannedTrial", "TrialResult",
                                            "read_ratings")),
-    reason="study_app.session lacks the agreed writer/reader API")
+    reason="session_store lacks the agreed writer/reader API")
 
 
 def _write_session(path: Path, participant: str, votes: dict[tuple[str, int], float],

@@ -24,7 +24,7 @@ from stimuli_manifests import load_manifest, parse_manifest, save_manifest
 
 from .conftest import write_session
 
-pytest.importorskip("study_app.session")
+pytest.importorskip("session_store")
 
 ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts" / "analysis"
 

@@ -16,7 +16,7 @@ from stimuli_manifests import load_manifest, save_manifest
 
 from .conftest import write_session
 
-pytest.importorskip("study_app.session")
+pytest.importorskip("session_store")
 
 
 @pytest.fixture(scope="module")

@@ -168,7 +168,7 @@ class AppDriver:
         stack cannot be imported, as in the participant's base install)."""
         self.env = env
         if command is None:
-            command = [sys.executable, "-m", "study_app.cli"]
+            command = [sys.executable, "-m", "cgvq_cli.study_cli"]
             env = {**env, "PYTHONPATH": f"{LEAN_SITE}{os.pathsep}{REPO}"}
         self.proc = subprocess.Popen(
             [*command, "-v", "run", *args], env=env, stdout=subprocess.PIPE,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from study_app.cli import main
+from cgvq_cli.study_cli import main
 
 
 def _one_line_error(capsys) -> str:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from study_app.session import read_session, verify_session
+from session_store import read_session, verify_session
 
 pytestmark = [pytest.mark.gui, pytest.mark.slow]
 

@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cgvq_cli.study_cli import main as cli_main
+from session_store import SessionStore, read_ratings, verify_session
 from stimuli_manifests import load_manifest, read_video
-from study_app.cli import main as cli_main
-from study_app.session import SessionStore, read_ratings, verify_session
 
 pytestmark = pytest.mark.gui
 
@@ -158,7 +158,7 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory, app_driver):
     app.key("space")
     app.wait("viewing trial=2")
     second = subprocess.run(
-        [sys.executable, "-m", "study_app.cli", "run", *args],
+        [sys.executable, "-m", "cgvq_cli.study_cli", "run", *args],
         env={**xdisplay, "PYTHONPATH": str(REPO)}, capture_output=True, text=True, timeout=60)
     assert second.returncode == 2
     assert second.stderr.count("\n") == 1 and "already has a run open" in second.stderr

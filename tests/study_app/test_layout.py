@@ -10,6 +10,7 @@ import itertools
 
 import pytest
 
+from session_store.study_folder import load_study
 from study_app.fonts import Fonts
 from study_app.layout import (
     GAP,
@@ -22,7 +23,7 @@ from study_app.preflight import Monitor, PixelGeometry, check_pixel_mapping
 from study_app.screens.draw import LABEL_REFERENCE, LABEL_TEST
 from study_app.screens.markdown import parse_markdown
 from study_app.screens.textflow import flow_blocks
-from study_app.study import check_study, load_study
+from study_app.study_check import check_study
 
 WINDOWS = [(800, 600), (1024, 768), (1280, 720), (1280, 1024), (1366, 768), (1440, 900),
            (1920, 1080), (1920, 1200), (2560, 1440), (3840, 2160), (1080, 1920)]

@@ -22,7 +22,7 @@ def lean_env(**extra: str) -> dict[str, str]:
 
 
 def study(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "study_app.cli", *args], env=lean_env(),
+    return subprocess.run([sys.executable, "-m", "cgvq_cli.study_cli", *args], env=lean_env(),
                           capture_output=True, text=True, timeout=120, cwd=cwd)
 
 
@@ -41,19 +41,19 @@ def test_help_works_without_the_research_stack(command):
 
 
 def test_participant_commands_work_without_the_research_stack(tiny_study, tmp_path):
-    from study_app.session import SessionStore, TrialResult
+    from session_store import SessionStore, TrialResult
 
     check = study("check", str(tiny_study))
     assert check.returncode == 0, check.stderr
     assert "OK" in check.stdout
-    from study_app.schedule import make_schedule
-    from study_app.study import load_study
+    from session_store.study_folder import load_study
+    from study_app.schedule import make_schedule, schedule_items
 
     s = load_study(tiny_study)
     path = tiny_study / "sessions" / "P01.sqlite"
     with SessionStore.create(path, participant="P01", study_id=s.manifest.study_id,
                              manifest_sha256=s.loaded.sha256, seed=1, app_version="t",
-                             plan=make_schedule(s.schedule_items(), 1, 1)) as store:
+                             plan=make_schedule(schedule_items(s.manifest), 1, 1)) as store:
         store.record(0, TrialResult(rating=50.0, rt_ms=1.0, n_toggles=0, ms_on_reference=0.0,
                                     ms_on_test=1.0, presented_at="2026-01-01T00:00:00.000Z"))
     export = study("export", str(path), "--csv", "r.csv", cwd=tmp_path)

@@ -7,8 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from study_app.errors import StudyError
-from study_app.session import (
+from session_store import (
     ContradictionError,
     PlannedTrial,
     Replica,
@@ -18,10 +17,11 @@ from study_app.session import (
     tables_match_outbox,
     verify_session,
 )
-from study_app.session.chain import canonical, normalise_row, row_hash
-from study_app.session.outbox import OutboxEntry, entry_hash, read_entries
-from study_app.session.replica import _dump
-from study_app.session.schema import open_existing
+from session_store.chain import canonical, normalise_row, row_hash
+from session_store.errors import StudyError
+from session_store.outbox import OutboxEntry, entry_hash, read_entries
+from session_store.replica import _dump
+from session_store.schema import open_existing
 
 
 def _result(v: float, dropped: int = 0) -> TrialResult:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from session_store.errors import StudyError
 from stimuli_manifests import DisplayRequirements
 from study_app.display import (
     DPI_PER_MONITOR_AWARE,
@@ -13,7 +14,6 @@ from study_app.display import (
     DPI_UNAWARE,
     windows_stretches,
 )
-from study_app.errors import StudyError
 from study_app.preflight import (
     Monitor,
     PixelGeometry,

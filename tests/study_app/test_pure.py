@@ -7,8 +7,8 @@ from collections import Counter
 
 import pytest
 
+from session_store.errors import StudyError
 from study_app.clock import FlipPacer, FlipStats, blank_refreshes, frame_index
-from study_app.errors import StudyError
 from study_app.schedule import ScheduleItem, make_schedule, participant_seed, pick_practice
 from study_app.slider import Slider
 
@@ -164,8 +164,8 @@ def test_slider_keys_fine_and_coarse_and_clamped():
 
 
 def test_requeue_policy():
+    from session_store import PlannedTrial
     from study_app.app import needs_requeue
-    from study_app.session import PlannedTrial
 
     first = PlannedTrial(3, "S", "R", 1, False)
     again = PlannedTrial(9, "S", "R", 1, False, requeue_of=3)

@@ -14,16 +14,16 @@ from pathlib import Path
 
 import pytest
 
-from study_app.cli import main
-from study_app.errors import StudyError
-from study_app.export import export_session, verify_many
-from study_app.session import (
+from cgvq_cli.study_cli import main
+from session_store import (
     PlannedTrial,
     SessionStore,
     TrialResult,
     read_session,
     verify_session,
 )
+from session_store.errors import StudyError
+from study_app.export import export_session, verify_many
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -44,7 +44,7 @@ def _store(path: Path, participant: str = "P01", n: int = 6) -> SessionStore:
 
 KILLED_WRITER = """
 import os, signal, sys
-from study_app.session import PlannedTrial, SessionStore, TrialResult
+from session_store import PlannedTrial, SessionStore, TrialResult
 path, n, skip_checkpoint = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "1"
 store = SessionStore.open(path)
 if skip_checkpoint:  # what the app did before every write was checkpointed

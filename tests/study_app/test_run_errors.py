@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from study_app.cli import main
+from cgvq_cli.study_cli import main
 
 
 def _refused(capsys, study, *args: str) -> str:

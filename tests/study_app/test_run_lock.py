@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from study_app.cli import main
-from study_app.errors import StudyError
+from cgvq_cli.study_cli import main
+from session_store.errors import StudyError
 from study_app.run_lock import RunLock, lock_path_for, read_holder
 
 REPO = Path(__file__).resolve().parents[2]

@@ -13,8 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from study_app.errors import StudyError
-from study_app.session import (
+from session_store import (
     RATINGS_COLUMNS,
     SCHEMA_VERSION,
     PlannedTrial,
@@ -24,6 +23,7 @@ from study_app.session import (
     read_ratings,
     verify_session,
 )
+from session_store.errors import StudyError
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -192,7 +192,7 @@ CHILD = textwrap.dedent(
     """
     import sys, time
     from pathlib import Path
-    from study_app.session import PlannedTrial, SessionStore, TrialResult
+    from session_store import PlannedTrial, SessionStore, TrialResult
     path = Path(sys.argv[1])
     plan = [PlannedTrial(i, f"S{i % 5}", "R", i // 5 + 1, False) for i in range(40)]
     if path.exists():

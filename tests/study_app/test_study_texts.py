@@ -6,6 +6,8 @@ import hashlib
 
 import pytest
 
+from cgvq_cli.study_cli import main
+from session_store.study_folder import load_study
 from stimuli_manifests import (
     StimuliError,
     fill_checksums,
@@ -14,9 +16,8 @@ from stimuli_manifests import (
     save_manifest,
     validate_manifest,
 )
-from study_app.cli import main
 from study_app.preflight import check_checksums
-from study_app.study import check_study, load_study
+from study_app.study_check import check_study
 
 
 def _sha(data: bytes) -> str:

@@ -38,7 +38,7 @@ def test_same_seed_same_bytes_other_seed_other_noise(egl, tmp_path, tiny_study, 
 
 
 def test_existing_study_is_not_overwritten_silently(egl, tiny_study):
-    from study_app.errors import StudyError
+    from session_store.errors import StudyError
 
     with pytest.raises(StudyError, match="--overwrite"):
         synthesize(tiny_study.parent, SynthOptions(width=16, height=16, seconds=0.1,
@@ -46,7 +46,7 @@ def test_existing_study_is_not_overwritten_silently(egl, tiny_study):
 
 
 def _cli(*args):
-    return subprocess.run([sys.executable, "-m", "study_app.cli", *args],
+    return subprocess.run([sys.executable, "-m", "cgvq_cli.study_cli", *args],
                           capture_output=True, text=True, timeout=300)
 
 

@@ -9,10 +9,10 @@ import sys
 import numpy as np
 import pytest
 
+from session_store import read_info, read_ratings, verify_session
+from session_store.errors import StudyError
 from stimuli_manifests import parse_manifest, save_manifest
-from study_app.errors import StudyError
 from study_app.schedule import ScheduleItem, make_schedule
-from study_app.session import read_info, read_ratings, verify_session
 from study_app.simulate import SimulationOptions, simulate_panel
 
 METHODS = ("path_tracing", "vrs")
@@ -112,7 +112,7 @@ def test_existing_sessions_are_not_overwritten(manifest, tmp_path):
 
 
 def test_cli(manifest, tmp_path):
-    run = [sys.executable, "-m", "study_app.cli", "simulate", "--manifest", str(manifest),
+    run = [sys.executable, "-m", "cgvq_cli.study_cli", "simulate", "--manifest", str(manifest),
            "--out", str(tmp_path), "--no-progress"]
     res = subprocess.run([*run, "--raters", "2", "--outliers", "3"], capture_output=True,
                          text=True, timeout=120)

@@ -88,7 +88,7 @@ class LearnedScorer(FrameScorer):
         return {"frames": "mean", "input": "rgb01-float32", **self.d.settings}
 
     def provenance(self) -> dict[str, Any]:
-        from ... import __version__
+        from ...version import __version__
 
         head = self.weights[-1]
         out: dict[str, Any] = {

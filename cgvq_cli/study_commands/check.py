@@ -1,0 +1,34 @@
+"""``cgvq-study check STUDY``: is a study folder ready to send to participants?"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+NAME = "check"
+HELP = "validate a study folder (manifest, files, checksums, durations, fps, sizes)"
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("study", type=Path, help="study folder (holds manifest.json)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from session_store.study_folder import load_study
+    from study_app.study_check import check_study
+
+    study = load_study(args.study)
+    result = check_study(study, progress=True)
+    m = study.manifest
+    print(f"study {m.study_id}: {result.n_stimuli} stimuli x {m.protocol.repetitions} "
+          f"repetitions = {result.n_trials} trials; briefing "
+          f"{'yes' if study.briefing else 'no'}, consent {'yes' if study.consent else 'no'}")
+    for w in result.warnings:
+        print(f"  warning: {w}")
+    for e in result.errors:
+        print(f"  error: {e}")
+    if result.ok:
+        print("OK: the study folder is ready")
+        return 0
+    print(f"{len(result.errors)} error(s): fix them before sending the study out")
+    return 2

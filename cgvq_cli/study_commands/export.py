@@ -1,0 +1,34 @@
+"""``cgvq-study export SESSION_FILE``: the one file a participant sends back."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+NAME = "export"
+HELP = ("pack a session file into one zip to send back, <participant>_<session>.zip in the "
+        "current folder (and optionally write the ratings CSV)")
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("session", type=Path, help="the session file (<participant>.sqlite)")
+    parser.add_argument("--out", type=Path, default=None, metavar="ZIP|DIR",
+                        help="zip file or folder to write to (default: the current folder)")
+    parser.add_argument("--csv", type=Path, default=None, metavar="OUT",
+                        help="also write the tidy ratings CSV to OUT")
+
+
+def run(args: argparse.Namespace) -> int:
+    from session_store import read_session, verify_session, write_ratings_csv
+    from study_app.export import export_session
+
+    report = verify_session(args.session)
+    out = export_session(args.session, args.out)
+    if args.csv is not None:
+        rows = read_session(args.session).ratings
+        write_ratings_csv(rows, args.csv)
+        print(f"ratings CSV: {args.csv} ({len(rows)} rows)")
+    print(f"{out}  ({report.n_ratings} of {report.n_planned} ratings, {report.state.upper()})")
+    for problem in report.problems:
+        print(f"  problem: {problem}")
+    return 0

@@ -1,0 +1,77 @@
+"""``cgvq-study serve STUDY``: deliver the study, collect uploads, show the dashboard."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+NAME = "serve"
+EXTRA = "server"
+HELP = "serve a study to remote participants: downloads, live uploads, dashboard"
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("study", type=Path, help="study folder (holds manifest.json)")
+    parser.add_argument("--host", default="127.0.0.1",
+                        help="address to listen on (default 127.0.0.1; another address needs "
+                             "TLS or --insecure)")
+    parser.add_argument("--port", type=int, default=8000, help="port (default 8000; 0: any)")
+    parser.add_argument("--certfile", type=Path, default=None, help="TLS certificate (PEM)")
+    parser.add_argument("--keyfile", type=Path, default=None, help="TLS private key (PEM)")
+    parser.add_argument("--insecure", action="store_true",
+                        help="allow plain HTTP on a non-loopback address")
+    parser.add_argument("--behind-proxy", default=None, metavar="ADDRESSES",
+                        help="trust X-Forwarded-For/-Proto from these proxy addresses "
+                             "(comma-separated; e.g. 127.0.0.1) and mark cookies Secure")
+    parser.add_argument("--new-version", action="store_true",
+                        help="serve a changed manifest as a new version while sessions run on "
+                             "the old one (they finish on theirs)")
+    parser.add_argument("--stats-every", type=float, default=30.0, metavar="S",
+                        help="recompute the dashboard's statistics at most every S seconds "
+                             "(default 30)")
+    parser.add_argument("--target-raters", type=int, default=None, metavar="N",
+                        help="raters wanted per stimulus (default: everyone invited)")
+    parser.add_argument("--rate", type=float, default=10.0, metavar="R",
+                        help="requests per second per participant token (default 10)")
+    parser.add_argument("--burst", type=float, default=60.0, metavar="B",
+                        help="burst of requests per token (default 60)")
+    parser.add_argument("--no-addresses", action="store_true",
+                        help="keep no client addresses at all (default: the last one per "
+                             "participant, for spotting abuse)")
+    parser.add_argument("--max-body", type=int, default=None, metavar="BYTES",
+                        help="largest request body (default 1 MiB)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from session_store.errors import StudyError
+    from study_server.config import ServerConfig
+    from study_server.serve import Listen, serve
+
+    if args.stats_every <= 0 or args.rate <= 0 or args.burst < 1:
+        raise StudyError("--stats-every and --rate must be positive and --burst at least 1")
+    config = ServerConfig(study=args.study, new_version=args.new_version,
+                          stats_every_s=args.stats_every, target_raters=args.target_raters,
+                          rate_per_s=args.rate, burst=args.burst,
+                          secure_cookies=args.behind_proxy is not None,
+                          store_addresses=not args.no_addresses)
+    if args.max_body is not None:
+        if args.max_body < 64 * 1024:
+            raise StudyError("--max-body below 64 KiB would refuse ordinary uploads")
+        config.max_body_bytes = args.max_body
+    listen = Listen(host=args.host, port=args.port, certfile=args.certfile,
+                    keyfile=args.keyfile, insecure=args.insecure, proxy=args.behind_proxy)
+
+    def ready(url: str, token: str, created: bool) -> None:
+        print(f"serving study {args.study} at {url}", flush=True)
+        print(f"dashboard: {url}/dashboard", flush=True)
+        if created:
+            print(f"admin token (generated, kept in {args.study}/server/admin_token): {token}",
+                  flush=True)
+        else:
+            print("admin token: $CGVQ_ADMIN_TOKEN or the file server/admin_token in the study "
+                  "folder", flush=True)
+        print("stop with Ctrl-C", file=sys.stderr, flush=True)
+
+    serve(config, listen, ready)
+    return 0

@@ -1,0 +1,86 @@
+"""``cgvq-study simulate``: simulated participants with known truth, as session files, and
+optionally uploading to a study server as they rate (through the app's upload client)."""
+
+from __future__ import annotations
+
+import argparse
+import re
+
+NAME = "simulate"
+HELP = "simulate a panel of raters (SUREAL generative model) into session files"
+
+
+def _offline(text: str) -> tuple[str, float, float]:
+    m = re.fullmatch(r"([A-Za-z0-9][A-Za-z0-9._-]*):(\d+(?:\.\d+)?):(\d+(?:\.\d+)?)", text)
+    if not m or float(m.group(2)) >= float(m.group(3)):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: use PARTICIPANT:FROM:UNTIL in seconds after the start (e.g. P03:5:40)")
+    return m.group(1), float(m.group(2)), float(m.group(3))
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--manifest", required=True, help="the study's manifest.json")
+    parser.add_argument("--raters", type=int, required=True, help="number of raters")
+    parser.add_argument("--outliers", type=int, default=0,
+                        help="how many of them are outlier raters (default 0)")
+    parser.add_argument("--outlier-kind", choices=("random", "inverted", "mixed"),
+                        default="random", help="how outliers answer (default random)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the whole simulation")
+    parser.add_argument("--repetitions", type=int, default=None,
+                        help="repetitions per stimulus (default: the manifest's protocol)")
+    parser.add_argument("--out", required=True,
+                        help="folder for the session files and ground_truth.json "
+                             "(e.g. STUDY/sessions)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace sessions simulated into --out before")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    up = parser.add_argument_group("uploading to a study server")
+    up.add_argument("--server", default=None, metavar="URL",
+                    help="upload every session to this study server while rating (all raters "
+                         "at once, real times); needs --invites")
+    up.add_argument("--invites", default=None, metavar="CSV",
+                    help="the invites CSV of 'cgvq-study invite' (ids and tokens, in order)")
+    up.add_argument("--pace", type=float, default=0.0, metavar="S",
+                    help="seconds between two ratings of a rater (default 0)")
+    up.add_argument("--offline", type=_offline, action="append", default=[],
+                    metavar="ID:FROM:UNTIL",
+                    help="this rater's network is down from FROM to UNTIL seconds after the "
+                         "start (repeatable)")
+    up.add_argument("--upload-timeout", type=float, default=600.0, metavar="S",
+                    help="how long to wait at the end for every upload (default 600)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from session_store.errors import StudyError
+    from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
+
+    if args.seed < 0:
+        raise StudyError(f"--seed {args.seed}: use a non-negative integer")
+    if (args.server is None) != (args.invites is None):
+        raise StudyError("--server and --invites go together")
+    opts = SimulationOptions(raters=args.raters, outliers=args.outliers,
+                             outlier_kind=args.outlier_kind, seed=args.seed,
+                             repetitions=args.repetitions)
+    upload = None
+    if args.server is not None:
+        from session_store.invite import read_invites
+
+        invites = read_invites(args.invites)
+        if args.pace < 0:
+            raise StudyError("--pace must not be negative")
+        upload = UploadOptions(server=args.server,
+                               tokens={i.participant: i.token for i in invites},
+                               pace_s=args.pace, timeout_s=args.upload_timeout,
+                               offline={pid: (a, b) for pid, a, b in args.offline})
+    result = run_simulation(args.manifest, args.out, opts, overwrite=args.overwrite,
+                            progress=not args.no_progress, upload=upload)
+    print(f"wrote {args.raters} session files and the ground truth {result.truth_path}")
+    if upload is None:
+        return 0
+    missing = {p: s for p, s in result.upload.items() if not s.all_arrived}
+    print(f"uploaded to {args.server}: {len(result.upload) - len(missing)} of "
+          f"{len(result.upload)} sessions arrived completely")
+    for pid, st in missing.items():
+        print(f"  {pid}: {st.acked_seq} of {st.local_seq} entries arrived ({st.state}: "
+              f"{st.error})")
+    return 1 if missing else 0

@@ -1,0 +1,183 @@
+"""The session file's schema (``cgvq-session/1``) and how a file is opened.
+
+Tables
+------
+``meta(key TEXT PRIMARY KEY, value TEXT)``
+    ``schema`` = :data:`SCHEMA_VERSION`. A file whose major version differs is refused.
+``session`` (exactly one row)
+    ``session_id, participant, study_id, manifest_sha256, seed, app_version, created_at``
+    (these and the original plan form the *genesis* of the hash chain), ``settings`` (JSON:
+    protocol values in force, timing mode), ``display`` (JSON: screen, refresh rate, vsync),
+    ``preflight`` (JSON: list of check results), ``preflight_skipped`` (0/1), ``started_at``,
+    ``finished_at`` (NULL while open), ``n_ratings`` and ``head_hash`` (the last rating row's
+    hash, updated in the same transaction as the row: a removed tail is detected).
+``plan(idx INTEGER PRIMARY KEY, stimulus, reference, repetition, is_hidden_reference, requeue_of)``
+    The trial order, stored before the first trial. ``requeue_of`` is NULL for planned trials
+    and names the superseded trial for a trial re-queued (at the end) after too many dropped
+    frames.
+``ratings`` (one row per answered trial, ``trial`` unique)
+    ``seq`` (1, 2, ... in answer order), ``trial`` (the plan index), the stimulus and what was
+    measured (see :data:`CHAINED`), ``prev_hash``, ``row_hash`` (see :mod:`.chain`).
+``presentations(id, trial, outcome, details JSON, logged_at)``
+    Per trial attempt: flip-timing summary, toggles, switch latencies; ``outcome`` is
+    ``rated`` or ``requeued``.
+``events(id, at, kind, details JSON)``
+    Session events (created, consent, start, resume, pause, pre-flight, quit, withdrawn,
+    finish).
+
+SQLite runs in WAL mode with ``synchronous=FULL``; every rating is one committed transaction,
+checkpointed into the main file right after, so the ``.sqlite`` file alone holds every
+committed rating even when the process was killed before it could close.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+
+from stimuli_manifests.formats import FormatVersionError, VersionedFormat
+
+from .errors import StudyError
+
+SESSION_FORMAT = VersionedFormat("cgvq-session", 1, field="session schema")
+SCHEMA_NAME = SESSION_FORMAT.name
+SCHEMA_MAJOR = SESSION_FORMAT.major
+SCHEMA_VERSION = SESSION_FORMAT.version
+
+# Columns of the ratings table covered by the hash (everything except row_hash itself).
+CHAINED = (
+    "seq",
+    "trial",
+    "stimulus",
+    "reference",
+    "repetition",
+    "is_hidden_reference",
+    "rating",
+    "rt_ms",
+    "n_toggles",
+    "ms_on_reference",
+    "ms_on_test",
+    "slider_first_move_ms",
+    "frames_presented",
+    "dropped_frames",
+    "max_flip_interval_ms",
+    "switch_latencies_ms",
+    "presented_at",
+    "answered_at",
+    "app_version",
+    "prev_hash",
+)
+INT_COLUMNS = frozenset({
+    "seq", "trial", "repetition", "is_hidden_reference", "n_toggles", "frames_presented",
+    "dropped_frames",
+})
+REAL_COLUMNS = frozenset({
+    "rating", "rt_ms", "ms_on_reference", "ms_on_test", "slider_first_move_ms",
+    "max_flip_interval_ms",
+})
+
+DDL = """
+CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE session (
+    session_id TEXT NOT NULL, participant TEXT NOT NULL, study_id TEXT NOT NULL,
+    manifest_sha256 TEXT, seed INTEGER NOT NULL, app_version TEXT NOT NULL,
+    created_at TEXT NOT NULL, settings TEXT NOT NULL DEFAULT '{}',
+    display TEXT NOT NULL DEFAULT '{}', preflight TEXT NOT NULL DEFAULT '[]',
+    preflight_skipped INTEGER NOT NULL DEFAULT 0, started_at TEXT, finished_at TEXT,
+    n_ratings INTEGER NOT NULL DEFAULT 0, head_hash TEXT NOT NULL
+);
+CREATE TABLE plan (
+    idx INTEGER PRIMARY KEY, stimulus TEXT NOT NULL, reference TEXT NOT NULL,
+    repetition INTEGER NOT NULL, is_hidden_reference INTEGER NOT NULL,
+    requeue_of INTEGER REFERENCES plan(idx)
+);
+CREATE TABLE ratings (
+    seq INTEGER PRIMARY KEY, trial INTEGER NOT NULL UNIQUE REFERENCES plan(idx),
+    stimulus TEXT NOT NULL, reference TEXT NOT NULL, repetition INTEGER NOT NULL,
+    is_hidden_reference INTEGER NOT NULL, rating REAL NOT NULL, rt_ms REAL NOT NULL,
+    n_toggles INTEGER NOT NULL, ms_on_reference REAL NOT NULL, ms_on_test REAL NOT NULL,
+    slider_first_move_ms REAL, frames_presented INTEGER NOT NULL,
+    dropped_frames INTEGER NOT NULL, max_flip_interval_ms REAL NOT NULL,
+    switch_latencies_ms TEXT NOT NULL, presented_at TEXT NOT NULL, answered_at TEXT NOT NULL,
+    app_version TEXT NOT NULL, prev_hash TEXT NOT NULL, row_hash TEXT NOT NULL
+);
+CREATE TABLE presentations (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, trial INTEGER NOT NULL, outcome TEXT NOT NULL,
+    details TEXT NOT NULL, logged_at TEXT NOT NULL
+);
+CREATE TABLE events (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, at TEXT NOT NULL, kind TEXT NOT NULL,
+    details TEXT NOT NULL DEFAULT '{}'
+);
+"""
+
+
+def connect(path: Path, *, readonly: bool) -> sqlite3.Connection:
+    """A connection in autocommit mode (transactions are explicit).
+
+    Read-only connections see the WAL (committed ratings not yet checkpointed); only where
+    the folder cannot be written (a read-only medium) is the file opened as immutable, which
+    ignores a WAL: :func:`wal_pending_bytes` tells the reader when that loses data.
+    """
+    if readonly:
+        uri = f"{path.resolve().as_uri()}?mode=ro"
+        try:
+            con = sqlite3.connect(uri, uri=True, isolation_level=None)
+            con.execute("SELECT count(*) FROM sqlite_master").fetchone()
+        except sqlite3.OperationalError:
+            con = sqlite3.connect(f"{path.resolve().as_uri()}?immutable=1", uri=True,
+                                  isolation_level=None)
+    else:
+        con = sqlite3.connect(str(path), isolation_level=None)
+        con.execute("PRAGMA journal_mode=WAL")
+        con.execute("PRAGMA synchronous=FULL")
+        con.execute("PRAGMA foreign_keys=ON")
+    con.row_factory = sqlite3.Row
+    return con
+
+
+def check_schema(con: sqlite3.Connection, path: Path) -> None:
+    """Refuse files that are not session files or have another major schema version."""
+    try:
+        row = con.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
+    except sqlite3.DatabaseError:
+        raise StudyError(
+            f"{path} is not a cgvq-study session file (no session schema found); pass the "
+            "<participant>.sqlite file written by 'cgvq-study run' or 'simulate'"
+        ) from None
+    if row is None:
+        raise StudyError(f"{path} is not a cgvq-study session file (schema version missing)")
+    try:
+        SESSION_FORMAT.check(row[0])
+    except FormatVersionError as exc:
+        raise StudyError(f"{path}: {exc}") from None
+
+
+def open_existing(path: str | Path, *, readonly: bool) -> sqlite3.Connection:
+    """Open a session file after checking it exists and has the right schema."""
+    path = Path(path)
+    if not path.is_file():
+        raise StudyError(f"session file not found: {path}")
+    try:
+        con = connect(path, readonly=readonly)
+    except sqlite3.DatabaseError as exc:
+        raise StudyError(f"{path} is not a readable SQLite session file ({exc})") from None
+    try:
+        check_schema(con, path)
+    except StudyError:
+        con.close()
+        raise
+    except sqlite3.DatabaseError as exc:
+        con.close()
+        raise StudyError(f"{path} is not a readable SQLite session file ({exc})") from None
+    return con
+
+
+def wal_pending_bytes(path: str | Path) -> int:
+    """Size of a ``-wal`` file beside ``path`` (0 when none): committed data that may not be
+    in the main file yet. A file sent back without it can lack ratings."""
+    wal = Path(f"{path}-wal")
+    try:
+        return wal.stat().st_size
+    except OSError:
+        return 0

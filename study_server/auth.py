@@ -1,0 +1,85 @@
+"""Tokens: participants' (only their sha256 is stored) and the experimenter's admin token.
+
+The admin token comes from ``$CGVQ_ADMIN_TOKEN`` or is generated once and kept in
+``<study>/server/admin_token`` (mode 0600). The dashboard asks for it once and then keeps a
+session cookie: an expiry time signed with an HMAC keyed by the admin token, so it needs no
+server-side state, survives a restart and dies when the token changes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import os
+import secrets
+import time
+from pathlib import Path
+
+from session_store.errors import StudyError
+
+ADMIN_ENV = "CGVQ_ADMIN_TOKEN"
+ADMIN_FILE = "admin_token"
+COOKIE = "cgvq_admin"
+COOKIE_LIFETIME_S = 12 * 3600
+
+
+def new_token() -> str:
+    """A participant token: 192 random bits, URL-safe (32 characters)."""
+    return secrets.token_urlsafe(24)
+
+
+def token_sha256(token: str) -> str:
+    return hashlib.sha256(token.encode("utf-8")).hexdigest()
+
+
+def token_matches(token: str, stored_sha256: str) -> bool:
+    return hmac.compare_digest(token_sha256(token), stored_sha256)
+
+
+def admin_token(server_dir: Path, *, create: bool = True) -> tuple[str, bool]:
+    """(the admin token, whether it was generated just now)."""
+    env = os.environ.get(ADMIN_ENV, "").strip()
+    if env:
+        if len(env) < 16:
+            raise StudyError(f"${ADMIN_ENV} is too short: use at least 16 random characters")
+        return env, False
+    path = server_dir / ADMIN_FILE
+    if path.is_file():
+        token = path.read_text(encoding="ascii").strip()
+        if len(token) >= 16:
+            return token, False
+    if not create:
+        raise StudyError(f"no admin token: set ${ADMIN_ENV} or run 'cgvq-study serve' once")
+    server_dir.mkdir(parents=True, exist_ok=True)
+    token = secrets.token_urlsafe(32)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w", encoding="ascii") as fh:
+        fh.write(token + "\n")
+    os.chmod(path, 0o600)
+    return token, True
+
+
+def bearer(header: str | None) -> str | None:
+    """The token of an ``Authorization: Bearer <token>`` header, or None."""
+    if not header:
+        return None
+    scheme, _, value = header.partition(" ")
+    if scheme.lower() != "bearer" or not value.strip():
+        return None
+    return value.strip()
+
+
+def make_cookie(admin: str, now: float | None = None) -> str:
+    expiry = int((now or time.time()) + COOKIE_LIFETIME_S)
+    sig = hmac.new(admin.encode(), f"dashboard:{expiry}".encode(), hashlib.sha256).hexdigest()
+    return f"{expiry}.{sig}"
+
+
+def cookie_valid(admin: str, value: str | None, now: float | None = None) -> bool:
+    if not value:
+        return False
+    expiry, _, sig = value.partition(".")
+    if not expiry.isdigit() or int(expiry) < (now or time.time()):
+        return False
+    want = hmac.new(admin.encode(), f"dashboard:{expiry}".encode(), hashlib.sha256).hexdigest()
+    return hmac.compare_digest(want, sig)

@@ -1,0 +1,34 @@
+"""Settings of a running study server (the ``serve`` flags map onto these)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from session_store.protocol import CLOCK_SKEW_LIMIT_S, MAX_BODY_BYTES, OFFLINE_GAP_LIMIT_S
+
+
+@dataclass
+class ServerConfig:
+    study: Path
+    new_version: bool = False
+    """Serve a changed manifest as a new version while sessions exist on the old one."""
+    max_body_bytes: int = MAX_BODY_BYTES
+    rate_per_s: float = 10.0
+    """Requests per second per participant token, on average..."""
+    burst: float = 60.0
+    """...with bursts up to this many (a study download is one request per file)."""
+    stats_every_s: float = 30.0
+    """Recompute the dashboard's statistics at most this often."""
+    target_raters: int | None = None
+    """Raters wanted per stimulus (default: everyone invited)."""
+    clock_skew_s: float = CLOCK_SKEW_LIMIT_S
+    offline_gap_s: float = OFFLINE_GAP_LIMIT_S
+    secure_cookies: bool = False
+    """Mark the dashboard cookie Secure (set when serving over TLS or behind a TLS proxy)."""
+    stats_in_background: bool = True
+    store_addresses: bool = True
+    """Keep each participant's last client address (for spotting abuse); off: none is kept."""
+
+    def __post_init__(self) -> None:
+        self.study = Path(self.study)

@@ -1,0 +1,122 @@
+"""The dashboard's pages, rendered on the server (Jinja2, autoescaped).
+
+Live facts (progress, last seen, flags) are read from the database per request, which is
+cheap; everything statistical comes from the last background snapshot and is shown with its
+age. Times are stored in UTC; the page shows them in the browser's local time (a few lines
+of plain JavaScript, which also reloads the page), or in UTC without JavaScript.
+"""
+
+from __future__ import annotations
+
+import math
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from jinja2 import Environment, FileSystemLoader, select_autoescape
+
+from session_store.records import utc_now
+
+from .ingest import parse_time
+
+if TYPE_CHECKING:
+    from .state import ServerState
+
+TEMPLATES = Path(__file__).parent / "templates"
+REFRESH_S = 30
+
+
+def _ago(iso: str | None) -> str:
+    t = parse_time(iso)
+    if t is None:
+        return "never"
+    s = (datetime.now(UTC) - t).total_seconds()
+    if s < 90:
+        return f"{max(s, 0):.0f} s ago"
+    if s < 5400:
+        return f"{s / 60:.0f} min ago"
+    if s < 48 * 3600:
+        return f"{s / 3600:.1f} h ago"
+    return f"{s / 86400:.1f} days ago"
+
+
+def _fmt(x: Any, digits: int = 1) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "–"
+    return f"{x:.{digits}f}"
+
+
+def _duration(hours: float | None) -> str:
+    if hours is None or not math.isfinite(hours):
+        return "–"
+    minutes = hours * 60
+    if minutes < 1:
+        return "< 1 min"
+    if minutes < 90:
+        return f"{minutes:.0f} min"
+    if hours < 48:
+        return f"{hours:.1f} h"
+    return f"{hours / 24:.1f} days"
+
+
+class Pages:
+    def __init__(self, state: ServerState) -> None:
+        self.state = state
+        self.env = Environment(loader=FileSystemLoader(TEMPLATES),
+                               autoescape=select_autoescape(["html"]), trim_blocks=True,
+                               lstrip_blocks=True)
+        self.env.filters["ago"] = _ago
+        self.env.filters["fmt"] = _fmt
+        self.env.filters["duration"] = _duration
+
+    def login(self, message: str | None = None) -> str:
+        return self.env.get_template("login.html").render(
+            study_id=self.state.study_id, message=message)
+
+    def context(self) -> dict[str, Any]:
+        st = self.state
+        listing = st.sessions_listing()
+        snap = st.stats.snapshot()
+        rows = []
+        for p in listing["participants"]:
+            s = p["session"]
+            ps = snap.participants.get(p["participant"])
+            state = "invited"
+            if s is not None:
+                state = {"finish": "finished", "withdrawn": "withdrew in app"}.get(
+                    s["closed_as"] or "", "running")
+            rows.append({"p": p, "s": s, "ps": ps, "state": state,
+                         "progress": (s["n_ratings"] / s["n_planned"]) if s and s["n_planned"]
+                         else 0.0})
+        per_stim = sorted(snap.per_stimulus.items(), key=lambda kv: kv[1])
+        counts = [n for _, n in per_stim]
+        scenes = None
+        if snap.study is not None and snap.study.dmos is not None:
+            d = snap.study.dmos
+            d = d[~d["is_hidden_reference"]]
+            scenes = [(scene, g.to_dict("records")) for scene, g in d.groupby("scene", sort=True)]
+        flags = [(p["participant"], f) for p in listing["participants"] for f in p["flags"]]
+        flags.sort(key=lambda pf: pf[1]["last_at"], reverse=True)
+        started = sum(1 for r in rows if r["s"] is not None)
+        arrived = sum(r["s"]["n_ratings"] for r in rows if r["s"] is not None)
+        to_go = sum((snap.planned_per_participant if r["s"] is None else
+                     0 if r["s"]["finished_at"] else
+                     max(r["s"]["n_planned"] - r["s"]["n_ratings"], 0)) for r in rows)
+        finished = sum(1 for r in rows if r["state"] == "finished")
+        return {
+            "study_id": st.study_id, "listing": listing, "rows": rows, "snap": snap,
+            "age": snap.age_s(), "now": utc_now(), "refresh": REFRESH_S,
+            "stats_every": st.config.stats_every_s,
+            "per_stim_low": per_stim[:12], "per_stim_min": min(counts, default=0),
+            "per_stim_median": sorted(counts)[len(counts) // 2] if counts else 0,
+            "per_stim_max": max(counts, default=0),
+            "below_target": sum(1 for n in counts if n < snap.target_per_stimulus),
+            "n_stimuli": len(counts), "scenes": scenes, "flags": flags,
+            "n_invited": len(rows), "n_started": started, "n_finished": finished,
+            "n_arrived": arrived, "n_to_go": to_go,
+            "n_withdrawn": len(listing["withdrawn"]),
+            "versions": {v["manifest_sha256"]: v["version"] for v in listing["versions"]},
+        }
+
+    def dashboard(self) -> str:
+        return self.env.get_template("dashboard.html").render(**self.context())

@@ -1,0 +1,267 @@
+"""The dashboard's statistics, recomputed in the background at most every N seconds.
+
+A request never computes anything heavy: it reads the last :class:`StatsSnapshot` and shows
+its age. The worker thread wakes when uploads arrive (:meth:`StatsWorker.poke`) but computes
+at most once per ``stats_every_s``, and only when the database changed.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import statistics
+import threading
+import time
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+from typing import TYPE_CHECKING, Any
+
+from session_store.records import utc_now
+
+from .ingest import parse_time
+
+if TYPE_CHECKING:
+    from .analysis_adapter import StudyFigures
+    from .state import ServerState
+
+log = logging.getLogger(__name__)
+
+RATE_WINDOW = timedelta(hours=1)
+
+
+@dataclass
+class ParticipantStats:
+    participant: str
+    n_ratings: int = 0
+    median_trial_s: float | None = None
+    mean_toggles: float | None = None
+    mean_viewing_s: float | None = None
+    timing: str | None = None
+    """``vsync``, a pacing mode, or unknown."""
+    dropped_frames: int = 0
+    requeued: int = 0
+    preflight_skipped: bool | None = None
+    preflight_failed: list[str] = field(default_factory=list)
+    hidden_reference_mean: float | None = None
+    panel_r: float | None = None
+    removed_by_screening: str | None = None
+    simulated: bool = False
+
+
+@dataclass
+class StatsSnapshot:
+    computed_at: str | None = None
+    """UTC time of the computation (None: not computed yet)."""
+    seconds: float = 0.0
+    marker: tuple[int, int, int] | None = None
+    n_ratings: int = 0
+    participants: dict[str, ParticipantStats] = field(default_factory=dict)
+    per_stimulus: dict[str, int] = field(default_factory=dict)
+    target_per_stimulus: int = 0
+    planned_per_participant: int = 0
+    rate_per_hour: float = 0.0
+    remaining: int = 0
+    eta_hours: float | None = None
+    study: StudyFigures | None = None
+    figures: dict[str, bytes] = field(default_factory=dict)
+    error: str | None = None
+
+    def age_s(self) -> float | None:
+        t = parse_time(self.computed_at)
+        return None if t is None else (datetime.now(UTC) - t).total_seconds()
+
+
+def _num(x: Any) -> float | None:
+    return float(x) if isinstance(x, int | float) and not isinstance(x, bool) else None
+
+
+def participant_stats(rows: list[tuple[str, str, str, str]]) -> dict[str, ParticipantStats]:
+    """Per-participant behaviour from the entries (participant, sha, kind, body JSON)."""
+    out: dict[str, ParticipantStats] = {}
+    rts: dict[str, list[float]] = {}
+    toggles: dict[str, list[float]] = {}
+    viewing: dict[str, list[float]] = {}
+    hidden: dict[str, list[float]] = {}
+    for pid, _, kind, text in rows:
+        ps = out.setdefault(pid, ParticipantStats(pid))
+        body = json.loads(text)
+        if kind == "rating":
+            row = body.get("row", {})
+            ps.n_ratings += 1
+            rt = _num(row.get("rt_ms"))
+            if rt is not None:
+                rts.setdefault(pid, []).append(rt / 1000.0)
+            t = _num(row.get("n_toggles"))
+            if t is not None:
+                toggles.setdefault(pid, []).append(t)
+            ref, test = _num(row.get("ms_on_reference")), _num(row.get("ms_on_test"))
+            if ref is not None and test is not None:
+                viewing.setdefault(pid, []).append((ref + test) / 1000.0)
+            ps.dropped_frames += int(_num(row.get("dropped_frames")) or 0)
+            if row.get("is_hidden_reference") and _num(row.get("rating")) is not None:
+                hidden.setdefault(pid, []).append(float(row["rating"]))
+        elif kind == "requeue":
+            ps.requeued += 1
+            details = body.get("presentation", {}).get("details", {})
+            ps.dropped_frames += int(_num(details.get("dropped_frames")) or 0)
+        elif kind == "preflight":
+            ps.preflight_skipped = bool(body.get("skipped"))
+            ps.preflight_failed = [str(r.get("name")) for r in body.get("results", [])
+                                   if isinstance(r, dict) and not r.get("ok")]
+        elif kind == "session":
+            settings = body.get("settings") or {}
+            ps.simulated = bool(settings.get("simulated"))
+            mode = settings.get("timing_mode")
+            if isinstance(mode, str):
+                ps.timing = mode
+        elif kind == "start":
+            display = body.get("display") or {}
+            if ps.timing is None and "vsync" in display:
+                ps.timing = "vsync" if display.get("vsync") else "no vsync"
+            elif ps.timing is None and display.get("simulated"):
+                ps.timing = "simulated"
+    for pid, ps in out.items():
+        if rts.get(pid):
+            ps.median_trial_s = statistics.median(rts[pid])
+        if toggles.get(pid):
+            ps.mean_toggles = statistics.fmean(toggles[pid])
+        if viewing.get(pid):
+            ps.mean_viewing_s = statistics.fmean(viewing[pid])
+        if hidden.get(pid):
+            ps.hidden_reference_mean = statistics.fmean(hidden[pid])
+    return out
+
+
+def ratings_frame(rows: list[tuple[str, str, str, str]]) -> Any:
+    """The tidy ratings (participant, stimulus, reference, repetition, rating...) of the
+    rating entries, as a pandas frame for the analysis."""
+    import pandas as pd
+
+    records = []
+    for pid, _, kind, text in rows:
+        if kind != "rating":
+            continue
+        row = json.loads(text).get("row", {})
+        records.append({"participant": pid, "stimulus": row.get("stimulus"),
+                        "reference": row.get("reference"),
+                        "repetition": row.get("repetition"), "rating": row.get("rating"),
+                        "is_hidden_reference": bool(row.get("is_hidden_reference"))})
+    return pd.DataFrame.from_records(records, columns=[
+        "participant", "stimulus", "reference", "repetition", "rating", "is_hidden_reference"])
+
+
+class StatsWorker:
+    """Background recomputation of :class:`StatsSnapshot` (see the module doc)."""
+
+    def __init__(self, state: ServerState) -> None:
+        self.state = state
+        self._snapshot = StatsSnapshot()
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._last_run = 0.0
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="dashboard-stats", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout=60)
+
+    def poke(self) -> None:
+        self._wake.set()
+
+    def snapshot(self) -> StatsSnapshot:
+        with self._lock:
+            return self._snapshot
+
+    def _run(self) -> None:
+        every = self.state.config.stats_every_s
+        while not self._stop.is_set():
+            wait = self._last_run + every - time.monotonic()
+            if wait > 0:
+                self._stop.wait(wait)
+                if self._stop.is_set():
+                    break
+            self._wake.wait(timeout=every)
+            self._wake.clear()
+            if self._stop.is_set():
+                break
+            try:
+                self.refresh()
+            except Exception as exc:  # the dashboard shows it; the server keeps serving
+                log.exception("dashboard statistics failed")
+                with self._lock:
+                    self._snapshot.error = f"{type(exc).__name__}: {exc}"
+            self._last_run = time.monotonic()
+
+    def refresh(self, *, force: bool = False) -> StatsSnapshot:
+        """Recompute now (when the data changed, or ``force``)."""
+        store = self.state.store
+        marker = store.change_marker()
+        if not force and marker == self.snapshot().marker:
+            return self.snapshot()
+        t0 = time.perf_counter()
+        rows = store.entries_of_kinds(["session", "start", "preflight", "rating", "requeue"])
+        snap = StatsSnapshot(marker=marker)
+        snap.participants = participant_stats(rows)
+        frame = ratings_frame(rows)
+        snap.n_ratings = len(frame)
+        current = self.state.current
+        manifest = json.loads(current.manifest_bytes)
+        from stimuli_manifests import parse_manifest
+
+        m = parse_manifest(manifest, source="manifest")
+        stimuli = [s.id for s in m.stimuli()]
+        reps = m.protocol.repetitions
+        snap.planned_per_participant = len(stimuli) * reps
+        invited = store.participants()
+        target_raters = self.state.config.target_raters or max(len(invited), 1)
+        snap.target_per_stimulus = target_raters * reps
+        counts = frame.groupby("stimulus").size().to_dict() if len(frame) else {}
+        snap.per_stimulus = {s: int(counts.get(s, 0)) for s in stimuli}
+        self._progress(snap, rows, invited)
+        from .analysis_adapter import analyse, loaded_manifest, panel_correlation
+
+        for pid, r in panel_correlation(frame).items():
+            if pid in snap.participants:
+                snap.participants[pid].panel_r = r
+        if len(frame):
+            snap.study = analyse(frame, loaded_manifest(current.manifest_bytes,
+                                                        current.manifest_sha256))
+            snap.figures = dict(snap.study.figures)
+            for pid, reason in snap.study.removed_reasons.items():
+                if pid in snap.participants:
+                    snap.participants[pid].removed_by_screening = reason
+        snap.seconds = time.perf_counter() - t0
+        snap.computed_at = utc_now()
+        with self._lock:
+            self._snapshot = snap
+        return snap
+
+    def _progress(self, snap: StatsSnapshot, rows: list[tuple[str, str, str, str]],
+                  invited: list[Any]) -> None:
+        sessions = {s.participant: s for s in self.state.store.sessions()}
+        remaining = 0
+        for p in invited:
+            s = sessions.get(p.participant)
+            if s is None:
+                remaining += snap.planned_per_participant
+            elif s.finished_at is None:
+                remaining += max(s.n_planned - s.n_ratings, 0)
+        snap.remaining = remaining
+        recent = self.state.store.ratings_received_since(
+            (datetime.now(UTC) - RATE_WINDOW).isoformat(timespec="milliseconds")
+            .replace("+00:00", "Z"))
+        first = min((s.first_received for s in sessions.values()), default=None)
+        window_h = RATE_WINDOW.total_seconds() / 3600
+        t_first = parse_time(first)
+        if t_first is not None:
+            window_h = min(window_h, max((datetime.now(UTC) - t_first).total_seconds() / 3600,
+                                         1 / 60))
+        snap.rate_per_hour = recent / window_h if recent else 0.0
+        snap.eta_hours = remaining / snap.rate_per_hour if snap.rate_per_hour > 0 else None

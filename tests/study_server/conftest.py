@@ -1,0 +1,231 @@
+"""Fixtures of the study-server tests: a servable study made on the fly and a real uvicorn
+server in a subprocess on 127.0.0.1 (free port, bounded waits)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stimuli_manifests import fill_checksums, load_manifest, parse_manifest, save_manifest
+
+REPO = Path(__file__).resolve().parents[2]
+ADMIN = "test-admin-token-0123456789abcdef"
+ARTIFACTS = REPO / "test-artifacts"
+
+
+def make_served_study(folder: Path, *, refs: int = 2, conds: int = 2, repetitions: int = 2,
+                      file_bytes: int = 4096, seed: int = 0, study_id: str = "served-study"
+                      ) -> Path:
+    """A study folder whose 'videos' are random bytes: the server never decodes, it serves
+    files and checks checksums. ``refs * (1 + conds)`` stimuli (hidden references on)."""
+    rng = np.random.default_rng(seed)
+    videos = folder / "videos"
+    videos.mkdir(parents=True, exist_ok=True)
+    references, conditions = [], []
+    methods = ("noise", "blur", "upscaling", "vrs")
+    for r in range(refs):
+        (videos / f"ref{r}.mkv").write_bytes(rng.bytes(file_bytes))
+        references.append({"path": f"ref{r}.mkv", "scene": f"scene{r}"})
+        for c in range(conds):
+            name = f"ref{r}_c{c}.mkv"
+            (videos / name).write_bytes(rng.bytes(file_bytes))
+            conditions.append({"reference": f"SRC{r + 1:02d}", "method": methods[c % 2],
+                               "level": c // 2 + 1, "path": name})
+    manifest = parse_manifest({
+        "study_id": study_id, "root": "videos",
+        "protocol": {"repetitions": repetitions},
+        "display": {"min_width": 640, "min_height": 480},
+        "references": references, "conditions": conditions,
+    })
+    save_manifest(manifest, folder / "manifest.json")
+    save_manifest(fill_checksums(load_manifest(folder / "manifest.json")),
+                  folder / "manifest.json")
+    (folder / "briefing.md").write_text("# Welcome\n\nRate the videos.\n", encoding="utf-8")
+    (folder / "consent.md").write_text("I agree.\n", encoding="utf-8")
+    return folder
+
+
+def cli_env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO)
+    env["CGVQ_ADMIN_TOKEN"] = ADMIN
+    return env
+
+
+@dataclass
+class RunningServer:
+    """``cgvq-study serve`` in a subprocess."""
+
+    study: Path
+    args: list[str] = field(default_factory=list)
+    port: int = 0
+    url: str = ""
+    proc: subprocess.Popen | None = None
+    output: list[str] = field(default_factory=list)
+
+    def start(self, timeout: float = 90.0) -> RunningServer:
+        cmd = [sys.executable, "-m", "cgvq_cli.study_cli", "serve", str(self.study), "--host",
+               "127.0.0.1", "--port", str(self.port), *self.args]
+        self.proc = subprocess.Popen(cmd, env=cli_env(), stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, text=True, cwd=REPO)
+        lines: queue.Queue[str | None] = queue.Queue()
+
+        def pump() -> None:
+            assert self.proc is not None and self.proc.stdout is not None
+            for line in self.proc.stdout:
+                self.output.append(line)
+                lines.put(line)
+            lines.put(None)
+
+        threading.Thread(target=pump, daemon=True).start()
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                line = lines.get(timeout=max(deadline - time.monotonic(), 0.1))
+            except queue.Empty:
+                break
+            if line is None:
+                raise RuntimeError("serve exited: " + "".join(self.output))
+            if line.startswith("serving study"):
+                self.url = line.rsplit(" at ", 1)[1].strip()
+                self.port = int(self.url.rsplit(":", 1)[1])
+                return self
+        self.kill()
+        raise RuntimeError("serve did not start in time: " + "".join(self.output))
+
+    def kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGKILL)
+            self.proc.wait(timeout=30)
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.kill()
+
+    @property
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+
+def run_cli(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cgvq_cli.study_cli", *args], env=cli_env(),
+                          capture_output=True, text=True, timeout=timeout, cwd=REPO)
+
+
+@pytest.fixture
+def served_study(tmp_path: Path) -> Path:
+    return make_served_study(tmp_path / "study")
+
+
+@pytest.fixture
+def server_factory():
+    """Start servers (stopped at the end of the test)."""
+    started: list[RunningServer] = []
+
+    def start(study: Path, *args: str, port: int = 0) -> RunningServer:
+        srv = RunningServer(study, list(args), port).start()
+        started.append(srv)
+        return srv
+
+    yield start
+    for srv in started:
+        srv.kill()
+
+
+@pytest.fixture
+def invites(served_study: Path, tmp_path: Path):
+    """Invite participants into ``served_study`` (before serving): (participant, token)."""
+    from session_store.invite import read_invites
+    from study_server.operations import invite
+
+    def make(n: int, server: str = "http://127.0.0.1:8000", prefix: str = "P",
+             study: Path | None = None):
+        out = tmp_path / f"invites-{prefix}-{time.monotonic_ns()}.csv"
+        invite(study or served_study, n, out, prefix=prefix, server=server)
+        return read_invites(out)
+
+    return make
+
+
+def write_session(study: Path, path: Path, participant: str, *, ratings: int,
+                  finish: bool = False, seed: int = 1):
+    """A session file of ``study`` (as the app writes it) with ``ratings`` answered trials."""
+    from session_store import SessionStore, TrialResult, utc_now
+    from stimuli_manifests import load_manifest as _load
+    from study_app.schedule import ScheduleItem, make_schedule
+
+    loaded = _load(study / "manifest.json")
+    m = loaded.manifest
+    items = [ScheduleItem(s.id, s.reference, s.is_hidden_reference) for s in m.stimuli()]
+    plan = make_schedule(items, m.protocol.repetitions, seed)
+    store = SessionStore.create(path, participant=participant, study_id=m.study_id,
+                                manifest_sha256=loaded.sha256, seed=seed, app_version="test",
+                                plan=plan, settings={"timing_mode": "vsync"})
+    store.save_preflight([{"name": "screen_size", "ok": True, "message": "ok"}],
+                         skipped=False)
+    store.log_event("consent", consent_sha256="c" * 64)
+    store.mark_started(display={"vsync": True, "refresh_hz": 60.0})
+    for i in range(ratings):
+        store.record(plan[i].index, TrialResult(
+            rating=10.0 + 3 * i, rt_ms=5000.0 + i, n_toggles=2, ms_on_reference=2000.0,
+            ms_on_test=3000.0, presented_at=utc_now(), frames_presented=300,
+            dropped_frames=i % 2, details={"vsync": True}))
+    if finish:
+        store.finish(allow_incomplete=True)
+    return store
+
+
+def raw_request(url: str, method: str, path: str, body: bytes | None = None,
+                headers: dict[str, str] | None = None, timeout: float = 30.0
+                ) -> tuple[int, dict[str, str], bytes]:
+    """One HTTP request with the path sent exactly as given (no normalisation)."""
+    import http.client
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(url)
+    conn = http.client.HTTPConnection(parts.hostname, parts.port, timeout=timeout)
+    try:
+        conn.putrequest(method, path, skip_accept_encoding=True)
+        for k, v in (headers or {}).items():
+            conn.putheader(k, v)
+        if body is not None and "Content-Length" not in (headers or {}) and \
+                "Transfer-Encoding" not in (headers or {}):
+            conn.putheader("Content-Length", str(len(body)))
+        conn.endheaders()
+        if body is not None:
+            # the server may answer early (e.g. 413) and close
+            with contextlib.suppress(BrokenPipeError, ConnectionResetError):
+                conn.send(body)
+        resp = conn.getresponse()
+        return resp.status, {k.lower(): v for k, v in resp.getheaders()}, resp.read()
+    finally:
+        conn.close()
+
+
+def db_dump(study: Path) -> dict[str, list[tuple]]:
+    """Every row of the server database (read-only), to show that nothing was written."""
+    import sqlite3
+
+    con = sqlite3.connect(f"file:{study / 'server' / 'state.sqlite'}?mode=ro", uri=True)
+    try:
+        tables = [r[0] for r in con.execute(
+            "SELECT name FROM sqlite_master WHERE type='table' AND name NOT LIKE 'sqlite_%'")]
+        return {t: sorted(con.execute(f"SELECT * FROM {t}").fetchall(), key=repr)
+                for t in tables}
+    finally:
+        con.close()

@@ -1,0 +1,114 @@
+"""The dashboard in a real headless browser (Debian's Chromium and chromium-driver, driven
+by Selenium with an explicit driver path: nothing downloads a driver)."""
+
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+
+import pytest
+
+from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
+
+from .conftest import ADMIN, ARTIFACTS, make_served_study
+
+CHROMEDRIVER = Path("/usr/bin/chromedriver")
+CHROMIUM = Path("/usr/bin/chromium")
+HEADLESS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+            "--disable-background-networking", "--disable-component-update", "--disable-sync",
+            "--no-first-run")
+
+
+@pytest.fixture
+def browser():
+    webdriver = pytest.importorskip("selenium.webdriver")
+    if not (CHROMEDRIVER.exists() and CHROMIUM.exists()):
+        pytest.skip("chromium and chromium-driver (Debian packages) are not installed")
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = str(CHROMIUM)
+    for flag in HEADLESS:
+        options.add_argument(flag)
+    options.add_argument("--window-size=1500,1900")
+    driver = webdriver.Chrome(service=Service(executable_path=str(CHROMEDRIVER)),
+                              options=options)
+    driver.set_page_load_timeout(60)
+    yield driver
+    driver.quit()
+
+
+def dashboard_study(tmp_path: Path) -> Path:
+    return make_served_study(tmp_path / "study", refs=4, conds=3, repetitions=2,
+                             file_bytes=256)
+
+
+def test_dashboard_in_a_real_browser(browser, tmp_path, invites, server_factory):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    study = dashboard_study(tmp_path)
+    inv = invites(8, study=study)
+    srv = server_factory(study, "--stats-every", "1", "--target-raters", "10")
+    result = run_simulation(
+        study / "manifest.json", tmp_path / "local",
+        SimulationOptions(raters=7, outliers=1, outlier_kind="inverted", seed=3),
+        progress=False, upload=UploadOptions(srv.url, {i.participant: i.token
+                                                       for i in inv[:7]}))
+    assert all(s.all_arrived for s in result.upload.values())
+    # P08 has not started, but its app reported a skewed clock and an edited file
+    from datetime import UTC, datetime, timedelta
+
+    from session_store.protocol import PROTOCOL
+    from study_app.remote import ServerClient
+
+    ServerClient(srv.url, inv[7].token).json("POST", "/api/v1/participants/P08/handshake", {
+        "protocol": PROTOCOL, "session_id": None, "app_version": "t", "log_hashes": [],
+        "client_time": (datetime.now(UTC) - timedelta(minutes=7)).isoformat(),
+        "local_problems": ["table ratings differs from the change log (edited outside the "
+                           "app)"]})
+    browser.get(srv.url + "/dashboard")
+    assert "Admin token" in browser.page_source  # asks once
+    browser.find_element(By.ID, "token").send_keys("wrong-token-12345678")
+    browser.find_element(By.ID, "login").click()
+    # the click only starts the form post: wait for the answer page, not the old one
+    message = WebDriverWait(browser, 30).until(
+        ec.presence_of_element_located((By.ID, "login-message")))
+    assert "That is not the admin token" in message.text
+    browser.find_element(By.ID, "token").send_keys(ADMIN)
+    browser.find_element(By.ID, "login").click()
+    WebDriverWait(browser, 30).until(ec.presence_of_element_located((By.ID, "participants")))
+    deadline = time.monotonic() + 120  # the statistics arrive in the background
+    while "statistics computed" not in browser.find_element(By.ID, "stats-age").text:
+        assert time.monotonic() < deadline, "statistics never computed"
+        time.sleep(1.0)
+        browser.refresh()
+    WebDriverWait(browser, 30).until(ec.presence_of_element_located((By.ID, "dmos-figure")))
+    rows = browser.find_elements(By.CSS_SELECTOR, "#participants tr[data-participant]")
+    assert len(rows) == 8
+    text = {r.get_attribute("data-participant"): r.text for r in rows}
+    assert "finished" in text["P01"] and "32 / 32" in text["P01"]
+    assert "invited" in text["P08"] and "clock_skew" in text["P08"]
+    flags = browser.find_element(By.ID, "flags").text
+    assert "7 min behind the server's" in flags and "edited outside the app" in flags
+    outlier = next(p for p, t in text.items() if "remove" in t)
+    assert outlier.startswith("P")
+    assert browser.find_element(By.ID, "n-ratings").text == str(7 * 32)
+    icc = float(browser.find_element(By.ID, "icc").text)
+    assert 0.5 < icc <= 1.0
+    # the figure really loaded (the cookie authenticates the image too)
+    loaded = browser.execute_script(
+        "const i = document.getElementById('dmos-figure'); return i.complete && "
+        "i.naturalWidth;")
+    assert loaded and loaded > 200
+    # times were turned into local time by the page's script (no ISO 'Z' left)
+    first_time = browser.find_element(By.CSS_SELECTOR, "#flags time")
+    assert first_time.text and not first_time.text.endswith("Z")
+    ARTIFACTS.mkdir(exist_ok=True)
+    browser.set_window_size(1500, browser.execute_script(
+        "return document.body.scrollHeight") + 150)
+    shot = ARTIFACTS / "dashboard.png"
+    assert browser.save_screenshot(str(shot))
+    shutil.copy(shot, tmp_path / "dashboard.png")

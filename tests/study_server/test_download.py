@@ -1,0 +1,201 @@
+"""Downloading a study from the server: size first, disk space, HTTP Range resume after a
+cut, cache, sha256 refusal."""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import shutil
+import socket
+import threading
+import time
+from collections import namedtuple
+from pathlib import Path
+
+import pytest
+
+from session_store.errors import StudyError
+from study_app.remote import ServerClient, ServerUnavailable
+from study_app.remote.download import check_disk_space, download_study, study_plan
+
+from .conftest import make_served_study
+
+
+class CuttingProxy:
+    """Forwards one connection at a time to the server and cuts the response after
+    ``limit`` bytes (a network that drops mid-download)."""
+
+    def __init__(self, target_port: int, limit: int) -> None:
+        self.limit = limit
+        self.target = target_port
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(4)
+        self.sock.settimeout(30)
+        self.port = self.sock.getsockname()[1]
+        self.ranges: list[str | None] = []
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self) -> None:
+        for _ in range(40):  # bounded
+            try:
+                client, _ = self.sock.accept()
+            except OSError:
+                return
+            upstream = socket.create_connection(("127.0.0.1", self.target), timeout=30)
+            client.settimeout(30)
+            request = client.recv(65536)
+            m = re.search(rb"\r\nRange: bytes=(\d+)-", request, re.I)
+            self.ranges.append(m.group(1).decode() if m else None)
+            upstream.sendall(request)
+            sent = 0
+            while sent < self.limit:
+                data = upstream.recv(min(65536, self.limit - sent))
+                if not data:
+                    break
+                client.sendall(data)
+                sent += len(data)
+            upstream.close()
+            client.shutdown(socket.SHUT_RDWR)
+            client.close()
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+@pytest.fixture
+def big_study(tmp_path):
+    return make_served_study(tmp_path / "big", refs=1, conds=2, file_bytes=3 << 20)
+
+
+def test_size_first_then_cut_download_resumes_with_range(big_study, tmp_path, invites,
+                                                         server_factory):
+    [inv] = invites(1, study=big_study)
+    srv = server_factory(big_study)
+    client = ServerClient(srv.url, inv.token)
+    cache = tmp_path / "cache"
+    plan = study_plan(client, "P01", cache)
+    sizes = {f.path: f.size for f in plan.files}
+    assert plan.missing_bytes() == plan.total_bytes == sum(sizes.values())
+    assert {"manifest.json", "briefing.md", "consent.md", "videos/ref0.mkv"} <= set(sizes)
+    need, free = check_disk_space(plan)
+    assert need == plan.total_bytes and free > need
+    # a network that drops every connection after 200 kB: each retry resumes where the last
+    # one stopped (HTTP Range), until the retries are used up
+    proxy = CuttingProxy(srv.port, 200_000)
+    cut = ServerClient(f"http://127.0.0.1:{proxy.port}", inv.token)
+    first_video = next(f for f in plan.files if f.path.startswith("videos/"))
+    with pytest.raises(ServerUnavailable, match="start again to resume"):
+        download_study(cut, "P01", plan, sleep=lambda s: None)
+    proxy.close()
+    part = plan.local(first_video).with_name(plan.local(first_video).name + ".part")
+    got = part.stat().st_size
+    video_ranges = proxy.ranges[3:]  # after manifest, briefing and consent
+    assert video_ranges[0] is None and len(video_ranges) == 6
+    offsets = [int(r) for r in video_ranges[1:]]
+    assert offsets == sorted(offsets) and offsets[0] > 100_000  # each resumed further on
+    assert offsets[-1] < got < first_video.size
+    remaining = plan.missing_bytes()
+    assert remaining == plan.total_bytes - got - sum(
+        f.size for f in plan.files if f.path < first_video.path and plan.cached(f))
+    progress: list[tuple[int, int]] = []
+    folder = download_study(client, "P01", plan,
+                            progress=lambda d, t, n: progress.append((d, t)))
+    assert progress[-1] == (remaining, remaining)  # only what was missing moved
+    for f in plan.files:
+        data = (folder / f.path).read_bytes()
+        assert hashlib.sha256(data).hexdigest() == f.sha256
+        assert data == (big_study / f.path).read_bytes()
+    assert not list(folder.rglob("*.part"))
+    # cached: nothing left to fetch, even with the server gone
+    srv.kill()
+    assert plan.missing() == [] and plan.missing_bytes() == 0
+    download_study(ServerClient("http://127.0.0.1:9", inv.token), "P01", plan)
+
+
+def test_a_file_that_does_not_match_its_checksum_is_refused(big_study, tmp_path, invites,
+                                                            server_factory):
+    [inv] = invites(1, study=big_study)
+    srv = server_factory(big_study)
+    client = ServerClient(srv.url, inv.token)
+    plan = study_plan(client, "P01", tmp_path / "cache")
+    victim = big_study / "videos" / "ref0_c1.mkv"
+    data = bytearray(victim.read_bytes())
+    data[1000] ^= 0xFF  # changed on the server after it started (same size)
+    victim.write_bytes(bytes(data))
+    with pytest.raises(StudyError, match="refused"):
+        download_study(client, "P01", plan)
+    local = plan.local(next(f for f in plan.files if f.path.endswith("ref0_c1.mkv")))
+    assert not local.exists() and not local.with_name(local.name + ".part").exists()
+
+
+def test_not_enough_disk_space_stops_before_anything_is_written(big_study, tmp_path, invites,
+                                                                server_factory, monkeypatch):
+    [inv] = invites(1, study=big_study)
+    srv = server_factory(big_study)
+    plan = study_plan(ServerClient(srv.url, inv.token), "P01", tmp_path / "cache")
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10 << 30, 10 << 30, 5 << 20))
+    with pytest.raises(StudyError, match=r"needs 9\.\d MB more disk space, but only 5\.2 MB"):
+        check_disk_space(plan)
+    assert not (tmp_path / "cache").exists()
+
+
+def test_study_plan_refuses_a_hostile_file_list(tmp_path):
+    class Fake(ServerClient):
+        def __init__(self, files):
+            super().__init__("http://127.0.0.1:9", "t" * 20)
+            self.files = files
+
+        def json(self, method, path, payload=None):
+            return {"study_id": "s", "manifest_sha256": "a" * 64, "files": self.files}
+
+    for bad in ("../x", "/etc/passwd", "a/../../b", "a\\b", ""):
+        files = [{"path": "manifest.json", "size": 1, "sha256": "a" * 64},
+                 {"path": bad, "size": 1, "sha256": "b" * 64}]
+        with pytest.raises(StudyError, match="file"):
+            study_plan(Fake(files), "P01", tmp_path)
+    assert not any(Path(tmp_path).iterdir())
+
+
+def test_fetch_study_shows_the_size_and_falls_back_to_the_downloaded_copy(
+        served_study, tmp_path, invites, server_factory):
+    from study_app.remote.participant import fetch_study
+
+    [inv] = invites(1)
+    srv = server_factory(served_study)
+    said: list[str] = []
+    first = fetch_study(inv.__class__(srv.url, "P01", inv.token), tmp_path / "data",
+                        say=said.append, progress=False)
+    assert not first.offline and (first.folder / "manifest.json").is_file()
+    assert "to download" in said[0] and "free on this disk" in said[0]
+    assert first.sessions_dir == first.folder.parent / "sessions"
+    again = fetch_study(inv.__class__(srv.url, "P01", inv.token), tmp_path / "data",
+                        say=said.append, progress=False)
+    assert "already on this computer" in said[-1] and again.folder == first.folder
+    srv.kill()
+    offline = fetch_study(inv.__class__(srv.url, "P01", inv.token), tmp_path / "data",
+                          say=said.append, progress=False)
+    assert offline.offline and offline.folder == first.folder
+    assert "cannot be reached" in said[-1]
+    with pytest.raises(ServerUnavailable):  # nothing downloaded before: no way to start
+        fetch_study(inv.__class__(srv.url, "P01", inv.token), tmp_path / "other",
+                    say=said.append, progress=False)
+
+
+def test_a_rate_limited_download_waits_and_completes(tmp_path, invites, server_factory):
+    study = make_served_study(tmp_path / "many", refs=3, conds=3, file_bytes=2048)  # 15 files
+    [inv] = invites(1, study=study)
+    srv = server_factory(study, "--rate", "4", "--burst", "3")
+    client = ServerClient(srv.url, inv.token)
+    plan = study_plan(client, "P01", tmp_path / "cache")
+    waits: list[float] = []
+
+    def sleep(s: float) -> None:
+        waits.append(s)
+        time.sleep(s)
+
+    folder = download_study(client, "P01", plan, sleep=sleep)
+    assert waits and all(w >= 1 for w in waits)  # the server's Retry-After was honoured
+    assert plan.missing() == [] and (folder / "videos" / "ref2_c2.mkv").is_file()

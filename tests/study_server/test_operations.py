@@ -1,0 +1,186 @@
+"""The experimenter's commands: invite, serve's refusals, versions, withdraw, pull's output."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import stat
+
+import pytest
+
+from session_store import read_session
+from session_store.invite import read_invite
+from stimuli_manifests import fill_checksums, load_manifest, save_manifest
+from study_app.remote import ServerClient, ServerRefused, sync_session
+from study_app.remote.download import study_plan
+
+from .conftest import ADMIN, db_dump, raw_request, run_cli, write_session
+
+
+def test_invite_writes_private_tokens_and_stores_only_hashes(served_study, tmp_path):
+    out = tmp_path / "invites.csv"
+    proc = run_cli("invite", str(served_study), "--n", "3", "--out", str(out), "--server",
+                   "https://study.example.org", "--files", str(tmp_path / "links"))
+    assert proc.returncode == 0, proc.stderr
+    assert stat.S_IMODE(os.stat(out).st_mode) == 0o600
+    rows = list(csv.DictReader(out.read_text(encoding="utf-8").splitlines()))
+    assert [r["participant"] for r in rows] == ["P01", "P02", "P03"]
+    assert len({r["token"] for r in rows}) == 3 and all(len(r["token"]) >= 32 for r in rows)
+    assert rows[0]["command"] == (f"cgvq-study run --server https://study.example.org "
+                                  f"--participant P01 --token {rows[0]['token']}")
+    link = read_invite(tmp_path / "links" / "P02.cgvq-invite.json")
+    assert (link.participant, link.token) == ("P02", rows[1]["token"])
+    dump = repr(db_dump(served_study))
+    assert all(r["token"] not in dump for r in rows)  # only hashes on the server
+    again = run_cli("invite", str(served_study), "--n", "2", "--out", str(tmp_path / "b.csv"))
+    assert again.returncode == 0
+    more = list(csv.DictReader((tmp_path / "b.csv").read_text(encoding="utf-8").splitlines()))
+    assert [r["participant"] for r in more] == ["P04", "P05"]
+    for args, message in [
+        (["--n", "1", "--out", str(out)], "exists already"),
+        (["--n", "0", "--out", str(tmp_path / "c.csv")], "at least one"),
+        (["--n", "1", "--out", str(tmp_path / "d.csv"), "--prefix", "../x"],
+         "participant id"),
+        (["--n", "1", "--out", str(tmp_path / "e.csv"), "--server", "ftp://x"], "http"),
+    ]:
+        proc = run_cli("invite", str(served_study), *args)
+        assert proc.returncode == 2 and message in proc.stderr
+        assert proc.stderr.count("\n") == 1
+
+
+def test_serve_refuses_plain_http_on_a_public_address(served_study):
+    proc = run_cli("serve", str(served_study), "--host", "0.0.0.0", "--port", "0")
+    assert proc.returncode == 2 and "without TLS" in proc.stderr
+    assert proc.stderr.count("\n") == 1
+    proc = run_cli("serve", str(served_study), "--certfile", "/nonexistent.pem", "--keyfile",
+                   "/nonexistent.key")
+    assert proc.returncode == 2 and "TLS file not found" in proc.stderr
+
+
+def _change_manifest(study):
+    m = json.loads((study / "manifest.json").read_text())
+    m["conditions"] = m["conditions"][:-1]  # one condition dropped
+    (study / "manifest.json").write_text(json.dumps(m), encoding="utf-8")
+    save_manifest(fill_checksums(load_manifest(study / "manifest.json")),
+                  study / "manifest.json")
+
+
+def test_sessions_stay_on_their_version(served_study, tmp_path, invites, server_factory):
+    inv = invites(2)
+    srv = server_factory(served_study)
+    old_sha = load_manifest(served_study / "manifest.json").sha256
+    p1 = tmp_path / "P01.sqlite"
+    store = write_session(served_study, p1, "P01", ratings=3)
+    sync_session(p1, ServerClient(srv.url, inv[0].token), "P01")
+    srv.stop()
+    _change_manifest(served_study)
+    proc = run_cli("serve", str(served_study), "--port", "0")
+    assert proc.returncode == 2 and "--new-version" in proc.stderr
+    srv2 = server_factory(served_study, "--new-version")
+    new_sha = load_manifest(served_study / "manifest.json").sha256
+    c1, c2 = ServerClient(srv2.url, inv[0].token), ServerClient(srv2.url, inv[1].token)
+    plan1 = study_plan(c1, "P01", tmp_path / "cache1")
+    plan2 = study_plan(c2, "P02", tmp_path / "cache2")
+    assert (plan1.manifest_sha256, plan2.manifest_sha256) == (old_sha, new_sha)
+    from study_app.remote.download import download_study
+
+    folder = download_study(c1, "P01", plan1)
+    assert load_manifest(folder / "manifest.json").sha256 == old_sha
+    # P01 finishes on the old version
+    from session_store import TrialResult, utc_now
+
+    while (nxt := store.next_trial()) is not None:
+        store.record(nxt.index, TrialResult(50.0, 4000.0, 1, 1000.0, 3000.0, utc_now()))
+    store.finish()
+    store.close()
+    assert sync_session(p1, c1, "P01").complete
+    with pytest.raises(ServerRefused):
+        c1.json("GET", "/api/v1/admin/sessions")
+    proc = run_cli("pull", srv2.url, "--admin-token", ADMIN, "--out", str(tmp_path / "p"))
+    assert proc.returncode == 0, proc.stderr
+    assert f"P01: 12 of 12 ratings, complete, version 1 ({old_sha[:12]})" in proc.stdout
+    assert "not started: P02" in proc.stdout
+    status, _, page = raw_request(srv2.url, "GET", "/dashboard",
+                                  headers={"Authorization": f"Bearer {ADMIN}"})
+    assert status == 200 and b"v1" in page and new_sha[:16].encode() in page
+
+
+def test_withdraw_while_serving(served_study, tmp_path, invites, server_factory):
+    inv = invites(2)
+    srv = server_factory(served_study)
+    paths = []
+    for i in inv:
+        path = tmp_path / f"{i.participant}.sqlite"
+        write_session(served_study, path, i.participant, ratings=4).close()
+        sync_session(path, ServerClient(srv.url, i.token), i.participant)
+        paths.append(path)
+    (served_study / "sessions").mkdir()
+    (served_study / "sessions" / "P01.sqlite").write_bytes(paths[0].read_bytes())
+    proc = run_cli("withdraw", str(served_study), "P01", "--reason", "asked to")
+    assert proc.returncode == 0, proc.stderr
+    assert "P01: 8 uploaded entries deleted" in proc.stdout
+    assert not (served_study / "sessions" / "P01.sqlite").exists()
+    with pytest.raises(ServerRefused) as exc:
+        sync_session(paths[0], ServerClient(srv.url, inv[0].token), "P01")
+    assert exc.value.status == 410
+    dump = db_dump(served_study)
+    assert dump["tombstones"][0][:1] == ("P01",)
+    assert not any("P01" in repr(r) for t in ("participants", "sessions", "flags")
+                   for r in dump[t])
+    assert len(dump["entries"]) == 8  # P02's only
+    proc = run_cli("pull", srv.url, "--admin-token", ADMIN, "--out", str(tmp_path / "p"),
+                   "--csv", str(tmp_path / "r.csv"))
+    assert "withdrawn (data deleted): P01" in proc.stdout
+    assert sorted(p.name for p in (tmp_path / "p").glob("*.sqlite")) == ["P02.sqlite"]
+    assert len(read_session(tmp_path / "p" / "P02.sqlite").ratings) == 4
+    proc = run_cli("withdraw", str(served_study), "P01")
+    assert proc.returncode == 2 and "withdrawn already" in proc.stderr
+
+
+def test_pull_with_a_wrong_token_is_one_line(served_study, server_factory, tmp_path):
+    srv = server_factory(served_study)
+    proc = run_cli("pull", srv.url, "--admin-token", "wrong-token-000000", "--out",
+                   str(tmp_path / "p"))
+    assert proc.returncode == 2 and "403" in proc.stderr and proc.stderr.count("\n") == 1
+    proc = run_cli("pull", "http://127.0.0.1:9", "--admin-token", ADMIN, "--out",
+                   str(tmp_path / "p"))
+    assert proc.returncode == 2 and "cannot reach" in proc.stderr
+
+
+def test_addresses_are_kept_only_when_wanted(served_study, tmp_path, invites, server_factory):
+    inv = invites(2)
+    for args, expected in (((), "127.0.0.1"), (("--no-addresses",), None)):
+        srv = server_factory(served_study, *args)
+        i = inv[0] if not args else inv[1]
+        path = tmp_path / f"{i.participant}.sqlite"
+        write_session(served_study, path, i.participant, ratings=1).close()
+        sync_session(path, ServerClient(srv.url, i.token), i.participant)
+        srv.stop()
+        rows = {r[0]: r for r in db_dump(served_study)["participants"]}
+        assert rows[i.participant][5] == expected  # last_address
+
+
+def test_tls_serving_and_a_lab_ca(served_study, tmp_path, invites, server_factory,
+                                  monkeypatch):
+    import shutil
+    import subprocess
+
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed")
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2",
+                    "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1",
+                    "-keyout", str(key), "-out", str(cert)], check=True, capture_output=True,
+                   timeout=120)
+    [inv] = invites(1)
+    srv = server_factory(served_study, "--certfile", str(cert), "--keyfile", str(key))
+    assert srv.url.startswith("https://")
+    path = tmp_path / "P01.sqlite"
+    write_session(served_study, path, "P01", ratings=2).close()
+    from study_app.remote import ServerUnavailable
+
+    with pytest.raises(ServerUnavailable, match="CERTIFICATE_VERIFY_FAILED"):
+        sync_session(path, ServerClient(srv.url, inv.token), "P01")  # unknown CA: refused
+    monkeypatch.setenv("CGVQ_CA_FILE", str(cert))
+    assert sync_session(path, ServerClient(srv.url, inv.token), "P01").complete

@@ -1,0 +1,100 @@
+"""The dashboard's statistics: computed in the background at most every N seconds, from what
+arrived, through the analysis package; equal to the analysis run on the pulled files."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from session_store import utc_now
+from session_store.outbox import read_entries
+from session_store.protocol import PROTOCOL
+from session_store.schema import open_existing
+from study_app.simulate import SimulationOptions, run_simulation
+from study_server.config import ServerConfig
+from study_server.state import ServerState
+
+from .conftest import ADMIN, make_served_study
+
+
+def _upload_file(st: ServerState, path, pid: str) -> None:
+    con = open_existing(path, readonly=True)
+    entries = read_entries(con)
+    con.close()
+    sid = entries[0].body["header"]["session_id"]
+    for k in range(0, len(entries), 150):
+        st.ingest.upload(pid, {"protocol": PROTOCOL, "session_id": sid,
+                               "client_time": utc_now(),
+                               "entries": [e.as_json() for e in entries[k:k + 150]]}, None)
+
+
+@pytest.fixture
+def panel(tmp_path, invites, monkeypatch):
+    """6 simulated raters (one inverted outlier) written locally, not uploaded yet."""
+    monkeypatch.setenv("CGVQ_ADMIN_TOKEN", ADMIN)
+    study = make_served_study(tmp_path / "s", refs=3, conds=3, repetitions=2, file_bytes=64)
+    invites(6, study=study)
+    run_simulation(study / "manifest.json", tmp_path / "local",
+                   SimulationOptions(raters=6, outliers=1, outlier_kind="inverted", seed=4,
+                                     participant_prefix="P"), progress=False)
+    return study, tmp_path / "local"
+
+
+def test_statistics_match_the_analysis_of_the_same_ratings(panel):
+    from analysis import load_ratings, reliability, screen_raters
+
+    study, local = panel
+    st = ServerState.open(ServerConfig(study, stats_in_background=False))
+    try:
+        files = sorted(local.glob("P*.sqlite"))
+        for f in files:
+            _upload_file(st, f, f.stem)
+        snap = st.stats.refresh()
+    finally:
+        st.stop()
+    rs = load_ratings(study / "manifest.json", sessions=files)
+    screened = rs.with_raters(screen_raters(rs).kept)
+    expected = reliability(screened).icc["ICC(2,k)"]
+    assert snap.study is not None and snap.study.icc2k == pytest.approx(expected, abs=1e-9)
+    assert snap.n_ratings == rs.n_ratings == 6 * 24
+    assert set(snap.study.removed) == set(rs.raters) - set(screened.raters)
+    assert snap.per_stimulus and set(snap.per_stimulus.values()) == {12}
+    outlier = snap.study.removed[0]
+    assert snap.participants[outlier].panel_r < 0 < min(
+        p.panel_r for pid, p in snap.participants.items() if pid != outlier)
+    d = snap.study.dmos
+    assert len(d) == 12 and (d["ci95_low"] <= d["dmos"]).all()
+    assert snap.figures["dmos"][:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_recomputed_at_most_every_n_seconds_and_only_on_change(panel):
+    study, local = panel
+    st = ServerState.open(ServerConfig(study, stats_every_s=2.0))
+    st.start()
+    try:
+        files = sorted(local.glob("P*.sqlite"))
+        for f in files[:4]:
+            _upload_file(st, f, f.stem)
+        st.stats.poke()
+        deadline = time.monotonic() + 60
+        while st.stats.snapshot().computed_at is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        first = st.stats.snapshot()
+        assert first.n_ratings == 4 * 24
+        t_first = time.monotonic()
+        _upload_file(st, files[4], files[4].stem)
+        for _ in range(20):  # a burst of uploads and page views
+            st.stats.poke()
+            st.pages.dashboard()
+            time.sleep(0.02)
+        if time.monotonic() - t_first < 1.5:
+            assert st.stats.snapshot() is first  # not yet: at most every 2 s
+        while st.stats.snapshot() is first and time.monotonic() < deadline:
+            time.sleep(0.05)
+        second = st.stats.snapshot()
+        assert second.n_ratings == 5 * 24
+        time.sleep(2.5)  # nothing changed: nothing recomputed
+        assert st.stats.snapshot() is second
+    finally:
+        st.stop()

@@ -13,11 +13,11 @@ from .data import Exclusion, InputProblem, RatingSet
 from .errors import AnalysisError
 from .inputs import load_ratings, ratings_from_frame
 from .metrics import load_metric_scores, validate_metrics
-from .outliers import screen_raters
 from .pipeline import Analysis, AnalysisConfig, run_analysis
 from .reliability import reliability
 from .report import write_report
 from .scores import fit_scores
+from .screening import screen_raters
 from .sureal_io import load_sureal, write_sureal_json
 
 __all__ = [

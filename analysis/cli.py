@@ -10,10 +10,9 @@ from pathlib import Path
 from stimuli_manifests.cli_runner import run_command
 
 from .errors import AnalysisError
-from .outliers import DEFAULT_METHOD
-from .outliers import METHODS as OUTLIER_METHODS
 from .pipeline import DEFAULT_MIN_COMPLETENESS
 from .scores import MODELS
+from .screening import DEFAULT_METHOD, method_names, methods_help
 
 MAX_LINES = 20  # input problems and exclusions printed on stderr before "... and N more"
 
@@ -28,10 +27,8 @@ def _inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--manifest", metavar="M", help="study manifest (with --sessions/--ratings)")
     p.add_argument("--model", choices=MODELS, default="mle",
                    help="score model: mle (SUREAL MLE, default), p910 (MLE_CO_AP2), mos, bt500")
-    p.add_argument("--outliers", choices=OUTLIER_METHODS, default=DEFAULT_METHOD,
-                   help="rater screening: p913 (default: ITU-T P.913 correlation with the "
-                        "leave-one-out panel, iterated, confirmed by the MLE inconsistency), "
-                        "grubbs (the CGVQM+D paper's rule), bt500, none")
+    p.add_argument("--outliers", choices=method_names(), default=DEFAULT_METHOD,
+                   help=methods_help())
     p.add_argument("--min-completeness", type=float, default=DEFAULT_MIN_COMPLETENESS,
                    metavar="F", help="leave out raters who answered less than this share of "
                    f"their planned trials ({DEFAULT_MIN_COMPLETENESS}; 0 keeps everyone)")

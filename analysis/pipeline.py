@@ -15,10 +15,10 @@ from .ceiling import CiCurve, SplitHalf, ci_width_curve, split_half
 from .data import Exclusion, InputProblem, RatingSet
 from .errors import AnalysisError
 from .metrics import MetricScores, MetricValidation, validate_metrics
-from .outliers import DEFAULT_METHOD, OutlierResult, check_alpha, screen_raters
 from .quality import drop_incomplete, quality_table
 from .reliability import Reliability, reliability
 from .scores import ScoreResult, check_not_constant, dmos_table, fit_scores
+from .screening import DEFAULT_METHOD, OutlierResult, check_alpha, screen_raters
 
 log = logging.getLogger(__name__)
 

@@ -17,18 +17,21 @@ reference's DMOS is ref_score by definition (CI of zero width).
 
 from __future__ import annotations
 
-import contextlib
-import io
 import logging
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from .data import InputProblem, RatingSet
 from .errors import AnalysisError
+from .subject_models import (
+    bt500_rejection,
+    mos_and_t,
+    plausible,
+    rater_stats_from_means,
+    run_sureal,
+)
 
 log = logging.getLogger(__name__)
 
@@ -70,45 +73,6 @@ class ScoreResult:
         return MODEL_NAMES.get(self.model, self.model)
 
 
-def _quiet_sureal(model_cls: type, rs: RatingSet) -> dict:
-    from sureal.dataset_reader import RawDatasetReader
-
-    from .sureal_io import sureal_namespace
-
-    with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings(), \
-            np.errstate(all="ignore"):
-        warnings.simplefilter("ignore")
-        return model_cls(RawDatasetReader(sureal_namespace(rs))).run_modeling()
-
-
-def mos_and_t(scores: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean over all votes (raters x repetitions), t-based 95% half-width, vote count."""
-    flat = scores.reshape(scores.shape[0], -1)
-    n = np.isfinite(flat).sum(axis=1)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        mean = np.nanmean(flat, axis=1)
-        sd = np.nanstd(flat, axis=1, ddof=1)
-        t = stats.t.ppf(0.975, np.maximum(n - 1, 1))
-        half = np.where(n > 1, t * sd / np.sqrt(np.maximum(n, 1)), np.nan)
-    return mean, half, n
-
-
-def _rater_stats_from_means(rs: RatingSet, quality: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Bias (mean residual) and inconsistency (residual s.d.) per rater, with 95% CIs."""
-    resid = rs.scores - quality[:, None, None]
-    flat = np.moveaxis(resid, 1, 0).reshape(rs.n_raters, -1)
-    n = np.isfinite(flat).sum(axis=1)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        bias = np.nanmean(flat, axis=1)
-        sd = np.nanstd(flat - bias[:, None], axis=1, ddof=1)
-        half = stats.t.ppf(0.975, np.maximum(n - 1, 1)) * sd / np.sqrt(np.maximum(n, 1))
-        lo = np.sqrt((n - 1) * sd**2 / stats.chi2.ppf(0.975, np.maximum(n - 1, 1)))
-        hi = np.sqrt((n - 1) * sd**2 / stats.chi2.ppf(0.025, np.maximum(n - 1, 1)))
-    return bias, np.c_[bias - half, bias + half], sd, np.c_[lo, hi]
-
-
 def _ci_pair(ci95: list, value: np.ndarray) -> np.ndarray:
     """SUREAL gives CI as [lower distances, upper distances]; turn into absolute bounds."""
     lo = np.asarray(ci95[0], dtype=float)
@@ -136,8 +100,6 @@ def fit_scores(rs: RatingSet, model: str = "mle", *, n_boot: int = 1000,
     rejected: list[str] = []
     work = rs
     if model == "bt500":
-        from .outliers import bt500_rejection
-
         flags, _, _ = bt500_rejection(rs)
         rejected = [r for r, f in zip(rs.raters, flags, strict=True) if f]
         work = rs.with_raters([s for s, f in enumerate(flags) if not f])
@@ -147,7 +109,7 @@ def fit_scores(rs: RatingSet, model: str = "mle", *, n_boot: int = 1000,
         dmos=mos, dmos_halfwidth=mos_half, raters=list(work.raters), rejected=rejected,
     )
     if model in ("mos", "bt500"):
-        b, bci, v, vci = _rater_stats_from_means(work, mos)
+        b, bci, v, vci = rater_stats_from_means(work, mos)
         result.rater_bias, result.rater_bias_ci = b, bci
         result.rater_inconsistency, result.rater_inconsistency_ci = v, vci
     else:
@@ -158,8 +120,8 @@ def fit_scores(rs: RatingSet, model: str = "mle", *, n_boot: int = 1000,
 
         cls = (MaximumLikelihoodEstimationModel if model == "mle"
                else MaximumLikelihoodEstimationModelContentObliviousAlternativeProjection2)
-        out = _run_sureal(cls, work)
-        if model == "mle" and not _plausible(out, work):
+        out = run_sureal(cls, work)
+        if model == "mle" and not plausible(out, work):
             # SUREAL's full MLE can diverge (content ambiguity -> inf) when one rater is far
             # noisier than the rest; the P.910 model is the stable fallback.
             msg = ("SUREAL MLE did not converge to plausible values (content ambiguity or "
@@ -168,9 +130,9 @@ def fit_scores(rs: RatingSet, model: str = "mle", *, n_boot: int = 1000,
             result.problems.append(InputProblem("score model", None, msg))
             result.fallback = msg
             result.model = model = "p910"
-            out = _run_sureal(
+            out = run_sureal(
                 MaximumLikelihoodEstimationModelContentObliviousAlternativeProjection2, work)
-            if not _plausible(out, work):
+            if not plausible(out, work):
                 raise AnalysisError("SUREAL's score models did not converge on these ratings; "
                                     "try --model mos")
         q = np.asarray(out["quality_scores"], dtype=float)
@@ -197,29 +159,6 @@ def fit_scores(rs: RatingSet, model: str = "mle", *, n_boot: int = 1000,
     result.dmos_halfwidth = np.where(rs.hidden_reference_mask, 0.0, half)
     result.bootstrap = boot
     return result
-
-
-def _run_sureal(cls: type, rs: RatingSet) -> dict:
-    try:
-        return _quiet_sureal(cls, rs)
-    except (ValueError, AssertionError, FloatingPointError, np.linalg.LinAlgError) as exc:
-        return {"error": str(exc) or type(exc).__name__}
-
-
-def _plausible(out: dict, rs: RatingSet) -> bool:
-    """Finite quality inside a generous band around the scale, spreads below its range."""
-    if "error" in out:
-        return False
-    span = rs.scale_max - rs.scale_min
-    q = np.asarray(out["quality_scores"], dtype=float)
-    if not np.isfinite(q).all() or (q < rs.scale_min - span).any() or \
-            (q > rs.scale_max + span).any():
-        return False
-    for key in ("observer_inconsistency", "content_ambiguity"):
-        v = np.asarray(out.get(key, []), dtype=float)
-        if v.size and (not np.isfinite(v).all() or (v > span).any()):
-            return False
-    return True
 
 
 def dmos_from_quality(

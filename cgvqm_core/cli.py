@@ -194,16 +194,9 @@ def _metrics(args: argparse.Namespace, variants: list[str]) -> list[Any]:
 
 
 def _cmd_metrics(args: argparse.Namespace) -> int:
-    from .metrics import entries
+    from .metrics import metric_table_rows
 
-    rows = []
-    for e in entries():
-        a, sp = e.availability(), e.spec
-        rows.append({"name": sp.name, "title": sp.title, "direction": sp.direction,
-                     "kind": sp.kind, "range": sp.range_text(), "devices": list(sp.devices),
-                     "needs_weights": sp.needs_weights, "outputs": list(sp.outputs),
-                     "colour": sp.colour, "licence": sp.licence, "reference": sp.reference,
-                     "available": a.ok, "reason": a.reason})
+    rows = metric_table_rows()
     if args.json:
         print(json.dumps(rows, indent=1))
         return 0
@@ -215,7 +208,7 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
 
 
 def _score_row(res: Any, ref: str, test: str) -> dict[str, Any]:
-    from .batch import _canonical
+    from .batch import canonical_json
 
     prov = res.provenance
     return {"stimulus": Path(test).stem, "reference": Path(ref).stem, "metric": res.variant,
@@ -224,14 +217,14 @@ def _score_row(res: Any, ref: str, test: str) -> dict[str, Any]:
             "backbone": prov["backbone"]["label"],
             "backbone_sha256": prov["backbone"]["sha256"],
             "weights_sha256": prov["weights"]["sha256"],
-            "settings": _canonical({"patch_scale": prov["patch_scale"],
+            "settings": canonical_json({"patch_scale": prov["patch_scale"],
                                     "precision": prov["precision"], "mode": prov["mode"],
                                     "device_type": prov["device"].split(":")[0]})}
 
 
 def _cmd_score_peer(args: argparse.Namespace, name: str) -> int:
     """Any registry metric other than CGVQM: one pair, one line (or JSON)."""
-    from .batch import Appender, _canonical, read_done
+    from .batch import Appender, canonical_json, read_done
     from .metrics import build_scorers, score_reference
 
     _threads(args)
@@ -261,10 +254,10 @@ def _cmd_score_peer(args: argparse.Namespace, name: str) -> int:
                         "metric": m.metric, "direction": m.direction, "note": m.note,
                         "score": "" if m.score is None else f"{m.score:.8g}",
                         "seconds": f"{m.extra.get('seconds', 0):.3f}",
-                        "settings": _canonical(scorer.settings()),
+                        "settings": canonical_json(scorer.settings()),
                         **{k: prov.get(k, "") for k in ("backbone", "backbone_sha256",
                                                          "weights_sha256")},
-                        "versions": _canonical({k: v for k, v in prov.items() if k not in (
+                        "versions": canonical_json({k: v for k, v in prov.items() if k not in (
                             "backbone", "backbone_sha256", "weights_sha256")})}])
         finally:
             app.close()

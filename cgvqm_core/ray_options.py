@@ -1,4 +1,4 @@
-"""The ``--ray`` options of ``cgvqm batch`` and ``cgvqm calibrate``, without importing Ray.
+"""The ``--ray`` options of ``cgvqm batch`` and ``cgvqm calibrate`` (Ray only with ``--ray``).
 
 Ray is an optional extra (``[cluster]``): these options are parsed and checked here, and the
 modules that import Ray (:mod:`cgvqm_core.distributed`,

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from .screens.textflow import Measure
+from .text_measure import Measure
 
 GAP = 12  # pixels between the video and text, and between text and the window's edge
 BADGE_PAD = (10, 5)  # horizontal, vertical padding inside a label badge

@@ -20,7 +20,9 @@ from session_store.records import utc_now
 from .ingest import parse_time
 
 if TYPE_CHECKING:
-    from .state import ServerState
+    from collections.abc import Callable
+
+    from .stats import StatsWorker
 
 TEMPLATES = Path(__file__).parent / "templates"
 REFRESH_S = 30
@@ -60,8 +62,14 @@ def _duration(hours: float | None) -> str:
 
 
 class Pages:
-    def __init__(self, state: ServerState) -> None:
-        self.state = state
+    """The login and dashboard pages, from the session listing and the latest statistics."""
+
+    def __init__(self, study_id: str, stats: StatsWorker,
+                 sessions_listing: Callable[[], dict[str, Any]], stats_every_s: float) -> None:
+        self.study_id = study_id
+        self.stats = stats
+        self.sessions_listing = sessions_listing
+        self.stats_every_s = stats_every_s
         self.env = Environment(loader=FileSystemLoader(TEMPLATES),
                                autoescape=select_autoescape(["html"]), trim_blocks=True,
                                lstrip_blocks=True)
@@ -71,12 +79,11 @@ class Pages:
 
     def login(self, message: str | None = None) -> str:
         return self.env.get_template("login.html").render(
-            study_id=self.state.study_id, message=message)
+            study_id=self.study_id, message=message)
 
     def context(self) -> dict[str, Any]:
-        st = self.state
-        listing = st.sessions_listing()
-        snap = st.stats.snapshot()
+        listing = self.sessions_listing()
+        snap = self.stats.snapshot()
         rows = []
         for p in listing["participants"]:
             s = p["session"]
@@ -104,9 +111,9 @@ class Pages:
                      max(r["s"]["n_planned"] - r["s"]["n_ratings"], 0)) for r in rows)
         finished = sum(1 for r in rows if r["state"] == "finished")
         return {
-            "study_id": st.study_id, "listing": listing, "rows": rows, "snap": snap,
+            "study_id": self.study_id, "listing": listing, "rows": rows, "snap": snap,
             "age": snap.age_s(), "now": utc_now(), "refresh": REFRESH_S,
-            "stats_every": st.config.stats_every_s,
+            "stats_every": self.stats_every_s,
             "per_stim_low": per_stim[:12], "per_stim_min": min(counts, default=0),
             "per_stim_median": sorted(counts)[len(counts) // 2] if counts else 0,
             "per_stim_max": max(counts, default=0),

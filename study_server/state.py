@@ -14,8 +14,10 @@ from session_store.study_folder import MANIFEST_NAME, load_study
 
 from . import auth
 from .config import ServerConfig
+from .dashboard import Pages
 from .ingest import Ingest, IngestLimits, Refused
 from .ratelimit import RateLimiter
+from .stats import StatsWorker
 from .storage import STATE_DIR, ServerStore, state_path
 from .study_files import FileHashes, StudyVersion, build_version
 
@@ -57,9 +59,6 @@ class ServerState:
     admin_token_created: bool
 
     def __post_init__(self) -> None:
-        from .dashboard import Pages
-        from .stats import StatsWorker
-
         self.study_id = self.current.study_id
         self.ingest = Ingest(self.store, self.study_id, IngestLimits(
             clock_skew_s=self.config.clock_skew_s, offline_gap_s=self.config.offline_gap_s))
@@ -68,8 +67,9 @@ class ServerState:
         self.login_limiter = RateLimiter(0.2, 10.0)
         self._old_versions: dict[str, StudyVersion] = {}
         self._versions_lock = threading.Lock()
-        self.stats = StatsWorker(self)
-        self.pages = Pages(self)
+        self.stats = StatsWorker(self.config, self.store, self.current)
+        self.pages = Pages(self.study_id, self.stats, self.sessions_listing,
+                           self.config.stats_every_s)
 
     @classmethod
     def open(cls, config: ServerConfig) -> ServerState:

@@ -22,7 +22,9 @@ from .ingest import parse_time
 
 if TYPE_CHECKING:
     from .analysis_adapter import StudyFigures
-    from .state import ServerState
+    from .config import ServerConfig
+    from .storage import ServerStore
+    from .study_files import StudyVersion
 
 log = logging.getLogger(__name__)
 
@@ -153,8 +155,10 @@ def ratings_frame(rows: list[tuple[str, str, str, str]]) -> Any:
 class StatsWorker:
     """Background recomputation of :class:`StatsSnapshot` (see the module doc)."""
 
-    def __init__(self, state: ServerState) -> None:
-        self.state = state
+    def __init__(self, config: ServerConfig, store: ServerStore, current: StudyVersion) -> None:
+        self.config = config
+        self.store = store
+        self.current = current
         self._snapshot = StatsSnapshot()
         self._lock = threading.Lock()
         self._wake = threading.Event()
@@ -180,7 +184,7 @@ class StatsWorker:
             return self._snapshot
 
     def _run(self) -> None:
-        every = self.state.config.stats_every_s
+        every = self.config.stats_every_s
         while not self._stop.is_set():
             wait = self._last_run + every - time.monotonic()
             if wait > 0:
@@ -201,7 +205,7 @@ class StatsWorker:
 
     def refresh(self, *, force: bool = False) -> StatsSnapshot:
         """Recompute now (when the data changed, or ``force``)."""
-        store = self.state.store
+        store = self.store
         marker = store.change_marker()
         if not force and marker == self.snapshot().marker:
             return self.snapshot()
@@ -211,7 +215,7 @@ class StatsWorker:
         snap.participants = participant_stats(rows)
         frame = ratings_frame(rows)
         snap.n_ratings = len(frame)
-        current = self.state.current
+        current = self.current
         manifest = json.loads(current.manifest_bytes)
         from stimuli_manifests import parse_manifest
 
@@ -220,7 +224,7 @@ class StatsWorker:
         reps = m.protocol.repetitions
         snap.planned_per_participant = len(stimuli) * reps
         invited = store.participants()
-        target_raters = self.state.config.target_raters or max(len(invited), 1)
+        target_raters = self.config.target_raters or max(len(invited), 1)
         snap.target_per_stimulus = target_raters * reps
         counts = frame.groupby("stimulus").size().to_dict() if len(frame) else {}
         snap.per_stimulus = {s: int(counts.get(s, 0)) for s in stimuli}
@@ -245,7 +249,7 @@ class StatsWorker:
 
     def _progress(self, snap: StatsSnapshot, rows: list[tuple[str, str, str, str]],
                   invited: list[Any]) -> None:
-        sessions = {s.participant: s for s in self.state.store.sessions()}
+        sessions = {s.participant: s for s in self.store.sessions()}
         remaining = 0
         for p in invited:
             s = sessions.get(p.participant)
@@ -254,7 +258,7 @@ class StatsWorker:
             elif s.finished_at is None:
                 remaining += max(s.n_planned - s.n_ratings, 0)
         snap.remaining = remaining
-        recent = self.state.store.ratings_received_since(
+        recent = self.store.ratings_received_since(
             (datetime.now(UTC) - RATE_WINDOW).isoformat(timespec="milliseconds")
             .replace("+00:00", "Z"))
         first = min((s.first_received for s in sessions.values()), default=None)

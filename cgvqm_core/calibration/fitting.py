@@ -261,6 +261,97 @@ class _Adam:
         p -= (self.lr / bc1) * self.m / (np.sqrt(self.v) / bc2_sqrt + self.eps)
 
 
+class _Objective:
+    """The loss of every row at the current omega and alpha, and its gradient w.r.t. the
+    scores s = alpha * e (e: each video's pooled patch error, exact through the candidates)."""
+
+    def __init__(self, cand: _Candidates, tr: _Groups, va: _Groups | None, y: np.ndarray,
+                 config: FitConfig, rows: np.ndarray, vids: np.ndarray) -> None:
+        self.cand, self.tr, self.va, self.y, self.config = cand, tr, va, y, config
+        self.rows, self.vids = rows, vids  # (R, 1) and (1, V) indices
+
+    def patch_max(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per row and video, the candidate index of the maximal patch and its error."""
+        Mc = self.cand.Mc
+        Rr, Vv, C, Nn = Mc.shape
+        w32 = w.astype(np.float32)[:, :, None]
+        e = np.matmul(Mc.reshape(Rr, Vv * C, Nn), w32).reshape(Rr, Vv, C)
+        arg = e.argmax(axis=2)
+        return arg, e[self.rows, self.vids, arg].astype(np.float64)
+
+    def __call__(self, omega: np.ndarray, alpha: np.ndarray, need_grad: bool
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None,
+                            np.ndarray | None]:
+        """(arg, e, training loss, its gradient w.r.t. s or None, validation loss or None)."""
+        config, y = self.config, self.y
+        w = np.abs(omega)
+        self.cand.track(w)
+        arg, emax = self.patch_max(w)
+        stale = self.cand.stale(emax)
+        if stale.any():
+            self.cand.refresh(w, stale, arg, emax)
+        s = alpha[:, None] * emax
+        signed = config.objective == "plcc-signed"
+        if config.objective == "nmse":
+            loss, gs, _ = _nmse_and_grad(s, self.tr, y, need_grad)
+        else:
+            loss, gs, _ = _plcc_and_grad(s, self.tr, need_grad, signed)
+        vloss = None
+        if self.va is not None and config.select == "val":
+            vloss = (_nmse_and_grad(s, self.va, y, False)[0] if config.objective == "nmse"
+                     else _plcc_and_grad(s, self.va, False, signed)[0])
+        return arg, emax, loss, gs, vloss
+
+
+class _Kept:
+    """Per row, the parameters kept so far and the step and loss they were kept at."""
+
+    def __init__(self, omega: np.ndarray, alpha: np.ndarray) -> None:
+        self.loss = np.full(len(alpha), np.inf)
+        self.omega, self.alpha = omega.copy(), alpha.copy()
+        self.step = np.zeros(len(alpha), dtype=np.int64)
+
+    def offer(self, step: int, sel: np.ndarray | None, loss: np.ndarray, last: bool,
+              omega: np.ndarray, alpha: np.ndarray) -> None:
+        """Keep the rows whose selection loss ``sel`` improved (``sel`` None: keep the last)."""
+        if sel is None:
+            better = np.full(len(alpha), last)
+            sel = loss
+        else:
+            better = sel < self.loss
+        if better.any():
+            self.loss = np.where(better, sel, self.loss)
+            self.omega[better] = omega[better]
+            self.alpha[better] = alpha[better]
+            self.step[better] = step
+
+
+def _start_omega(N: int, R: int, config: FitConfig, omega0: np.ndarray | None) -> np.ndarray:
+    return (init_omega(N, R, config.seed) if omega0 is None
+            else np.array(np.broadcast_to(omega0, (R, N)), dtype=np.float64))
+
+
+def _fit_in_chunks(M: np.ndarray, counts: np.ndarray, y: np.ndarray, groups: np.ndarray,
+                   train: np.ndarray, val: np.ndarray | None, config: FitConfig,
+                   omega0: np.ndarray | None, chunk: int) -> FitResult:
+    """:func:`fit` on ``chunk`` rows at a time, merged (the same results as one loop)."""
+    R, N = train.shape[0], M.shape[2]
+    start = _start_omega(N, R, config, omega0)
+    parts = [fit(M, counts, y, groups, train[i:i + chunk],
+                 val=None if val is None else np.atleast_2d(val)[i:i + chunk],
+                 config=config, omega0=start[i:i + chunk]) for i in range(0, R, chunk)]
+    history: dict[str, list] = {"step": parts[0].history["step"]}
+    for key in ("train_loss", "val_loss"):
+        history[key] = [None if parts[0].history[key][j] is None else
+                        [x for p in parts for x in p.history[key][j]]
+                        for j in range(len(history["step"]))]
+    return FitResult(np.concatenate([p.omega for p in parts]),
+                     np.concatenate([p.alpha for p in parts]),
+                     np.concatenate([p.best_step for p in parts]),
+                     np.concatenate([p.best_loss for p in parts]), history,
+                     sum(p.refreshes for p in parts), config)
+
+
 def fit(
     M: np.ndarray,
     counts: np.ndarray,
@@ -289,21 +380,7 @@ def fit(
     # enough for the CPU caches; beyond that, rows are fitted in chunks (same results)
     chunk = max(1, ROW_BUDGET_BYTES // (V * KEEP_TARGET * N * 4))
     if chunk < R:
-        start = (init_omega(N, R, config.seed) if omega0 is None
-                 else np.array(np.broadcast_to(omega0, (R, N)), dtype=np.float64))
-        parts = [fit(M, counts, y, groups, train[i:i + chunk],
-                     val=None if val is None else np.atleast_2d(val)[i:i + chunk],
-                     config=config, omega0=start[i:i + chunk]) for i in range(0, R, chunk)]
-        history: dict[str, list] = {"step": parts[0].history["step"]}
-        for key in ("train_loss", "val_loss"):
-            history[key] = [None if parts[0].history[key][j] is None else
-                            [x for p in parts for x in p.history[key][j]]
-                            for j in range(len(history["step"]))]
-        return FitResult(np.concatenate([p.omega for p in parts]),
-                         np.concatenate([p.alpha for p in parts]),
-                         np.concatenate([p.best_step for p in parts]),
-                         np.concatenate([p.best_loss for p in parts]), history,
-                         sum(p.refreshes for p in parts), config)
+        return _fit_in_chunks(M, counts, y, groups, train, val, config, omega0, chunk)
     n_groups = int(groups.max()) + 1 if V else 0
     if config.select == "val" and (val is None or not np.asarray(val).any(axis=1).all()):
         raise CGVQMError("select='val' needs validation videos in every row")
@@ -311,65 +388,27 @@ def fit(
     va = _Groups(np.atleast_2d(np.asarray(val, dtype=bool)), groups, n_groups, y) \
         if val is not None else None
 
-    omega = (init_omega(N, R, config.seed) if omega0 is None
-             else np.array(np.broadcast_to(omega0, (R, N)), dtype=np.float64))
+    omega = _start_omega(N, R, config, omega0)
     alpha = np.full(R, float(config.alpha_init))
     opt_w = _Adam((R, N), config.lr_omega, config.betas, config.eps)
     opt_a = _Adam((R,), config.lr_alpha, config.betas, config.eps)
     cand = _Candidates(M, config.pooling, config.lr_omega * config.refresh_steps, R)
     if config.pooling == "mean":
         cand.set_mean(np.maximum(np.asarray(counts, dtype=np.float64), 1.0))
-
-    best_loss = np.full(R, np.inf)
-    best_omega, best_alpha = omega.copy(), alpha.copy()
-    best_step = np.zeros(R, dtype=np.int64)
-    hist: dict[str, list] = {"step": [], "train_loss": [], "val_loss": []}
     rows = np.arange(R)[:, None]
     vids = np.arange(V)[None, :]
-
-    def patch_max(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        Rr, Vv, C, Nn = cand.Mc.shape
-        w32 = w.astype(np.float32)[:, :, None]
-        e = np.matmul(cand.Mc.reshape(Rr, Vv * C, Nn), w32).reshape(Rr, Vv, C)
-        arg = e.argmax(axis=2)
-        return arg, e[rows, vids, arg].astype(np.float64)
-
-    def evaluate(need_grad: bool):
-        w = np.abs(omega)
-        cand.track(w)
-        arg, emax = patch_max(w)
-        stale = cand.stale(emax)
-        if stale.any():
-            cand.refresh(w, stale, arg, emax)
-        s = alpha[:, None] * emax
-        signed = config.objective == "plcc-signed"
-        if config.objective == "nmse":
-            loss, gs, _ = _nmse_and_grad(s, tr, y, need_grad)
-        else:
-            loss, gs, _ = _plcc_and_grad(s, tr, need_grad, signed)
-        vloss = None
-        if va is not None and config.select == "val":
-            vloss = (_nmse_and_grad(s, va, y, False)[0] if config.objective == "nmse"
-                     else _plcc_and_grad(s, va, False, signed)[0])
-        return arg, emax, loss, gs, vloss
+    evaluate = _Objective(cand, tr, va, y, config, rows, vids)
+    kept = _Kept(omega, alpha)
+    hist: dict[str, list] = {"step": [], "train_loss": [], "val_loss": []}
 
     steps = int(config.steps)
     bar = tqdm(total=steps, desc=f"fit ({R} split{'s' if R != 1 else ''})", unit="step",
                disable=not config.show_progress, mininterval=0.5, leave=False)
     for step in range(steps + 1):
         last = step == steps
-        arg, emax, loss, gs, vloss = evaluate(need_grad=not last)
+        arg, emax, loss, gs, vloss = evaluate(omega, alpha, need_grad=not last)
         sel = {"train": loss, "val": vloss, "last": None}[config.select]
-        if sel is None:
-            better = np.full(R, last)
-            sel = loss
-        else:
-            better = sel < best_loss
-        if better.any():
-            best_loss = np.where(better, sel, best_loss)
-            best_omega[better] = omega[better]
-            best_alpha[better] = alpha[better]
-            best_step[better] = step
+        kept.offer(step, sel, loss, last, omega, alpha)
         if step % config.history_every == 0 or last:
             hist["step"].append(step)
             hist["train_loss"].append(loss.tolist())
@@ -387,7 +426,7 @@ def fit(
     bar.update(steps - bar.n)
     bar.close()
     log.debug("fit: %d steps, %d full re-evaluations of a video", steps, cand.count)
-    return FitResult(best_omega, best_alpha, best_step, best_loss, hist, cand.count, config)
+    return FitResult(kept.omega, kept.alpha, kept.step, kept.loss, hist, cand.count, config)
 
 
 def pooled_errors(M: np.ndarray, counts: np.ndarray, omega: np.ndarray,

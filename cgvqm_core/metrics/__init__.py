@@ -4,7 +4,8 @@
     scorers = build_scorers(["psnr", "ssim", "flip", "cvvdp"], MetricOptions())
     per_test = score_reference("ref.mkv", ["test1.mkv", "test2.mkv"], scorers)
 
-``entries()`` lists every registered metric with its spec and availability here.
+``entries()`` lists every registered metric with its spec and availability here;
+``metric_table_rows()`` the same as plain data (``cgvqm metrics``, the docs' metric table).
 """
 
 from .engine import score_reference
@@ -19,10 +20,11 @@ from .registry import (
     build_scorers,
     entries,
     get_entry,
+    metric_table_rows,
     parse_metric_list,
 )
 from .viewing import ViewingCondition
 
 __all__ = ["HIGHER", "LOWER", "Availability", "Entry", "MetricOptions", "MetricScore",
            "MetricSpec", "ViewingCondition", "build_scorers", "entries", "get_entry",
-           "parse_metric_list", "score_reference"]
+           "metric_table_rows", "parse_metric_list", "score_reference"]

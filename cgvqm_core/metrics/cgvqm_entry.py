@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .registry import (
+    CGVQM_ITSELF,
     HIGHER,
     VIDEO,
     Entry,
@@ -20,7 +21,6 @@ from .registry import (
     MetricSpec,
     VideoScorer,
     module_available,
-    register,
 )
 
 if TYPE_CHECKING:
@@ -121,5 +121,6 @@ class CGVQMEntry(Entry):
         return CGVQMScorer(self.spec, options)
 
 
-register(CGVQMEntry("cgvqm-2", "input, stem and layer1 of R3D-18"))
-register(CGVQMEntry("cgvqm-5", "all five stages of R3D-18"))
+ENTRIES: tuple[Entry, ...] = (CGVQMEntry("cgvqm-2", "input, stem and layer1 of R3D-18"),
+                              CGVQMEntry("cgvqm-5", "all five stages of R3D-18"))
+LISTING_GROUP = CGVQM_ITSELF

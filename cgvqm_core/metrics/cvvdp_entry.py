@@ -31,6 +31,7 @@ from ..stream import FrameSource, Geometry, _counted, aligned_frames
 from .registry import (
     HIGHER,
     VIDEO,
+    VIDEO_METRICS,
     Availability,
     Entry,
     MetricOptions,
@@ -38,7 +39,6 @@ from .registry import (
     MetricSpec,
     VideoScorer,
     package_version,
-    register,
 )
 
 log = logging.getLogger(__name__)
@@ -234,4 +234,5 @@ class CvvdpEntry(Entry):
         return CvvdpScorer(options)
 
 
-register(CvvdpEntry())
+ENTRIES: tuple[Entry, ...] = (CvvdpEntry(),)
+LISTING_GROUP = VIDEO_METRICS

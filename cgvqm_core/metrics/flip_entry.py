@@ -20,6 +20,7 @@ from ..errors import CGVQMError
 from .registry import (
     IMAGE,
     LOWER,
+    PERCEPTUAL_IMAGE,
     Availability,
     Entry,
     FrameScorer,
@@ -27,7 +28,6 @@ from .registry import (
     MetricSpec,
     module_available,
     package_version,
-    register,
 )
 
 SPEC = MetricSpec(
@@ -83,4 +83,5 @@ class FlipEntry(Entry):
         return FlipScorer(options)
 
 
-register(FlipEntry())
+ENTRIES: tuple[Entry, ...] = (FlipEntry(),)
+LISTING_GROUP = PERCEPTUAL_IMAGE

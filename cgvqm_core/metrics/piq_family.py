@@ -15,7 +15,16 @@ from typing import Any
 
 import numpy as np
 
-from .registry import HIGHER, IMAGE, LOWER, Entry, FrameScorer, MetricOptions, MetricSpec, register
+from .registry import (
+    CLASSICAL_IMAGE,
+    HIGHER,
+    IMAGE,
+    LOWER,
+    Entry,
+    FrameScorer,
+    MetricOptions,
+    MetricSpec,
+)
 
 PIQ_LICENCE = "definitions as PIQ 0.8 (Apache-2.0); own implementation"
 MS_MIN = 161
@@ -92,5 +101,5 @@ class IQAEntry(Entry):
         return IQAScorer(self.spec, getattr(iqa, self.d.function))
 
 
-for _d in DEFS:
-    register(IQAEntry(_d))
+ENTRIES: tuple[Entry, ...] = tuple(IQAEntry(d) for d in DEFS)
+LISTING_GROUP = CLASSICAL_IMAGE

@@ -1,8 +1,10 @@
 """The metric registry: what each metric is (spec), whether it can run here, how to build it.
 
-Every metric, CGVQM included, is an :class:`Entry` registered under a lower-case name. An
-entry says what the metric is (:class:`MetricSpec`: direction, range, kind, devices, weights,
-outputs, colour handling, licence), whether it can run on this machine (:meth:`Entry.availability`,
+Every metric, CGVQM included, is an :class:`Entry` registered under a lower-case name; the
+modules of this package declare their entries and the registry finds them (see "discovery"
+below), so adding a metric is adding a module. An entry says what the metric is
+(:class:`MetricSpec`: direction, range, kind, devices, weights, outputs, colour handling,
+licence), whether it can run on this machine (:meth:`Entry.availability`,
 with a one-line reason when not) and builds a :class:`Scorer` from the run's
 :class:`MetricOptions`. Scorers come in two kinds: :class:`FrameScorer` (an image metric,
 scored per frame and averaged over frames, the paper's protocol) and :class:`VideoScorer`
@@ -12,11 +14,14 @@ streaming source CGVQM uses.
 
 from __future__ import annotations
 
+import importlib
 import importlib.util
+import pkgutil
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -186,15 +191,39 @@ def package_version(dist: str) -> str | None:
         return None
 
 
+# -- discovery ----------------------------------------------------------------------------
+# A module of this package declares metrics with two module-level names: ``ENTRIES`` (a tuple
+# of :class:`Entry`) and ``LISTING_GROUP`` (one of the groups below). The registry imports
+# every public module and subpackage of the package the first time it is asked (helpers that
+# should not be imported then are private, ``_name``) and lists the groups in this order, the
+# modules of a group by name, and each module's entries in the order it declares them.
+CLASSICAL_IMAGE = "classical image"
+PERCEPTUAL_IMAGE = "perceptual image"
+LEARNED_IMAGE = "learned image"
+VIDEO_METRICS = "video"
+CGVQM_ITSELF = "cgvqm"
+LISTING_GROUPS = (CLASSICAL_IMAGE, PERCEPTUAL_IMAGE, LEARNED_IMAGE, VIDEO_METRICS, CGVQM_ITSELF)
+
 _REGISTRY: dict[str, Entry] = {}
 _LOADED = False
 
 
-def register(entry: Entry) -> Entry:
-    if entry.spec.name in _REGISTRY:
-        raise ValueError(f"metric {entry.spec.name} registered twice")
-    _REGISTRY[entry.spec.name] = entry
-    return entry
+def _declaring_modules() -> list[ModuleType]:
+    """The package's modules that declare ``ENTRIES``, in listing order."""
+    package = importlib.import_module(__package__)
+    found = []
+    for info in pkgutil.iter_modules(package.__path__):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{__package__}.{info.name}")
+        if not hasattr(module, "ENTRIES"):
+            continue
+        group = getattr(module, "LISTING_GROUP", None)
+        if group not in LISTING_GROUPS:
+            raise ValueError(f"{module.__name__} declares ENTRIES with LISTING_GROUP "
+                             f"{group!r}, not one of {', '.join(LISTING_GROUPS)}")
+        found.append(module)
+    return sorted(found, key=lambda m: (LISTING_GROUPS.index(m.LISTING_GROUP), m.__name__))
 
 
 def _load() -> None:
@@ -202,18 +231,33 @@ def _load() -> None:
     if _LOADED:
         return
     _LOADED = True
-    import importlib
-
-    # registration order is listing order: image metrics, then video metrics, CGVQM last
-    for module in ("piq_family", "flip_entry", "learned", "cvvdp_entry", "vmaf",
-                   "cgvqm_entry"):
-        importlib.import_module(f"{__package__}.{module}")
+    for module in _declaring_modules():
+        for entry in module.ENTRIES:
+            if entry.spec.name in _REGISTRY:
+                raise ValueError(f"metric {entry.spec.name} registered twice")
+            _REGISTRY[entry.spec.name] = entry
 
 
 def entries() -> list[Entry]:
-    """Every registered metric, in registry order."""
+    """Every registered metric, in listing order (image metrics, video metrics, CGVQM last)."""
     _load()
     return list(_REGISTRY.values())
+
+
+def metric_table_rows() -> list[dict[str, Any]]:
+    """One plain-data row per registered metric, in listing order: its spec (name, title,
+    direction, kind, range, devices, weights, outputs, colour, licence, reference) and whether
+    it can run here (``available``, ``reason``). What ``cgvqm metrics`` prints and the docs'
+    metric table are made from."""
+    rows = []
+    for e in entries():
+        a, sp = e.availability(), e.spec
+        rows.append({"name": sp.name, "title": sp.title, "direction": sp.direction,
+                     "kind": sp.kind, "range": sp.range_text(), "devices": list(sp.devices),
+                     "needs_weights": sp.needs_weights, "outputs": list(sp.outputs),
+                     "colour": sp.colour, "licence": sp.licence, "reference": sp.reference,
+                     "available": a.ok, "reason": a.reason})
+    return rows
 
 
 def get_entry(name: str) -> Entry:

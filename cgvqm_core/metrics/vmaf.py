@@ -23,13 +23,13 @@ from ..stream import FrameSource, Geometry, _counted, aligned_frames
 from .registry import (
     HIGHER,
     VIDEO,
+    VIDEO_METRICS,
     Availability,
     Entry,
     MetricOptions,
     MetricScore,
     MetricSpec,
     VideoScorer,
-    register,
 )
 
 SPEC = MetricSpec(
@@ -120,4 +120,5 @@ class VmafEntry(Entry):
         return VmafScorer(options)
 
 
-register(VmafEntry())
+ENTRIES: tuple[Entry, ...] = (VmafEntry(),)
+LISTING_GROUP = VIDEO_METRICS

@@ -11,16 +11,9 @@ from __future__ import annotations
 import bisect
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
 
+from ..text_measure import Measure
 from .markdown import Block, Run
-
-
-class Measure(Protocol):
-    def size(self, text: str, px: int, style: str = "regular") -> tuple[int, int]: ...
-
-    def line_height(self, px: int, style: str = "regular") -> int: ...
-
 
 # Heading sizes relative to body text, by level.
 HEADING_SCALE = {1: 1.45, 2: 1.22, 3: 1.08}

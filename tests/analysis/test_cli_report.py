@@ -196,7 +196,7 @@ def test_mle_fallback_is_said_on_the_console(tmp_path: Path, capsys, monkeypatch
     """When SUREAL's MLE diverges the console says so (not only report.html)."""
     import analysis.scores as scores
 
-    monkeypatch.setattr(scores, "_plausible", lambda out, rs, calls=[0]:
+    monkeypatch.setattr(scores, "plausible", lambda out, rs, calls=[0]:
                         calls.append(1) or len(calls) > 2)
     from analysis.synthetic import synthetic_study
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from analysis.inputs import ratings_from_frame
-from analysis.outliers import grubbs_critical, grubbs_statistic, screen_raters
+from analysis.screening import screen_raters
+from analysis.screening.grubbs import grubbs_critical, grubbs_statistic
 from analysis.synthetic import synthetic_study
 
 

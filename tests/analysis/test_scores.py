@@ -70,7 +70,7 @@ def test_p910_downweights_an_inconsistent_rater() -> None:
 
 def test_dmos_order_follows_levels(study) -> None:
     rs = ratings_from_frame(study.ratings, study.manifest)
-    from analysis.outliers import screen_raters
+    from analysis.screening import screen_raters
 
     kept = rs.with_raters(screen_raters(rs).kept)
     table = dmos_table(kept, fit_scores(kept, "mle"))

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from analysis.inputs import ratings_from_frame
-from analysis.outliers import screen_raters
 from analysis.quality import loo_correlation
-from analysis.screening import R1_MIN, Z_MAX, loo_hrc_correlation, robust_z
+from analysis.screening import screen_raters
+from analysis.screening.p913 import R1_MIN, Z_MAX, loo_hrc_correlation, robust_z
 from analysis.sureal_io import load_sureal
 from analysis.synthetic import synthetic_study
 

@@ -11,8 +11,8 @@ import pytest
 
 from analysis.errors import AnalysisError
 from analysis.exports import rating_matrix
-from analysis.outliers import screen_raters
 from analysis.scores import fit_scores
+from analysis.screening import screen_raters
 from analysis.sureal_io import load_sureal, parse_sureal_py, write_sureal_json
 
 

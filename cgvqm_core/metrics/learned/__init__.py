@@ -21,6 +21,7 @@ import numpy as np
 from ...errors import CGVQMError
 from ..registry import (
     IMAGE,
+    LEARNED_IMAGE,
     LOWER,
     Availability,
     Entry,
@@ -28,7 +29,6 @@ from ..registry import (
     MetricOptions,
     MetricSpec,
     module_available,
-    register,
 )
 from . import files
 
@@ -187,5 +187,5 @@ class LearnedEntry(Entry):
         return LearnedScorer(self.spec, self.d, weights, fn, per_pass)
 
 
-for _d in DEFS:
-    register(LearnedEntry(_d))
+ENTRIES: tuple[Entry, ...] = tuple(LearnedEntry(d) for d in DEFS)
+LISTING_GROUP = LEARNED_IMAGE

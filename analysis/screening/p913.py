@@ -1,4 +1,4 @@
-"""Rater screening that is not fooled by rater bias or by other bad raters (``--outliers p913``).
+"""``p913`` (the default): screening not fooled by rater bias or by other bad raters.
 
 The rule (the default):
 
@@ -35,8 +35,11 @@ import warnings
 import numpy as np
 import pandas as pd
 
-from .data import RatingSet
-from .quality import loo_correlation
+from ..data import RatingSet
+from ..quality import loo_correlation
+from ..subject_models import mos_and_t, plausible, rater_stats_from_means, run_sureal
+from .result import OutlierResult, RemovedRater
+from .rule import ScreeningRule
 
 log = logging.getLogger(__name__)
 
@@ -83,13 +86,11 @@ def inconsistency(rs: RatingSet) -> tuple[np.ndarray, str]:
         MaximumLikelihoodEstimationModelContentObliviousAlternativeProjection2 as P910Model,
     )
 
-    from .scores import _plausible, _rater_stats_from_means, _run_sureal, mos_and_t
-
-    out = _run_sureal(P910Model, rs)
-    if _plausible(out, rs):
+    out = run_sureal(P910Model, rs)
+    if plausible(out, rs):
         return np.asarray(out["observer_inconsistency"], dtype=float), "SUREAL MLE_CO_AP2"
     mos, _, _ = mos_and_t(rs.scores)
-    _, _, v, _ = _rater_stats_from_means(rs, mos)
+    _, _, v, _ = rater_stats_from_means(rs, mos)
     return v, "residual s.d. around the MOS after removing each rater's bias"
 
 
@@ -102,10 +103,8 @@ def robust_z(values: np.ndarray, floor: float) -> np.ndarray:
 
 
 def p913_screen(rs: RatingSet, *, r1_min: float = R1_MIN, r2_min: float = R2_MIN,
-                z_max: float = Z_MAX):
+                z_max: float = Z_MAX) -> OutlierResult:
     """Iterated P.913 correlation screening confirmed by the MLE inconsistency (see module)."""
-    from .outliers import OutlierResult, RemovedRater
-
     means = rs.rater_means()
     hrc = hrc_labels(rs)
     kept = list(range(rs.n_raters))
@@ -205,3 +204,10 @@ def _kept_reason(st: dict, r1_min: float, r2_min: float, z_max: float) -> str:
     if near:
         return "near-miss, kept: " + "; ".join(near)
     return ""
+
+
+RULE = ScreeningRule(
+    name="p913", order=0,
+    summary=("ITU-T P.913 correlation with the leave-one-out panel, iterated, confirmed by the "
+             "MLE inconsistency"),
+    screen=p913_screen)

@@ -17,7 +17,7 @@ PYTEST_ARGS ?=
 # reference the tests check the image metrics against; Apache-2.0, test-only).
 NO_DEPS_PACKAGES := cvvdp==0.5.7 piq==0.8.0
 
-.PHONY: demo test test-slow lint install system-deps clean participant-app
+.PHONY: demo test test-slow lint docs install system-deps clean participant-app
 
 DEMO_ARGS ?=
 
@@ -32,6 +32,11 @@ test-slow: install
 
 lint: install
 	$(BIN)/ruff check .
+
+# The documentation site (docs/, mkdocs.yml) into site/; strict: a warning fails the build.
+docs: install
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
+	@echo "documentation: site/index.html"
 
 install: system-deps $(STAMP)
 
@@ -66,4 +71,4 @@ participant-app: system-deps
 	@du -sh dist/cgvq-study | awk '{print "participant app: dist/cgvq-study (" $$1 ")"}'
 
 clean:
-	rm -rf $(VENV) demo_output .pytest_cache .ruff_cache *.egg-info build dist
+	rm -rf $(VENV) demo_output .pytest_cache .ruff_cache *.egg-info build dist site

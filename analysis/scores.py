@@ -188,7 +188,8 @@ def dmos_from_quality(
 
 
 def dmos_table(rs: RatingSet, res: ScoreResult) -> pd.DataFrame:
-    """The DMOS contract (DESIGN.md 5) columns first, then scene, quality and its CI."""
+    """The DMOS table (cgvq-dmos/1, docs/file-formats.md): its columns first, then scene,
+    quality and its CI."""
     st = rs.stimuli
     return pd.DataFrame({
         "stimulus": st.index.astype(str),

@@ -25,7 +25,7 @@ from stimuli_manifests import LoadedManifest, Manifest, parse_manifest
 @dataclass
 class SyntheticStudy:
     manifest: LoadedManifest
-    ratings: pd.DataFrame  # tidy ratings table (DESIGN.md contract 3, main columns)
+    ratings: pd.DataFrame  # tidy ratings table (cgvq-ratings/1, docs/file-formats.md; main columns)
     quality: pd.Series  # true quality per stimulus id
     bias: pd.Series  # true bias per rater
     outliers: list[str]

@@ -12,5 +12,6 @@ RATINGS_COLUMNS: tuple[str, ...] = RATINGS.required
 
 
 def write_ratings_csv(rows: Iterable[dict[str, Any]], out: str | Path) -> Path:
-    """Write ratings rows (dicts with :data:`RATINGS_COLUMNS`) as the tidy CSV of DESIGN.md."""
+    """Write ratings rows (dicts with :data:`RATINGS_COLUMNS`) as the tidy ratings CSV
+    (cgvq-ratings/1, docs/file-formats.md)."""
     return write_table(out, RATINGS, rows)

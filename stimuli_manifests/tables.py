@@ -1,4 +1,4 @@
-"""The CSV contracts of the toolkit (DESIGN.md 3-5), each with its format version.
+"""The CSV contracts of the toolkit (docs/file-formats.md), each with its format version.
 
 One place defines the columns of the ratings, metric-scores and DMOS tables; every writer and
 reader goes through it. Each written file carries its format in a last column ``format``

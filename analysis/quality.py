@@ -59,7 +59,7 @@ def facts_from_sessions(records: list) -> pd.DataFrame:
     rows = []
     by_participant: dict[str, list] = {}
     for rec in records:
-        by_participant.setdefault(rec.participant, []).append(rec)
+        by_participant.setdefault(rec.info.participant, []).append(rec)
     for participant, recs in by_participant.items():
         pres = [p for r in recs for p in r.presentations]
         if not pres:  # reader without presentation logs: the rating rows carry the basics
@@ -75,8 +75,8 @@ def facts_from_sessions(records: list) -> pd.DataFrame:
             "n_planned": max(r.n_planned for r in recs),
             "timing_mode": ", ".join(modes),
             "vsync": (all(vsync) if vsync else None),
-            "preflight_skipped": any(r.preflight_skipped for r in recs),
-            "finished": all(r.finished_at is not None for r in recs),
+            "preflight_skipped": any(r.info.preflight_skipped for r in recs),
+            "finished": all(r.info.finished_at is not None for r in recs),
             "presentations": len(pres),
             "dropped_frames": int(sum(drops)),
             "trials_with_drops": int(sum(d > 0 for d in drops)),
@@ -113,7 +113,13 @@ def facts_from_rows(frame: pd.DataFrame) -> pd.DataFrame:
 
 
 # -- agreement figures ------------------------------------------------------------------
-def loo_correlation(means: np.ndarray, min_stimuli: int = 5) -> np.ndarray:
+MIN_PANEL_STIMULI = 5
+"""Fewest stimuli a rater's panel correlation is computed from. Below five, the 95 % interval
+of a Pearson r spans most of [-1, 1] whatever the rater did, so the number would only
+alarm or reassure by chance."""
+
+
+def loo_correlation(means: np.ndarray, min_stimuli: int = MIN_PANEL_STIMULI) -> np.ndarray:
     """Per rater, Pearson r between their ratings and the mean of all other raters (over the
     stimuli they rated and someone else rated too). NaN with fewer than ``min_stimuli``
     stimuli or no variance (a rater who gives one value to everything)."""
@@ -133,6 +139,12 @@ def loo_correlation(means: np.ndarray, min_stimuli: int = 5) -> np.ndarray:
         if a.std() > 0 and b.std() > 0:
             out[s] = float(np.corrcoef(a, b)[0, 1])
     return out
+
+
+def panel_correlation(rs: RatingSet) -> pd.Series:
+    """Per rater, the leave-one-out panel correlation of their per-stimulus mean ratings:
+    the one definition that the report's data-quality table and the live dashboard show."""
+    return pd.Series(loo_correlation(rs.rater_means()), index=rs.raters, dtype=float)
 
 
 def hidden_reference_mean(rs: RatingSet) -> np.ndarray:
@@ -166,8 +178,7 @@ def quality_table(rs: RatingSet, *, screening: pd.DataFrame | None = None,
     if "status" not in info.columns:
         info["status"] = "used"
     info["status"] = info["status"].fillna("used")
-    means = rs.rater_means()
-    loo = pd.Series(loo_correlation(means), index=rs.raters)
+    loo = panel_correlation(rs)
     rep = pd.Series(repeat_r if repeat_r is not None else repetition_correlation(rs.scores),
                     index=rs.raters)
     span = rs.scale_max - rs.scale_min

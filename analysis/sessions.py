@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from session_store.records import SessionInfo
+
 from .data import Exclusion, InputProblem
 from .errors import AnalysisError
 
@@ -38,20 +40,11 @@ def _store():
 
 @dataclass
 class Session:
-    """What the analysis needs from one session file (read once, then closed)."""
+    """What the analysis needs from one session file (read once, then closed): the session
+    record as the session store reads it (``info``), its rows, and what was found wrong."""
 
     path: str
-    session_id: str
-    participant: str
-    study_id: str
-    manifest_sha256: str | None
-    settings: dict[str, Any]
-    display: dict[str, Any]
-    preflight_skipped: bool
-    withdrawn: bool
-    started_at: str | None
-    finished_at: str | None
-    created_at: str | None
+    info: SessionInfo
     ratings: list[dict[str, Any]]
     presentations: list[dict[str, Any]]
     n_planned: int
@@ -63,20 +56,22 @@ class Session:
         """``vsync`` for participant runs, ``paced-pilot`` when the experimenter allowed
         running without vsync, ``simulated`` for ``cgvq-study simulate``'s raters (no
         display); empty when the session predates the setting."""
-        mode = self.settings.get("timing_mode")
-        if not mode and self.settings.get("simulated"):
+        settings = self.info.settings or {}
+        mode = settings.get("timing_mode")
+        if not mode and settings.get("simulated"):
             return "simulated"
         return str(mode or "")
 
     @property
     def vsync(self) -> bool | None:
-        value = self.display.get("vsync")
+        value = (self.info.display or {}).get("vsync")
         return None if value is None else bool(value)
 
     @property
     def order_key(self) -> tuple[str, str, str]:
         """Sessions are ranked by start time, then session id, then path (deterministic)."""
-        return (self.started_at or self.created_at or "", self.session_id, self.path)
+        return (self.info.started_at or self.info.created_at or "", self.info.session_id,
+                self.path)
 
 
 @contextlib.contextmanager
@@ -112,15 +107,9 @@ def read_one(source) -> Session:
     problems = [InputProblem(name, p.row, p.message) for p in rec.problems]
     problems += [InputProblem(name, None, w.removeprefix(f"{name}: ")) for w in source.warnings]
     damaged = "; ".join(p.message for p in source.problems)
-    return Session(
-        path=name, session_id=str(info.session_id), participant=str(info.participant),
-        study_id=str(info.study_id), manifest_sha256=info.manifest_sha256,
-        settings=dict(info.settings or {}), display=dict(info.display or {}),
-        preflight_skipped=bool(info.preflight_skipped), withdrawn=bool(info.withdrawn),
-        started_at=info.started_at, finished_at=info.finished_at,
-        created_at=info.created_at, ratings=list(rec.ratings),
-        presentations=list(rec.presentations), n_planned=int(rec.n_planned),
-        problems=problems, damaged=damaged)
+    return Session(path=name, info=info, ratings=list(rec.ratings),
+                   presentations=list(rec.presentations), n_planned=int(rec.n_planned),
+                   problems=problems, damaged=damaged)
 
 
 # -- deciding what belongs ------------------------------------------------------------------
@@ -144,32 +133,32 @@ def select_sessions(records: list[Session], study_id: str,
             exclusions.append(Exclusion(
                 "refused session", rec.path, f"{rec.damaged}; ask for the file again",
                 "session files must match the checksums of their export"))
-        elif rec.withdrawn:
+        elif rec.info.withdrawn:
             exclusions.append(Exclusion(
                 "refused session", rec.path,
-                f"participant {rec.participant} withdrew from the study; their ratings are "
+                f"participant {rec.info.participant} withdrew from the study; their ratings are "
                 "not used", "withdrawn sessions are never analysed"))
-        elif rec.study_id != study_id:
+        elif rec.info.study_id != study_id:
             exclusions.append(Exclusion(
                 "refused session", rec.path,
-                f"belongs to study {rec.study_id!r}, not to this manifest's study "
+                f"belongs to study {rec.info.study_id!r}, not to this manifest's study "
                 f"{study_id!r}", "session study_id must equal the manifest's study_id"))
-        elif manifest_sha256 and rec.manifest_sha256 and \
-                rec.manifest_sha256 != manifest_sha256:
+        elif manifest_sha256 and rec.info.manifest_sha256 and \
+                rec.info.manifest_sha256 != manifest_sha256:
             exclusions.append(Exclusion(
                 "refused session", rec.path,
-                f"was run with another manifest (sha256 {rec.manifest_sha256[:12]}..., this "
+                f"was run with another manifest (sha256 {rec.info.manifest_sha256[:12]}..., this "
                 f"one is {manifest_sha256[:12]}...); if the manifest was edited after the "
                 "study, analyse with the manifest the participants saw",
                 "session manifest_sha256 must equal the manifest file's sha256"))
         else:
-            if manifest_sha256 and not rec.manifest_sha256:
+            if manifest_sha256 and not rec.info.manifest_sha256:
                 problems.append(InputProblem(rec.path, None, "session records no manifest "
                                              "checksum; its study id matches, so it is used"))
             kept.append(rec)
     by_id: dict[str, list[Session]] = {}
     for rec in kept:
-        by_id.setdefault(rec.session_id, []).append(rec)
+        by_id.setdefault(rec.info.session_id, []).append(rec)
     used: list[Session] = []
     for copies in by_id.values():
         copies.sort(key=lambda r: (-len(r.ratings), r.path))
@@ -177,8 +166,8 @@ def select_sessions(records: list[Session], study_id: str,
         for other in copies[1:]:
             exclusions.append(Exclusion(
                 "duplicate session", other.path,
-                f"another copy of session {other.session_id} (participant "
-                f"{other.participant}); the copy with the most ratings, {copies[0].path}, "
+                f"another copy of session {other.info.session_id} (participant "
+                f"{other.info.participant}); the copy with the most ratings, {copies[0].path}, "
                 "is used", "one file per session id: most ratings, then file name"))
     used.sort(key=lambda r: r.order_key)
     for rec in used:

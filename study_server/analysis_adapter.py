@@ -101,22 +101,17 @@ def _dmos_png(a: Any) -> bytes:
         return path.read_bytes()
 
 
-def panel_correlation(frame: pd.DataFrame) -> dict[str, float]:
-    """Per participant, Pearson r of their per-stimulus means with the mean of everyone else
-    (over stimuli both rated; NaN-free pairs >= 3)."""
+def panel_correlation(frame: pd.DataFrame, loaded: LoadedManifest) -> dict[str, float]:
+    """Per participant, the report's leave-one-out panel correlation
+    (:func:`analysis.quality.panel_correlation`) over the ratings so far; participants with
+    too few stimuli for it are left out."""
+    from analysis import AnalysisError, ratings_from_frame
+    from analysis.quality import panel_correlation as panel_r
+
     if frame.empty:
         return {}
-    means = frame.pivot_table(index="stimulus", columns="participant", values="rating",
-                              aggfunc="mean")
-    out: dict[str, float] = {}
-    total = means.sum(axis=1, min_count=1)
-    count = means.notna().sum(axis=1)
-    for p in means.columns:
-        mine = means[p]
-        others_n = count - mine.notna()
-        with np.errstate(invalid="ignore", divide="ignore"):
-            others = (total - mine.fillna(0.0)) / others_n.where(others_n > 0)
-        ok = mine.notna() & others.notna()
-        if ok.sum() >= 3 and mine[ok].std() > 0 and others[ok].std() > 0:
-            out[str(p)] = float(np.corrcoef(mine[ok], others[ok])[0, 1])
-    return out
+    try:
+        rs = ratings_from_frame(frame, loaded, source="server")
+    except AnalysisError:
+        return {}
+    return {str(p): float(r) for p, r in panel_r(rs).items() if np.isfinite(r)}

@@ -77,14 +77,16 @@ def _num(x: Any) -> float | None:
     return float(x) if isinstance(x, int | float) and not isinstance(x, bool) else None
 
 
-def participant_stats(rows: list[tuple[str, str, str, str]]) -> dict[str, ParticipantStats]:
-    """Per-participant behaviour from the entries (participant, sha, kind, body JSON)."""
+def participant_stats(rows: list[tuple[str, str, str, str, str]]
+                      ) -> dict[str, ParticipantStats]:
+    """Per-participant behaviour from the entries (participant, sha, kind, body JSON,
+    session id)."""
     out: dict[str, ParticipantStats] = {}
     rts: dict[str, list[float]] = {}
     toggles: dict[str, list[float]] = {}
     viewing: dict[str, list[float]] = {}
     hidden: dict[str, list[float]] = {}
-    for pid, _, kind, text in rows:
+    for pid, _, kind, text, _ in rows:
         ps = out.setdefault(pid, ParticipantStats(pid))
         body = json.loads(text)
         if kind == "rating":
@@ -134,22 +136,21 @@ def participant_stats(rows: list[tuple[str, str, str, str]]) -> dict[str, Partic
     return out
 
 
-def ratings_frame(rows: list[tuple[str, str, str, str]]) -> Any:
-    """The tidy ratings (participant, stimulus, reference, repetition, rating...) of the
-    rating entries, as a pandas frame for the analysis."""
+def ratings_frame(rows: list[tuple[str, str, str, str, str]], study_id: str) -> Any:
+    """The ratings received so far as the tidy ratings table (``cgvq-ratings/1``, each row
+    built by :func:`session_store.chain.tidy_row`, as in an export), for the analysis."""
     import pandas as pd
 
+    from session_store.chain import tidy_row
+    from stimuli_manifests.tables import RATINGS
+
     records = []
-    for pid, _, kind, text in rows:
+    for pid, _, kind, text, session_id in rows:
         if kind != "rating":
             continue
-        row = json.loads(text).get("row", {})
-        records.append({"participant": pid, "stimulus": row.get("stimulus"),
-                        "reference": row.get("reference"),
-                        "repetition": row.get("repetition"), "rating": row.get("rating"),
-                        "is_hidden_reference": bool(row.get("is_hidden_reference"))})
-    return pd.DataFrame.from_records(records, columns=[
-        "participant", "stimulus", "reference", "repetition", "rating", "is_hidden_reference"])
+        header = {"study_id": study_id, "session_id": session_id, "participant": pid}
+        records.append(tidy_row(header, json.loads(text).get("row", {})))
+    return pd.DataFrame.from_records(records, columns=list(RATINGS.required))
 
 
 class StatsWorker:
@@ -213,7 +214,7 @@ class StatsWorker:
         rows = store.entries_of_kinds(["session", "start", "preflight", "rating", "requeue"])
         snap = StatsSnapshot(marker=marker)
         snap.participants = participant_stats(rows)
-        frame = ratings_frame(rows)
+        frame = ratings_frame(rows, self.current.study_id)
         snap.n_ratings = len(frame)
         current = self.current
         manifest = json.loads(current.manifest_bytes)
@@ -231,12 +232,12 @@ class StatsWorker:
         self._progress(snap, rows, invited)
         from .analysis_adapter import analyse, loaded_manifest, panel_correlation
 
-        for pid, r in panel_correlation(frame).items():
+        loaded = loaded_manifest(current.manifest_bytes, current.manifest_sha256)
+        for pid, r in panel_correlation(frame, loaded).items():
             if pid in snap.participants:
                 snap.participants[pid].panel_r = r
         if len(frame):
-            snap.study = analyse(frame, loaded_manifest(current.manifest_bytes,
-                                                        current.manifest_sha256))
+            snap.study = analyse(frame, loaded)
             snap.figures = dict(snap.study.figures)
             for pid, reason in snap.study.removed_reasons.items():
                 if pid in snap.participants:

@@ -393,13 +393,15 @@ class ServerStore:
             return [r[0] for r in con.execute(
                 "SELECT entry_hash FROM entries WHERE session_id=? ORDER BY seq", (session_id,))]
 
-    def entries_of_kinds(self, kinds: Sequence[str]) -> list[tuple[str, str, str, str]]:
-        """(participant, manifest sha256, kind, body) of every entry of these kinds, in
-        session and sequence order (the live statistics' input)."""
+    def entries_of_kinds(self, kinds: Sequence[str]
+                         ) -> list[tuple[str, str, str, str, str]]:
+        """(participant, manifest sha256, kind, body, session id) of every entry of these
+        kinds, in session and sequence order (the live statistics' input)."""
         marks = ",".join("?" * len(kinds))
         with self._read() as con:
             return [tuple(r) for r in con.execute(
-                "SELECT s.participant, s.manifest_sha256, e.kind, e.body FROM entries e JOIN "
+                "SELECT s.participant, s.manifest_sha256, e.kind, e.body, s.session_id "
+                "FROM entries e JOIN "
                 f"sessions s USING (session_id) WHERE e.kind IN ({marks}) "
                 "ORDER BY s.participant, e.seq", tuple(kinds))]
 

@@ -108,10 +108,13 @@ def test_a_simulated_session_is_not_flagged_for_its_missing_pre_flight() -> None
 
 def test_simulated_sessions_say_so_in_their_timing_mode() -> None:
     from analysis.sessions import Session
+    from session_store.records import SessionInfo
 
-    fields = {f: None for f in Session.__dataclass_fields__}
-    rec = Session(**{**fields, "settings": {"simulated": True}})
-    assert rec.timing_mode == "simulated"
-    rec = Session(**{**fields, "settings": {"simulated": True, "timing_mode": "vsync"}})
-    assert rec.timing_mode == "vsync"
-    assert Session(**{**fields, "settings": {}}).timing_mode == ""
+    def session(settings: dict) -> Session:
+        info = SessionInfo(**{**{f: None for f in SessionInfo.__dataclass_fields__},
+                              "settings": settings})
+        return Session(path="x.sqlite", info=info, ratings=[], presentations=[], n_planned=0)
+
+    assert session({"simulated": True}).timing_mode == "simulated"
+    assert session({"simulated": True, "timing_mode": "vsync"}).timing_mode == "vsync"
+    assert session({}).timing_mode == ""

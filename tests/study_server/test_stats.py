@@ -3,7 +3,9 @@ arrived, through the analysis package; equal to the analysis run on the pulled f
 
 from __future__ import annotations
 
+import json
 import time
+from pathlib import Path
 
 import pytest
 
@@ -15,7 +17,7 @@ from study_app.simulate import SimulationOptions, run_simulation
 from study_server.config import ServerConfig
 from study_server.state import ServerState
 
-from .conftest import ADMIN, make_served_study
+from .conftest import ADMIN, make_served_study, write_session
 
 
 def _upload_file(st: ServerState, path, pid: str) -> None:
@@ -98,3 +100,25 @@ def test_recomputed_at_most_every_n_seconds_and_only_on_change(panel):
         assert st.stats.snapshot() is second
     finally:
         st.stop()
+
+
+def test_the_dashboard_frame_holds_the_exported_rows(tmp_path: Path):
+    """The server's tidy rows of the uploaded entries equal the session file's own export."""
+    from session_store import read_info, read_session
+    from study_server.stats import ratings_frame
+
+    study = make_served_study(tmp_path / "study")
+    path = tmp_path / "P01.sqlite"
+    write_session(study, path, "P01", ratings=4).close()
+    info = read_info(path)
+    con = open_existing(path, readonly=True)
+    try:
+        entries = read_entries(con)
+    finally:
+        con.close()
+    rows = [("P01", info.manifest_sha256 or "", e.kind, json.dumps(e.body), info.session_id)
+            for e in entries]
+    frame = ratings_frame(rows, info.study_id)
+    exported = read_session(path).ratings
+    assert len(exported) == 4
+    assert frame.to_dict("records") == [dict(r) for r in exported]

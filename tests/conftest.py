@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+# Shared helpers live in tests/support/ and are imported as ``support``.
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 SHARED_DATA = REPO.parent / "shared" / "data"
 
 

@@ -57,7 +57,8 @@ def upstream_dir() -> Path:
 
 @pytest.fixture(scope="session", autouse=True)
 def _one_thread():
-    """The test videos are tiny: one thread avoids thread-pool contention on a busy machine."""
+    """The test videos are tiny: one thread avoids thread-pool contention on a busy machine.
+    (Applies to metrics/ and calibration/ below too.)"""
     before = torch.get_num_threads()
     torch.set_num_threads(1)
     yield
@@ -70,6 +71,7 @@ def _no_network(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     monkeypatch.setenv("CGVQM_OFFLINE", "1")
     monkeypatch.setenv("CGVQM_CACHE", str(tmp_path / "cgvqm-cache"))
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch-home"))
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     monkeypatch.delenv("CGVQM_BACKBONE", raising=False)
     monkeypatch.delenv("CGVQM_WEIGHTS_DIR", raising=False)
 

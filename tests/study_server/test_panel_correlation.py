@@ -7,10 +7,10 @@ import pytest
 
 pytest.importorskip("pandas")
 
-from analysis import AnalysisConfig, ratings_from_frame, run_analysis  # noqa: E402
-from analysis.quality import MIN_PANEL_STIMULI  # noqa: E402
-from analysis.synthetic import synthetic_study  # noqa: E402
-from study_server.analysis_adapter import panel_correlation  # noqa: E402
+from analysis import AnalysisConfig, ratings_from_frame, run_analysis
+from analysis.quality import MIN_PANEL_STIMULI
+from analysis.synthetic import synthetic_study
+from study_server.analysis_adapter import panel_correlation
 
 
 def test_dashboard_and_report_agree_for_every_rater():

@@ -10,8 +10,9 @@ import sqlite3
 from pathlib import Path
 
 import pytest
+from support.tamper import recompute_rating_chain
 
-from session_store.chain import canonical, normalise_row, row_hash
+from session_store.chain import canonical
 from session_store.errors import StudyError
 from session_store.outbox import entry_hash
 from session_store.replica import _dump
@@ -40,28 +41,10 @@ def _remove_tail_and_fix_header(path: Path) -> None:
     con.close()
 
 
-def _recompute_rating_chain(path: Path) -> None:
-    con = sqlite3.connect(path)
-    con.row_factory = sqlite3.Row
-    rows = [dict(r) for r in con.execute("SELECT * FROM ratings ORDER BY seq")]
-    prev = rows[0]["prev_hash"]
-    for r in rows:
-        r["prev_hash"] = prev
-        if r["seq"] == 2:
-            r["rating"] = 77.0
-        r["row_hash"] = row_hash(normalise_row(r))
-        con.execute("UPDATE ratings SET rating=?, prev_hash=?, row_hash=? WHERE seq=?",
-                    (r["rating"], r["prev_hash"], r["row_hash"], r["seq"]))
-        prev = r["row_hash"]
-    con.execute("UPDATE session SET head_hash=?", (prev,))
-    con.commit()
-    con.close()
-
-
 def _rewrite_change_log(path: Path) -> None:
     """The thorough forger: rating 2 edited in the tables, the rating chain and the change
     log, every hash recomputed, and the upload state reset so that everything is re-sent."""
-    _recompute_rating_chain(path)
+    recompute_rating_chain(path)
     con = sqlite3.connect(path)
     rows = con.execute("SELECT seq, kind, body, prev_hash FROM outbox ORDER BY seq").fetchall()
     ratings = {r[0]: r for r in con.execute("SELECT seq, rating, prev_hash, row_hash FROM "
@@ -90,7 +73,7 @@ EDITS = {
     "deleted row": _sql("DELETE FROM ratings WHERE seq = 4"),
     "removed tail, header updated": _remove_tail_and_fix_header,
     "edited pre-flight": _sql("UPDATE session SET preflight = '[]', preflight_skipped = 1"),
-    "recomputed rating chain": _recompute_rating_chain,
+    "recomputed rating chain": recompute_rating_chain,
     "edited change log": _sql("UPDATE outbox SET body = replace(body, '\"skipped\":false', "
                               "'\"skipped\":true') WHERE kind = 'preflight'"),
     "rewritten change log, re-hashed": _rewrite_change_log,

@@ -3,8 +3,6 @@ photographs) panned into short videos, graded distortions of them, and no networ
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
@@ -38,21 +36,3 @@ def noisy(video: np.ndarray, std: float, seed: int = 0) -> np.ndarray:
 def as_batch(video: np.ndarray) -> torch.Tensor:
     """(T, H, W, 3) uint8 -> (T, 3, H, W) float32 in [0, 1], as the engine converts it."""
     return torch.from_numpy(video).permute(0, 3, 1, 2).to(torch.float32) / 255.0
-
-
-@pytest.fixture(autouse=True)
-def _offline(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
-    monkeypatch.setenv("CGVQM_OFFLINE", "1")
-    monkeypatch.setenv("CGVQM_CACHE", str(tmp_path / "cgvqm-cache"))
-    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch-home"))
-    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
-    monkeypatch.delenv("CGVQM_BACKBONE", raising=False)
-    monkeypatch.delenv("CGVQM_WEIGHTS_DIR", raising=False)
-
-
-@pytest.fixture(scope="session", autouse=True)
-def _threads():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)

@@ -6,6 +6,7 @@ import sqlite3
 from pathlib import Path
 
 import pytest
+from support.tamper import recompute_rating_chain
 
 from session_store import (
     ContradictionError,
@@ -17,7 +18,7 @@ from session_store import (
     tables_match_outbox,
     verify_session,
 )
-from session_store.chain import canonical, normalise_row, row_hash
+from session_store.chain import canonical
 from session_store.errors import StudyError
 from session_store.outbox import OutboxEntry, entry_hash, read_entries
 from session_store.replica import _dump
@@ -116,30 +117,10 @@ def test_replica_refuses_contradictions_gaps_and_forgeries(tmp_path):
         assert replica.accept(entries[6:]) == len(entries)
 
 
-def _recompute_rating_chain(path: Path) -> None:
-    """What a participant who read the source would do: edit a rating and re-hash the chain
-    and the header (the attack the issue describes)."""
-    con = sqlite3.connect(path)
-    con.row_factory = sqlite3.Row
-    rows = [dict(r) for r in con.execute("SELECT * FROM ratings ORDER BY seq")]
-    prev = rows[0]["prev_hash"]
-    for r in rows:
-        r["prev_hash"] = prev
-        if r["seq"] == 2:
-            r["rating"] = 77.0
-        r["row_hash"] = row_hash(normalise_row(r))
-        con.execute("UPDATE ratings SET rating=?, prev_hash=?, row_hash=? WHERE seq=?",
-                    (r["rating"], r["prev_hash"], r["row_hash"], r["seq"]))
-        prev = r["row_hash"]
-    con.execute("UPDATE session SET head_hash=?", (prev,))
-    con.commit()
-    con.close()
-
-
 def test_edits_with_a_recomputed_chain_are_caught_by_the_change_log(tmp_path):
     path = _full_session(tmp_path / "P01.sqlite")
     assert tables_match_outbox(path) == []
-    _recompute_rating_chain(path)
+    recompute_rating_chain(path)
     assert read_session(path).problems == []  # the rating chain alone cannot tell
     assert tables_match_outbox(path) == [
         "table session differs from the change log (edited outside the app)",

@@ -7,8 +7,6 @@ completeness rule, screening, reliability, scores with rater-bootstrap DMOS CIs,
 data quality, metric validation), :func:`write_report` writes the report folder.
 """
 
-__version__ = "0.1.0"
-
 from .data import Exclusion, InputProblem, RatingSet
 from .errors import AnalysisError
 from .inputs import load_ratings, ratings_from_frame
@@ -19,6 +17,7 @@ from .report import write_report
 from .scores import fit_scores
 from .screening import screen_raters
 from .sureal_io import load_sureal, write_sureal_json
+from .version import __version__
 
 __all__ = [
     "Analysis",

@@ -118,6 +118,8 @@ def ratings_from_frame(
     a reference that contradicts the manifest, or a repeated (participant, stimulus,
     repetition) are reported and left out. Of duplicates, the row of the earliest session
     (``_rank``; session files are ranked by start time) is kept, then the first in the file.
+    Long on purpose: one pass of row checks over the same columns, each of which reports in
+    the same problem list; split apart they would hand the frame and its masks back and forth.
     ``facts`` (per participant, from the session files) go into ``rater_info`` together with
     each participant's completeness.
     """

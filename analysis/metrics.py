@@ -322,6 +322,10 @@ def validate_metrics(
 ) -> MetricValidation:
     """Compare every metric with DMOS (hidden references excluded: their DMOS is fixed).
 
+    Long on purpose: the per-metric fits, the shared bootstrap draws and the comparisons
+    between metrics must use the same resamples in the same order (seeded), which one body
+    keeps visible.
+
     ``dmos`` is :func:`analysis.scores.dmos_table`'s frame; ``boot`` the
     :class:`~analysis.intervals.RaterBootstrap` of the same rating set (rows in the same
     order). Without it only the stimuli are resampled (DMOS held fixed).

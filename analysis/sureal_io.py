@@ -235,6 +235,8 @@ def ratings_from_sureal(data: dict[str, Any], *, source: str = "<dataset>") -> R
 
     Votes that are not numbers become gaps and are reported; the scale is ACR 1..5 when the
     data fit it (``ref_score`` 5), otherwise the observed range up to ``ref_score``.
+    Long on purpose: the dataset's fields are checked in the order SUREAL defines them, each
+    with its own message, before one matrix is built from them.
     """
     problems: list[InputProblem] = []
     refs: dict[Any, dict[str, Any]] = {}

@@ -19,7 +19,6 @@ import contextlib
 import logging
 import math
 import os
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +34,7 @@ from .decode import DecodedPair, Prefetcher, decode_pair, pair_bytes
 from .display import MIN_WINDOW, PACED_PILOT, Display
 from .duration import describe_duration
 from .keys import RATING, SCROLL, VIEWING, Keymap, merge
-from .layout import RatingLayout, ViewingLayout, rating_layout, text_screen_layout, viewing_layout
+from .layout import text_screen_layout
 from .preflight import (
     Check,
     PixelGeometry,
@@ -47,15 +46,11 @@ from .preflight import (
     check_refresh,
     check_screen,
 )
-from .render import VideoTexture
 from .reveal import reveal_in_file_manager
 from .run_lock import RunLock
 from .schedule import make_schedule, participant_seed, pick_practice, schedule_items
 from .screens import content
 from .screens.draw import (
-    LABEL_REFERENCE,
-    LABEL_TEST,
-    draw_rating,
     draw_text_screen,
     draw_viewing,
     warm_up_viewing,
@@ -63,15 +58,13 @@ from .screens.draw import (
 from .screens.markdown import parse_markdown
 from .screens.text_state import TextScreenState
 from .screens.textflow import flow_blocks
-from .slider import Slider
-from .trial import RATE, VIEW, Command, TrialMachine
+from .trial_screen import OnGpu, TrialScreen, viewing_layout_for
 
 __all__ = ["Display", "OnGpu", "RunOptions", "RunOutcome", "draw_viewing", "needs_requeue",
            "run_study", "warm_up_viewing"]
 
 log = logging.getLogger(__name__)
 
-QUESTION = "Rate the quality of distortions in the shown video with respect to its reference"
 
 
 @dataclass
@@ -147,23 +140,6 @@ class _WithdrawnError(Exception):
 
 class _ClosedError(Exception):
     """The window was closed before a session existed (nothing recorded)."""
-
-
-@dataclass
-class OnGpu:
-    """A trial's two videos uploaded to textures (the decoded arrays are freed)."""
-
-    stimulus: str
-    tex: dict[str, VideoTexture]
-    width: int
-    height: int
-    frames: int
-    fps: float
-    decode_seconds: float
-
-    def release(self) -> None:
-        for t in self.tex.values():
-            t.release()
 
 
 def needs_requeue(dropped_frames: int, limit: int, trial: PlannedTrial) -> bool:
@@ -416,7 +392,8 @@ class App:
             t, ph, pw = pair.test.shape[:3]
             w, h, frames = max(w, pw), max(h, ph), max(frames, t)
             self._loop_s = t / pair.fps
-        lay = self._viewing_layout((w, h), "Trial 1 of 1", 1.0)
+        lay = viewing_layout_for(self.display, self._name_keys, (w, h), "Trial 1 of 1",
+                                 1.0)
         checks.append(check_pixel_mapping(geom, (w, h), fits_with_label=lay.label is not None))
         checks.append(check_memory(2 * pair_bytes(w, h, frames), available_memory_bytes()))
         if pair is not None:
@@ -624,143 +601,12 @@ class App:
         self.display.ctx.finish()
         return OnGpu(pair.stimulus, tex, w, h, t, pair.fps, pair.seconds)
 
-    def _viewing_layout(self, video: tuple[int, int], progress: str, min_view: float
-                        ) -> ViewingLayout:
-        d = self.display
-        k = self._name_keys
-        hints = [f"{k(VIEWING, 'switch')}: switch test / reference",
-                 f"{k(VIEWING, 'rate')}: rate", f"{k(VIEWING, 'pause')}: pause"]
-        notice = ["Please watch for at least", f"{min_view:.1f} s before rating"]
-        return viewing_layout(d.size, video, d.fonts, labels=[LABEL_TEST, LABEL_REFERENCE],
-                              progress=progress, hints=hints, notice=notice)
-
-    def _rating_layout(self, progress: str) -> RatingLayout:
-        d = self.display
-        k = self._name_keys
-        scale = self.m.scale
-        span = scale.max - scale.min
-        labels = [((lab.position - scale.min) / span, lab.text) for lab in scale.labels]
-        hints = [f"Click the scale or use {k(RATING, 'left')} {k(RATING, 'right')} "
-                 "(with Shift: bigger steps)", f"{k(RATING, 'submit')}: submit",
-                 f"{k(RATING, 'back')}: back to the videos", f"{k(RATING, 'pause')}: pause"]
-        return rating_layout(d.size, d.fonts, question=QUESTION, labels=labels,
-                             progress=progress, hints=hints,
-                             notice=f"Please watch for at least {self._min_view():.1f} s",
-                             buttons=[("back", "Back to the videos"), ("submit", "Submit")])
-
     def _trial_loop(self, trial: PlannedTrial, gpu: OnGpu, k: int, total: int
                     ) -> TrialResult | str:
-        """Show one trial until its rating is submitted; returns it, ``pause`` or
-        ``close``. No garbage-collector pause interrupts it (see :mod:`.realtime`)."""
-        with realtime.presentation_guard():
-            return self._present_trial(trial, gpu, k, total)
-
-    def _present_trial(self, trial: PlannedTrial, gpu: OnGpu, k: int, total: int
-                       ) -> TrialResult | str:
-        d = self.display
-        pg, r = d.pg, d.renderer
-        proto = self.m.protocol
-        min_view = proto.min_view_seconds if proto.min_view_seconds is not None else (
-            gpu.frames / gpu.fps)
-        progress = f"{'Practice: ' if self._practice_mode else ''}Trial {k} of {total}"
-        vlay = self._viewing_layout((gpu.width, gpu.height), progress, min_view)
-        rlay = self._rating_layout(progress)
-        scale = self.m.scale
-        slider = Slider(x0=rlay.track_x0, x1=rlay.track_x1, y=rlay.track_y, vmin=scale.min,
-                        vmax=scale.max, labels=[(lab.position, lab.text) for lab in scale.labels],
-                        fine_step=(scale.max - scale.min) / 100,
-                        coarse_step=(scale.max - scale.min) / 10)
-        m = TrialMachine(fps=gpu.fps, refresh_hz=d.refresh_hz, frames=gpu.frames,
-                         slider=slider, blank_seconds=proto.blank_seconds, loop=proto.loop,
-                         min_view_s=min_view, vsync=d.vsync,
-                         details={"decode_seconds": gpu.decode_seconds,
-                                  "timing_mode": d.timing_mode})
-        warm_up_viewing(r, vlay, gpu.tex)
-        if d.pacer is not None:
-            d.pacer.reset()
-        practice = int(self._practice_mode)
-        self._state("viewing", trial=trial.index, practice=practice)
-        hover = None
-        ratio = d.pixel_ratio
-        while True:
-            now = time.perf_counter()
-            for event in pg.event.get():
-                if event.type == pg.QUIT:
-                    return "close"
-                if event.type == pg.MOUSEMOTION and m.phase == RATE:
-                    x, y = d.to_pixels(event.pos)
-                    hover = next((b.action for b in rlay.buttons
-                                  if b.rect.contains_point(x, y)), None)
-                cmd = self._command(event, m.phase, rlay)
-                if cmd is None:
-                    continue
-                for action in m.command(cmd, now):
-                    if action.name == "log":
-                        info = dict(action.info)
-                        self._state(info.pop("state"), **info)
-                    elif action.name == "pause":
-                        self._state("pause-request", trial=trial.index)
-                        return "pause"
-                    elif action.name == "rating_opened":
-                        self._prefetch_following(trial)
-                        sb = rlay.button("submit").rect
-                        self._state(
-                            "rating", trial=trial.index,
-                            slider=f"{rlay.track_x0 / ratio:.0f},{rlay.track_x1 / ratio:.0f},"
-                                   f"{rlay.track_y / ratio:.0f}",
-                            submit=",".join(f"{v / ratio:.0f}" for v in sb.as_tuple()))
-                    elif action.name == "viewing_resumed":
-                        if d.pacer is not None:
-                            d.pacer.reset()
-                        self._state("viewing", trial=trial.index, practice=practice, back=1)
-                    elif action.name == "submitted":
-                        self._state("submitted", value=f"{slider.value:.3f}")
-                        return action.result
-            notice = m.notice_active(now)
-            if m.phase == VIEW:
-                content_now, idx = m.next_frame()
-                r.clear()
-                draw_viewing(r, vlay, gpu.tex.get(content_now), content_now, idx,
-                             notice=notice)
-                name = content_now if not self._practice_mode else "practice-trial"
-                shot = self._shot(name)
-            else:
-                value_x = slider.x_of(slider.value) if slider.is_set else None
-                draw_rating(r, rlay, value_x, ready=m.may_submit,
-                            notice=m.notice_text() if notice else None, hover=hover)
-                shot = False if self._practice_mode else self._shot(
-                    "rating-after-click" if slider.is_set else "rating-before-click")
-            m.flipped(d.flip(), chained=not shot)
-
-    def _command(self, event: Any, phase: str, rlay: RatingLayout) -> Command | None:
-        """An input event as a trial command (keys of any layout, mouse on slider/buttons)."""
-        d = self.display
-        pg = d.pg
-        if event.type == pg.KEYDOWN:
-            keys = VIEWING if phase == VIEW else RATING
-            action = keys.action(event.key, event.scancode)
-            if action is None:
-                return None
-            if action in ("left", "right", "up_coarse", "down_coarse"):
-                coarse = action.endswith("coarse") or bool(
-                    event.mod & (pg.KMOD_SHIFT | pg.KMOD_CTRL))
-                direction = -1 if action in ("left", "down_coarse") else 1
-                return Command("step", direction=direction, coarse=coarse)
-            return Command(action)
-        if phase != RATE:
-            return None
-        if event.type == pg.MOUSEBUTTONDOWN and event.button == 1:
-            x, y = d.to_pixels(event.pos)
-            for b in rlay.buttons:
-                if b.rect.contains_point(x, y):
-                    return Command(b.action)
-            return Command("press", x=x, y=y)  # the slider takes it when it hits the track
-        if event.type == pg.MOUSEMOTION:
-            x, _ = d.to_pixels(event.pos)
-            return Command("drag", x=x)
-        if event.type == pg.MOUSEBUTTONUP and event.button == 1:
-            return Command("release")
-        return None
+        """Show one trial until its rating is submitted (see :mod:`.trial_screen`)."""
+        screen = TrialScreen(self.display, self.m, self._name_keys, self._state, self._shot,
+                             self._prefetch_following, self._min_view)
+        return screen.run(trial, gpu, k, total, practice=self._practice_mode)
 
 
 def run_study(study: Study, opts: RunOptions) -> RunOutcome:

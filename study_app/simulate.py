@@ -194,31 +194,45 @@ def simulate_panel(manifest_path: str | Path, out_dir: str | Path, opts: Simulat
                           progress=progress).truth_path
 
 
-def run_simulation(manifest_path: str | Path, out_dir: str | Path, opts: SimulationOptions,
-                   *, overwrite: bool = False, progress: bool = True,
-                   upload: UploadOptions | None = None) -> SimulationRun:
-    """:func:`simulate_panel`, optionally uploading every session to a study server while
-    it is written (raters then run at once, one thread each, with real times)."""
-    opts.check()
-    loaded: LoadedManifest = load_manifest(manifest_path)
-    m = loaded.manifest
-    stimuli = m.stimuli()
-    if not stimuli:
-        raise StudyError(f"{manifest_path}: the manifest has no stimuli to rate")
-    repetitions = opts.repetitions or m.protocol.repetitions
-    if len(stimuli) == 1 and repetitions > 1:
-        raise StudyError("a single stimulus cannot be repeated without showing it twice in a "
-                         "row; use --repetitions 1")
-    out = Path(out_dir)
+@dataclass
+class _Panel:
+    """What a simulation draws once for the whole panel, and the study facts it rates."""
+
+    loaded: LoadedManifest
+    stimuli: list[Stimulus]
+    repetitions: int
+    participants: list[str]
+    out: Path
+    scale: tuple[float, float]
+    unit: float  # standard deviations are given on 0..100
+    levels: dict[str, int]
+    quality: dict[str, float]
+    scenes: list[str]
+    ambiguity: dict[str, float]
+    kinds: list[Any]
+    rater_seeds: list[int]
+    settings: dict[str, Any]
+
+    @property
+    def n_trials(self) -> int:
+        return len(self.stimuli) * self.repetitions
+
+
+def _participants(opts: SimulationOptions, upload: UploadOptions | None) -> list[str]:
+    """The simulated participants' ids: numbered, or the invited ones when uploading."""
+    if upload is None:
+        return [f"{opts.participant_prefix}{k + 1:02d}" for k in range(opts.raters)]
+    participants = list(upload.tokens)[:opts.raters]
+    if len(participants) < opts.raters:
+        raise StudyError(f"--raters {opts.raters}, but the invites hold only "
+                         f"{len(participants)} participant(s); invite more")
+    return participants
+
+
+def _prepare_output(out: Path, participants: list[str], overwrite: bool) -> None:
+    """Refuse to overwrite earlier sessions unless asked; then clear what will be written."""
     if out.exists() and not out.is_dir():
         raise StudyError(f"--out {out} is a file; give a folder for the session files")
-    if upload is None:
-        participants = [f"{opts.participant_prefix}{k + 1:02d}" for k in range(opts.raters)]
-    else:
-        participants = list(upload.tokens)[:opts.raters]
-        if len(participants) < opts.raters:
-            raise StudyError(f"--raters {opts.raters}, but the invites hold only "
-                             f"{len(participants)} participant(s); invite more")
     targets = [out / f"{p}{SESSION_SUFFIX}" for p in participants] + [out / TRUTH_JSON,
                                                                        out / TRUTH_CSV]
     existing = [t for t in targets if t.exists()]
@@ -233,18 +247,22 @@ def run_simulation(manifest_path: str | Path, out_dir: str | Path, opts: Simulat
             Path(str(t) + suffix).unlink(missing_ok=True)
     out.mkdir(parents=True, exist_ok=True)
 
+
+def _draw_panel(loaded: LoadedManifest, opts: SimulationOptions, repetitions: int,
+                participants: list[str], out: Path) -> _Panel:
+    """The seeded truth: qualities, content ambiguities, outlier kinds and rater seeds (in a
+    fixed order of draws, so the same seed gives the same panel)."""
+    m = loaded.manifest
+    stimuli = m.stimuli()
     scale = (m.scale.min, m.scale.max)
-    unit = (scale[1] - scale[0]) / 100.0  # standard deviations are given on 0..100
+    unit = (scale[1] - scale[0]) / 100.0
     levels = _method_levels(stimuli)
-    quality = {s.id: true_quality(s, levels, scale) for s in stimuli}
     scenes = sorted({s.scene for s in stimuli})
     root = np.random.SeedSequence(opts.seed)
     panel_rng = np.random.default_rng(root.spawn(1)[0])
     ambiguity = {c: float(panel_rng.uniform(*opts.ambiguity_range)) * unit for c in scenes}
     kinds = _outlier_kinds(opts, panel_rng)
     rater_seeds = [int(s.generate_state(1)[0]) for s in root.spawn(opts.raters + 1)[1:]]
-    items = [ScheduleItem(s.id, s.reference, s.is_hidden_reference) for s in stimuli]
-    by_id = {s.id: s for s in stimuli}
     settings = {
         "protocol": m.protocol.model_dump(mode="json"),
         "scale": m.scale.model_dump(mode="json"),
@@ -252,50 +270,117 @@ def run_simulation(manifest_path: str | Path, out_dir: str | Path, opts: Simulat
         "simulation": {"model": "sureal-generative", "seed": opts.seed,
                        "repetitions": repetitions, "truth_file": TRUTH_JSON},
     }
+    return _Panel(loaded, stimuli, repetitions, participants, out, scale, unit, levels,
+                  {s.id: true_quality(s, levels, scale) for s in stimuli}, scenes, ambiguity,
+                  kinds, rater_seeds, settings)
 
-    n_trials = len(stimuli) * repetitions
-    bar = tqdm(total=opts.raters * n_trials, desc="simulate", unit="rating",
+
+def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
+                    upload: UploadOptions | None,
+                    on_change: Callable[[], None] | None = None) -> RaterTruth:
+    """Rater ``k``'s whole session, written through the session store as the app would."""
+    participant = panel.participants[k]
+    seed = panel.rater_seeds[k]
+    rng = np.random.default_rng(seed)
+    bias = _truncated_normal(rng, opts.bias_sd, opts.bias_limit_sd) * panel.unit
+    sigma = float(rng.uniform(*opts.inconsistency_range)) * panel.unit
+    truth = RaterTruth(participant, bias, sigma, panel.kinds[k], seed,
+                       f"{participant}{SESSION_SUFFIX}")
+    items = [ScheduleItem(s.id, s.reference, s.is_hidden_reference) for s in panel.stimuli]
+    by_id = {s.id: s for s in panel.stimuli}
+    plan = make_schedule(items, panel.repetitions, seed)
+    clock = None if upload is not None else START_TIME + timedelta(days=k)
+    store = SessionStore.create(
+        panel.out / f"{participant}{SESSION_SUFFIX}", participant=participant,
+        study_id=panel.loaded.manifest.study_id, manifest_sha256=panel.loaded.sha256,
+        seed=seed, app_version=f"{__version__}+simulated", plan=plan, settings=panel.settings,
+        created_at=_iso(clock) if clock else None, durable=False,
+    )
+    changed = on_change or (lambda: None)
+    with store:
+        changed()
+        store.save_preflight([{"name": "simulated", "ok": True,
+                               "message": "simulated participant: no display"}], skipped=True)
+        store.mark_started(display={"simulated": True})
+        for trial in plan:
+            stim = by_id[trial.stimulus]
+            rating = _rate(rng, panel.quality[stim.id], bias, sigma, panel.ambiguity[stim.scene],
+                           panel.kinds[k], panel.scale)
+            result, clock = _trial_result(rng, rating, clock)
+            if upload is not None and upload.pace_s > 0:
+                time.sleep(upload.pace_s)
+            store.record(trial.index, result)
+            changed()
+            bar.update(1)
+        store.finish()
+        changed()
+    return truth
+
+
+def _write_truth(panel: _Panel, opts: SimulationOptions, raters: list[RaterTruth]) -> Path:
+    """``ground_truth.json`` (everything drawn) and the per-stimulus truth CSV."""
+    m = panel.loaded.manifest
+    truth = {
+        "format": TRUTH_FORMAT,
+        "study_id": m.study_id,
+        "manifest_sha256": panel.loaded.sha256,
+        "seed": opts.seed,
+        "model": ("rating = clip(Q + bias + inconsistency * N(0,1) + ambiguity(content) * "
+                  "N(0,1), scale); outliers: random = uniform on the scale, inverted = "
+                  "min + max - Q + noise"),
+        "quality_model": {
+            "formula": "Q = 100 - A * ((L + 1 - level) / L) ** gamma; hidden reference "
+                       f"{HIDDEN_REFERENCE_QUALITY}",
+            "curves": {meth: dict(zip(("A", "gamma"), QUALITY_CURVES.get(meth, DEFAULT_CURVE),
+                                      strict=True)) for meth in panel.levels},
+        },
+        "scale": {"min": panel.scale[0], "max": panel.scale[1]},
+        "repetitions": panel.repetitions,
+        "options": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(opts).items()},
+        "contents": [{"scene": c, "ambiguity": panel.ambiguity[c]} for c in panel.scenes],
+        "raters": [asdict(r) for r in raters],
+        "outliers": [r.participant for r in raters if r.outlier],
+        "stimuli": [
+            {"id": s.id, "reference": s.reference, "scene": s.scene, "method": s.method,
+             "level": s.level, "is_hidden_reference": s.is_hidden_reference,
+             "true_quality": panel.quality[s.id]}
+            for s in panel.stimuli
+        ],
+    }
+    truth_path = panel.out / TRUTH_JSON
+    truth_path.write_text(json.dumps(truth, indent=2) + "\n", encoding="utf-8")
+    with open(panel.out / TRUTH_CSV, "w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(truth["stimuli"][0]))
+        writer.writeheader()
+        writer.writerows(truth["stimuli"])
+    return truth_path
+
+
+def run_simulation(manifest_path: str | Path, out_dir: str | Path, opts: SimulationOptions,
+                   *, overwrite: bool = False, progress: bool = True,
+                   upload: UploadOptions | None = None) -> SimulationRun:
+    """:func:`simulate_panel`, optionally uploading every session to a study server while
+    it is written (raters then run at once, one thread each, with real times)."""
+    opts.check()
+    loaded: LoadedManifest = load_manifest(manifest_path)
+    stimuli = loaded.manifest.stimuli()
+    if not stimuli:
+        raise StudyError(f"{manifest_path}: the manifest has no stimuli to rate")
+    repetitions = opts.repetitions or loaded.manifest.protocol.repetitions
+    if len(stimuli) == 1 and repetitions > 1:
+        raise StudyError("a single stimulus cannot be repeated without showing it twice in a "
+                         "row; use --repetitions 1")
+    out = Path(out_dir)
+    participants = _participants(opts, upload)
+    _prepare_output(out, participants, overwrite)
+    panel = _draw_panel(loaded, opts, repetitions, participants, out)
+
+    bar = tqdm(total=opts.raters * panel.n_trials, desc="simulate", unit="rating",
                disable=not progress)
     t0 = time.monotonic()
 
     def rater(k: int, on_change: Callable[[], None] | None = None) -> RaterTruth:
-        participant = participants[k]
-        rng = np.random.default_rng(rater_seeds[k])
-        bias = _truncated_normal(rng, opts.bias_sd, opts.bias_limit_sd) * unit
-        sigma = float(rng.uniform(*opts.inconsistency_range)) * unit
-        truth = RaterTruth(participant, bias, sigma, kinds[k], rater_seeds[k],
-                           f"{participant}{SESSION_SUFFIX}")
-        plan = make_schedule(items, repetitions, rater_seeds[k])
-        real_time = upload is not None
-        clock = None if real_time else START_TIME + timedelta(days=k)
-        store = SessionStore.create(
-            out / f"{participant}{SESSION_SUFFIX}", participant=participant,
-            study_id=m.study_id, manifest_sha256=loaded.sha256, seed=rater_seeds[k],
-            app_version=f"{__version__}+simulated", plan=plan, settings=settings,
-            created_at=_iso(clock) if clock else None, durable=False,
-        )
-        with store:
-            if on_change is not None:
-                on_change()
-            store.save_preflight([{"name": "simulated", "ok": True,
-                                   "message": "simulated participant: no display"}],
-                                 skipped=True)
-            store.mark_started(display={"simulated": True})
-            for trial in plan:
-                stim = by_id[trial.stimulus]
-                rating = _rate(rng, quality[stim.id], bias, sigma, ambiguity[stim.scene],
-                               kinds[k], scale)
-                result, clock = _trial_result(rng, rating, clock)
-                if upload is not None and upload.pace_s > 0:
-                    time.sleep(upload.pace_s)
-                store.record(trial.index, result)
-                if on_change is not None:
-                    on_change()
-                bar.update(1)
-            store.finish()
-            if on_change is not None:
-                on_change()
-        return truth
+        return _simulate_rater(panel, opts, k, bar, upload, on_change)
 
     statuses: dict[str, UploadStatus] = {}
     try:
@@ -305,42 +390,9 @@ def run_simulation(manifest_path: str | Path, out_dir: str | Path, opts: Simulat
             raters, statuses = _rate_and_upload(rater, participants, out, upload, t0)
     finally:
         bar.close()
-
-    truth = {
-        "format": TRUTH_FORMAT,
-        "study_id": m.study_id,
-        "manifest_sha256": loaded.sha256,
-        "seed": opts.seed,
-        "model": ("rating = clip(Q + bias + inconsistency * N(0,1) + ambiguity(content) * "
-                  "N(0,1), scale); outliers: random = uniform on the scale, inverted = "
-                  "min + max - Q + noise"),
-        "quality_model": {
-            "formula": "Q = 100 - A * ((L + 1 - level) / L) ** gamma; hidden reference "
-                       f"{HIDDEN_REFERENCE_QUALITY}",
-            "curves": {meth: dict(zip(("A", "gamma"), QUALITY_CURVES.get(meth, DEFAULT_CURVE),
-                                      strict=True)) for meth in levels},
-        },
-        "scale": {"min": scale[0], "max": scale[1]},
-        "repetitions": repetitions,
-        "options": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(opts).items()},
-        "contents": [{"scene": c, "ambiguity": ambiguity[c]} for c in scenes],
-        "raters": [asdict(r) for r in raters],
-        "outliers": [r.participant for r in raters if r.outlier],
-        "stimuli": [
-            {"id": s.id, "reference": s.reference, "scene": s.scene, "method": s.method,
-             "level": s.level, "is_hidden_reference": s.is_hidden_reference,
-             "true_quality": quality[s.id]}
-            for s in stimuli
-        ],
-    }
-    truth_path = out / TRUTH_JSON
-    truth_path.write_text(json.dumps(truth, indent=2) + "\n", encoding="utf-8")
-    with open(out / TRUTH_CSV, "w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(truth["stimuli"][0]))
-        writer.writeheader()
-        writer.writerows(truth["stimuli"])
+    truth_path = _write_truth(panel, opts, raters)
     log.info("simulated %d raters (%d outliers) x %d trials into %s", opts.raters,
-             opts.outliers, n_trials, out)
+             opts.outliers, panel.n_trials, out)
     return SimulationRun(truth_path, statuses)
 
 

@@ -224,6 +224,8 @@ def synthesize(out_dir: str | Path, opts: SynthOptions, *, overwrite: bool = Fal
     """Render the stimuli of ``opts`` into the study folder ``out_dir``; returns the manifest.
 
     The folder gets ``manifest.json`` and ``videos/<scene>/*.mkv`` (FFV1, lossless).
+    Long on purpose: one GL context renders every scene and level in a fixed order, so the same
+    seed gives the same bytes; the loop and the manifest entries it writes stay together.
     """
     opts.check()
     out = Path(out_dir)

@@ -1,0 +1,3 @@
+"""The version of the analysis package (one home; the report and summary cite it)."""
+
+__version__ = "0.1.0"

@@ -1,19 +1,30 @@
-"""The session store: one crash-safe, hash-chained SQLite file per participant session.
+"""The study-side contracts: the session file (``cgvq-session/1``: one crash-safe,
+hash-chained SQLite file per participant session), the study folder, the invite file and the
+upload wire protocol.
 
-Both the participant's app and the simulated participants write through this package, and the
-analysis reads through it, so it imports only the standard library and ``stimuli_manifests``
-(no Pygame, no OpenGL). One module per concern:
+The participant's player, the simulated participants, the study server and the analysis all
+read and write these through this package, which imports only the standard library and
+``stimuli_manifests`` (no Pygame, no OpenGL, no research stack), so the participant's base
+install stays lean. One module per concern:
 
-- :mod:`.schema`: the tables (``cgvq-session/1``), opening files, WAL side files;
-- :mod:`.chain`: the hash chain over rating rows;
+- :mod:`.schema`: the tables and their format version, opening files, WAL side files;
+- :mod:`.records`: the plain records (planned trial, trial result, session info, problem);
+- :mod:`.chain`: the hash chain over rating rows, and following it on read;
+- :mod:`.mutations`: the only code that changes the tables, one function per kind of change;
+- :mod:`.outbox`: the hash-chained log of every change (what a study server receives);
 - :mod:`.writer`: :class:`SessionStore` (create, resume, rate, re-queue, finish, withdraw);
 - :mod:`.reader`: :func:`read_session` and friends, one read transaction per file;
 - :mod:`.verify`: :func:`verify_session` for returned files;
-- :mod:`.sources`: many files, folders and exported zips at once;
-- :mod:`.mutations`: the only code that changes the tables, one function per kind of change;
-- :mod:`.outbox`: the hash-chained log of every change (what a study server receives);
 - :mod:`.replica`: a file rebuilt from its log (the server's copy, the local self-check);
-- :mod:`.ids`: what a participant id may be; :mod:`.ratings_csv`: the tidy ratings CSV.
+- :mod:`.sources`: many files, folders and exported zips at once;
+- :mod:`.ratings_csv`: the tidy rating row and the ratings CSV (``cgvq-ratings``);
+- :mod:`.study_folder`: a study folder's files (manifest, briefing, consent, sessions);
+- :mod:`.invite`: the invitation file and command line; :mod:`.protocol`: the upload wire
+  format (``cgvq-upload/1``) and its limits;
+- :mod:`.ids`: what a participant id may be; :mod:`.errors`: :class:`StudyError`.
+
+The names below are the package's public API; modules inside the package import from the
+module that owns a name, never from this ``__init__``.
 """
 
 from .chain import canonical

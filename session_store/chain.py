@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from .ratings_csv import tidy_row
 from .records import PlannedTrial, SessionProblem
 from .schema import CHAINED, INT_COLUMNS, REAL_COLUMNS, SCHEMA_VERSION
 
@@ -57,28 +58,6 @@ def normalise_row(row: dict[str, Any]) -> dict[str, Any]:
         if out[k] is not None:
             out[k] = float(out[k])
     return out
-
-
-def tidy_row(header: dict[str, Any], r: dict[str, Any]) -> dict[str, Any]:
-    """One rating row as the ratings-table contract (stimuli_manifests.tables.RATINGS)."""
-    return {
-        "study": header["study_id"],
-        "session": header["session_id"],
-        "participant": header["participant"],
-        "trial": int(r["trial"]),
-        "stimulus": r["stimulus"],
-        "reference": r["reference"],
-        "repetition": int(r["repetition"]),
-        "is_hidden_reference": bool(r["is_hidden_reference"]),
-        "rating": float(r["rating"]),
-        "rt_ms": float(r["rt_ms"]),
-        "n_toggles": int(r["n_toggles"]),
-        "ms_on_reference": float(r["ms_on_reference"]),
-        "ms_on_test": float(r["ms_on_test"]),
-        "dropped_frames": int(r["dropped_frames"]),
-        "presented_at": r["presented_at"],
-        "app_version": r["app_version"],
-    }
 
 
 def follow_chain(path: Path, header: dict[str, Any], plan: Sequence[PlannedTrial],

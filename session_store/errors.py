@@ -1,4 +1,5 @@
-"""The one exception type of ``study_app``: problems a user or experimenter can fix."""
+"""The one exception type of the study side (session store, study server, player):
+problems a user or experimenter can fix."""
 
 from __future__ import annotations
 

@@ -20,9 +20,18 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from . import mutations, outbox
 from .errors import StudyError
-from .outbox import OutboxEntry
+from .mutations import apply as apply_change
+from .mutations import create_tables
+from .outbox import (
+    OutboxEntry,
+    chain_problem,
+    entry_hash,
+    has_outbox,
+    insert_verbatim,
+    outbox_genesis,
+    read_entries,
+)
 from .schema import connect, open_existing
 
 
@@ -32,8 +41,8 @@ class ContradictionError(StudyError):
 
 def _check_batch(entries: Sequence[OutboxEntry], start_seq: int, start_hash: str,
                  session_id: str) -> None:
-    problem = outbox.chain_problem(entries, session_id, start_seq=start_seq,
-                                   start_hash=start_hash)
+    problem = chain_problem(entries, session_id, start_seq=start_seq,
+                            start_hash=start_hash)
     if problem:
         raise StudyError(f"upload refused: {problem}")
 
@@ -54,16 +63,16 @@ class Replica:
         if first.seq != 1 or first.kind != "session":
             raise StudyError("upload refused: a session starts with its 'session' entry (seq 1)")
         session_id = str(first.body.get("header", {}).get("session_id", ""))
-        _check_batch([first], 1, outbox.outbox_genesis(session_id), session_id)
+        _check_batch([first], 1, outbox_genesis(session_id), session_id)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".creating")
         tmp.unlink(missing_ok=True)
         con = connect(tmp, readonly=False)
         try:
             con.execute("BEGIN IMMEDIATE")
-            mutations.create_tables(con)
-            mutations.apply(con, "session", first.body)
-            outbox.insert_verbatim(con, first)
+            create_tables(con)
+            apply_change(con, "session", first.body)
+            insert_verbatim(con, first)
             con.execute("COMMIT")
             con.execute("PRAGMA wal_checkpoint(TRUNCATE)")
         finally:
@@ -78,15 +87,15 @@ class Replica:
         if first.seq != 1 or first.kind != "session":
             raise StudyError("upload refused: a session starts with its 'session' entry (seq 1)")
         session_id = str(first.body.get("header", {}).get("session_id", ""))
-        _check_batch([first], 1, outbox.outbox_genesis(session_id), session_id)
+        _check_batch([first], 1, outbox_genesis(session_id), session_id)
         con = sqlite3.connect(":memory:", isolation_level=None, check_same_thread=False)
         con.row_factory = sqlite3.Row
         con.execute("PRAGMA foreign_keys=ON")
         con.execute("BEGIN")
         try:
-            mutations.create_tables(con)
-            mutations.apply(con, "session", first.body)
-            outbox.insert_verbatim(con, first)
+            create_tables(con)
+            apply_change(con, "session", first.body)
+            insert_verbatim(con, first)
         except BaseException:
             con.execute("ROLLBACK")
             con.close()
@@ -120,7 +129,7 @@ class Replica:
         """(last stored sequence number, its entry hash)."""
         row = self._con.execute(
             "SELECT seq, entry_hash FROM outbox ORDER BY seq DESC LIMIT 1").fetchone()
-        return (int(row[0]), str(row[1])) if row else (0, outbox.outbox_genesis(self.session_id))
+        return (int(row[0]), str(row[1])) if row else (0, outbox_genesis(self.session_id))
 
     def summary(self) -> dict[str, Any]:
         """Ratings so far, distinct trials planned, finish time and how the session closed
@@ -156,8 +165,7 @@ class Replica:
                 held = self._con.execute("SELECT prev_hash, entry_hash FROM outbox WHERE seq=?",
                                          (e.seq,)).fetchone()
                 same = (held is not None and held[1] == e.entry_hash and held[0] == e.prev_hash
-                        and outbox.entry_hash(e.prev_hash, e.seq, e.kind, e.body)
-                        == e.entry_hash)
+                        and entry_hash(e.prev_hash, e.seq, e.kind, e.body) == e.entry_hash)
                 if not same:
                     raise ContradictionError(
                         f"entry {e.seq} ({e.kind}) differs from the acknowledged one: the "
@@ -183,8 +191,8 @@ class Replica:
         self._con.execute("BEGIN IMMEDIATE")
         try:
             for e in fresh:
-                mutations.apply(self._con, e.kind, e.body)
-                outbox.insert_verbatim(self._con, e)
+                apply_change(self._con, e.kind, e.body)
+                insert_verbatim(self._con, e)
             yield fresh
         except BaseException:
             self._con.execute("ROLLBACK")
@@ -223,9 +231,9 @@ def tables_match_outbox(path: str | Path) -> list[str]:
     try:
         con.execute("BEGIN")
         try:
-            if not outbox.has_outbox(con):
+            if not has_outbox(con):
                 return []
-            entries = outbox.read_entries(con)
+            entries = read_entries(con)
             actual = _dump(con)
         finally:
             con.execute("COMMIT")
@@ -234,16 +242,16 @@ def tables_match_outbox(path: str | Path) -> list[str]:
     if not entries:
         return ["the outbox is empty"]
     session_id = str(entries[0].body.get("header", {}).get("session_id", ""))
-    problem = outbox.chain_problem(entries, session_id)
+    problem = chain_problem(entries, session_id)
     if problem:
         return [f"the change log is broken: {problem}"]
     mem = sqlite3.connect(":memory:", isolation_level=None)
     mem.row_factory = sqlite3.Row
     try:
         mem.execute("BEGIN")
-        mutations.create_tables(mem)
+        create_tables(mem)
         for e in entries:
-            mutations.apply(mem, e.kind, e.body)
+            apply_change(mem, e.kind, e.body)
         mem.execute("COMMIT")
         expected = _dump(mem)
     except StudyError as exc:

@@ -17,10 +17,13 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from . import mutations, outbox
 from .chain import canonical, normalise_row, row_hash, sha256_text
 from .errors import StudyError
 from .ids import check_participant_id
+from .mutations import apply as apply_change
+from .mutations import create_tables
+from .outbox import append as append_to_outbox
+from .outbox import has_outbox
 from .reader import SessionRecord, read_header, record_from, session_info
 from .records import PlannedTrial, SessionInfo, TrialResult, utc_now
 from .schema import CHAINED, connect, open_existing
@@ -46,7 +49,7 @@ class SessionStore:
         if not durable:  # simulated participants: no fsync per rating, one checkpoint at close
             self._con.execute("PRAGMA synchronous=OFF")
         self._con.execute("PRAGMA busy_timeout=5000")  # the upload client writes acks
-        self._outbox = outbox.has_outbox(con)
+        self._outbox = has_outbox(con)
         self._session_id = str(read_header(con)["session_id"])
 
     # -- construction -----------------------------------------------------------------
@@ -104,9 +107,9 @@ class SessionStore:
         con = connect(tmp, readonly=False)
         try:
             con.execute("BEGIN IMMEDIATE")
-            mutations.create_tables(con)
-            mutations.apply(con, "session", body)
-            outbox.append(con, "session", body, session_id)
+            create_tables(con)
+            apply_change(con, "session", body)
+            append_to_outbox(con, "session", body, session_id)
             con.execute("COMMIT")
             con.execute("PRAGMA wal_checkpoint(TRUNCATE)")
             con.close()
@@ -237,9 +240,9 @@ class SessionStore:
     def _change(self, kind: str, body: dict[str, Any]) -> None:
         """Apply one change and log it in the outbox, in one committed transaction."""
         with self._transaction():
-            mutations.apply(self._con, kind, body)
+            apply_change(self._con, kind, body)
             if self._outbox:
-                outbox.append(self._con, kind, body, self._session_id)
+                append_to_outbox(self._con, kind, body, self._session_id)
 
     def log_event(self, kind: str, **details: Any) -> None:
         """Append a session event (one committed transaction)."""

@@ -29,10 +29,10 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictStr, ValidationError
 
-from session_store import ContradictionError, OutboxEntry, Replica
 from session_store.chain import canonical
 from session_store.errors import StudyError
 from session_store.mutations import APPLY
+from session_store.outbox import OutboxEntry
 from session_store.protocol import (
     CLOCK_SKEW_LIMIT_S,
     MAX_BATCH_ENTRIES,
@@ -40,6 +40,7 @@ from session_store.protocol import (
     PROTOCOL,
 )
 from session_store.records import utc_now
+from session_store.replica import ContradictionError, Replica
 
 from .storage import ServerStore, SessionRow, StoredEntry
 

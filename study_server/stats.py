@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from typing import TYPE_CHECKING, Any
 
+from session_store.ratings_csv import RATINGS_COLUMNS, tidy_row
 from session_store.records import utc_now
 
 from .ingest import parse_time
@@ -138,11 +139,8 @@ def participant_stats(rows: list[tuple[str, str, str, str, str]]
 
 def ratings_frame(rows: list[tuple[str, str, str, str, str]], study_id: str) -> Any:
     """The ratings received so far as the tidy ratings table (``cgvq-ratings/1``, each row
-    built by :func:`session_store.chain.tidy_row`, as in an export), for the analysis."""
+    built by :func:`session_store.ratings_csv.tidy_row`, as in an export), for the analysis."""
     import pandas as pd
-
-    from session_store.chain import tidy_row
-    from stimuli_manifests.tables import RATINGS
 
     records = []
     for pid, _, kind, text, session_id in rows:
@@ -150,7 +148,7 @@ def ratings_frame(rows: list[tuple[str, str, str, str, str]], study_id: str) -> 
             continue
         header = {"study_id": study_id, "session_id": session_id, "participant": pid}
         records.append(tidy_row(header, json.loads(text).get("row", {})))
-    return pd.DataFrame.from_records(records, columns=list(RATINGS.required))
+    return pd.DataFrame.from_records(records, columns=list(RATINGS_COLUMNS))
 
 
 class StatsWorker:

@@ -1,0 +1,63 @@
+"""The experimenter's API (sessions, a session's entries) and the admin check the dashboard
+shares: the admin token as ``Authorization: Bearer`` or the dashboard's login cookie."""
+
+from __future__ import annotations
+
+from starlette.concurrency import run_in_threadpool
+from starlette.requests import Request
+from starlette.responses import JSONResponse, Response
+
+from session_store.errors import StudyError
+from session_store.ids import check_participant_id
+
+from .. import auth
+from ..ingest import Refused
+from .common import SECURITY_HEADERS, guarded, server_of
+
+MAX_ENTRIES_PER_PAGE = 5000
+
+
+def admin_status(request: Request) -> bool | None:
+    """True: the admin; False: wrong credentials; None: none given."""
+    admin_token = server_of(request).admin_token
+    token = auth.bearer(request.headers.get("authorization"))
+    if token is not None:
+        return auth.token_matches(token, auth.token_sha256(admin_token))
+    if auth.cookie_valid(admin_token, request.cookies.get(auth.COOKIE)):
+        return True
+    return None
+
+
+def require_admin(request: Request) -> None:
+    ok = admin_status(request)
+    if ok is None:
+        raise Refused(401, "the admin token is required (Authorization: Bearer ...)")
+    if not ok:
+        raise Refused(403, "wrong admin token")
+
+
+async def sessions(request: Request) -> Response:
+    """Every invited participant with their session, flags and study version."""
+    async def work() -> Response:
+        require_admin(request)
+        return JSONResponse(await run_in_threadpool(server_of(request).sessions_listing),
+                            headers=SECURITY_HEADERS)
+    return await guarded(work)
+
+
+async def participant_entries(request: Request) -> Response:
+    """One page of a participant's received entries (``after`` a seq, at most ``limit``)."""
+    async def work() -> Response:
+        require_admin(request)
+        pid = request.path_params["pid"]
+        try:
+            check_participant_id(pid)
+            after = int(request.query_params.get("after", "0"))
+            limit = min(int(request.query_params.get("limit", "1000")), MAX_ENTRIES_PER_PAGE)
+        except (StudyError, ValueError):
+            raise Refused(400, "invalid participant id, after or limit") from None
+        answer = await run_in_threadpool(server_of(request).entries_listing, pid, after, limit)
+        if answer is None:
+            raise Refused(404, f"no session of {pid} on the server")
+        return JSONResponse(answer, headers=SECURITY_HEADERS)
+    return await guarded(work)

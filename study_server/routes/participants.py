@@ -1,0 +1,97 @@
+"""The participant API (:mod:`session_store.protocol`): the study listing, its files, the
+handshake and the uploads.
+
+Each request is checked, in this order, for the participant id (no path characters), the
+token (401 without, 403 wrong, 410 withdrawn) and the per-token rate limit (429 with
+``Retry-After``); uploads then for the body size (``Content-Length`` and the bytes really
+sent) and the JSON. Only then does :class:`~study_server.ingest.Ingest` look at the content,
+so nothing is written for a request refused before that point.
+"""
+
+from __future__ import annotations
+
+from starlette.concurrency import run_in_threadpool
+from starlette.requests import Request
+from starlette.responses import FileResponse, JSONResponse, Response
+
+from session_store.errors import StudyError
+from session_store.ids import check_participant_id
+
+from .. import auth
+from ..ingest import Refused
+from .common import SECURITY_HEADERS, guarded, read_json, server_of
+
+PREFIX = "/api/v1/participants/{pid}"
+
+
+def client_address(request: Request) -> str | None:
+    """The client's address, kept only where the study asks for it (``store_addresses``)."""
+    if not server_of(request).config.store_addresses or request.client is None:
+        return None
+    return request.client.host
+
+
+def participant_of(request: Request) -> str:
+    """The participant id of the path, once id, token and rate limit pass (blocking: SQLite)."""
+    st = server_of(request)
+    pid = request.path_params["pid"]
+    try:
+        check_participant_id(pid)
+    except StudyError:
+        raise Refused(400, "invalid participant id") from None
+    token = auth.bearer(request.headers.get("authorization"))
+    if token is None:
+        raise Refused(401, "a participant token is required (Authorization: Bearer ...)")
+    st.check_participant(pid, token)
+    wait = st.limiter.acquire(pid)
+    if wait > 0:
+        raise Refused(429, f"too many requests; try again in {wait:.1f} s", wait)
+    return pid
+
+
+async def study(request: Request) -> Response:
+    """The file list of the study version the participant's session is pinned to."""
+    async def work() -> Response:
+        pid = await run_in_threadpool(participant_of, request)
+        version = await run_in_threadpool(server_of(request).version_for, pid)
+        return JSONResponse(version.listing(), headers=SECURITY_HEADERS)
+    return await guarded(work)
+
+
+async def files(request: Request) -> Response:
+    """One file of the participant's study version (the manifest from the database)."""
+    async def work() -> Response:
+        pid = await run_in_threadpool(participant_of, request)
+        version = await run_in_threadpool(server_of(request).version_for, pid)
+        f = version.by_path().get(request.path_params["path"])
+        if f is None:
+            raise Refused(404, "no such file in this study")
+        if f.local is None:
+            return Response(version.manifest_bytes, media_type="application/json",
+                            headers=SECURITY_HEADERS)
+        return FileResponse(f.local, headers=SECURITY_HEADERS,
+                            media_type="application/octet-stream")
+    return await guarded(work)
+
+
+async def handshake(request: Request) -> Response:
+    async def work() -> Response:
+        st = server_of(request)
+        pid = await run_in_threadpool(participant_of, request)
+        data = await read_json(request, st.config.max_body_bytes)
+        answer = await run_in_threadpool(st.ingest.handshake, pid, data,
+                                         client_address(request))
+        return JSONResponse(answer, headers=SECURITY_HEADERS)
+    return await guarded(work)
+
+
+async def entries(request: Request) -> Response:
+    """New outbox entries; the statistics worker is woken after each accepted upload."""
+    async def work() -> Response:
+        st = server_of(request)
+        pid = await run_in_threadpool(participant_of, request)
+        data = await read_json(request, st.config.max_body_bytes)
+        answer = await run_in_threadpool(st.ingest.upload, pid, data, client_address(request))
+        st.stats.poke()
+        return JSONResponse(answer, headers=SECURITY_HEADERS)
+    return await guarded(work)

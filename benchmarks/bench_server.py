@@ -14,9 +14,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -29,6 +26,7 @@ from session_store.invite import read_invites
 from stimuli_manifests import fill_checksums, load_manifest, parse_manifest, save_manifest
 from study_app.remote import ServerClient
 from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
+from study_server.child import ServeProcess
 from study_server.operations import invite
 
 REPO = Path(__file__).resolve().parents[1]
@@ -68,18 +66,10 @@ class TimedClient(ServerClient):
         return out
 
 
-def serve(study: Path) -> tuple[subprocess.Popen, str]:
+def serve(study: Path) -> ServeProcess:
     env = {**os.environ, "PYTHONPATH": str(REPO), "CGVQ_ADMIN_TOKEN": "bench-admin-token-0123"}
-    proc = subprocess.Popen([sys.executable, "-m", "cgvq_cli.study_cli", "serve", str(study),
-                             "--port", "0", "--stats-every", "30", "--rate", "1000",
-                             "--burst", "1000"], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
-    assert proc.stdout is not None
-    for line in proc.stdout:
-        if m := re.match(r"serving study .* at (\S+)", line):
-            threading.Thread(target=proc.stdout.read, daemon=True).start()
-            return proc, m.group(1)
-    raise RuntimeError("serve did not start")
+    return ServeProcess(study, ["--stats-every", "30", "--rate", "1000", "--burst", "1000"],
+                        env=env).start()
 
 
 def run_load(name: str, raters: int, pace: float) -> None:
@@ -87,7 +77,8 @@ def run_load(name: str, raters: int, pace: float) -> None:
         study = make_study(Path(tmp) / "study")
         invite(study, raters, Path(tmp) / "invites.csv")
         tokens = {i.participant: i.token for i in read_invites(Path(tmp) / "invites.csv")}
-        proc, url = serve(study)
+        server = serve(study)
+        url = server.url
         TimedClient.latencies = []
         try:
             t0 = time.perf_counter()
@@ -97,8 +88,7 @@ def run_load(name: str, raters: int, pace: float) -> None:
                 upload=UploadOptions(url, tokens, pace_s=pace, client_factory=TimedClient))
             seconds = time.perf_counter() - t0
         finally:
-            proc.terminate()
-            proc.wait(timeout=60)
+            server.stop()
         arrived = all(s.all_arrived for s in result.upload.values())
         lat = np.array(TimedClient.latencies) * 1000
         n = raters * 240

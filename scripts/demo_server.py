@@ -13,15 +13,14 @@ import json
 import os
 import re
 import secrets
-import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 import urllib.request
-from dataclasses import dataclass, field
 from pathlib import Path
+
+from study_server.child import ServeProcess
 
 REPO = Path(__file__).resolve().parents[1]
 CHROMEDRIVER = Path("/usr/bin/chromedriver")
@@ -39,49 +38,6 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-@dataclass
-class Server:
-    study: Path
-    port: int
-    env: dict[str, str]
-    proc: subprocess.Popen | None = None
-    url: str = ""
-    lines: list[str] = field(default_factory=list)
-
-    def start(self, timeout: float = 120.0) -> None:
-        self.proc = subprocess.Popen(
-            _cli("serve", str(self.study), "--port", str(self.port), "--stats-every", "5"),
-            env=self.env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-            text=True)
-        ready = threading.Event()
-
-        def pump() -> None:
-            assert self.proc is not None and self.proc.stdout is not None
-            for line in self.proc.stdout:
-                self.lines.append(line)
-                if m := re.match(r"serving study .* at (\S+)", line):
-                    self.url = m.group(1)
-                    ready.set()
-
-        threading.Thread(target=pump, daemon=True).start()
-        if not ready.wait(timeout):
-            self.kill()
-            raise RuntimeError("the server did not start: " + "".join(self.lines)[-2000:])
-
-    def kill(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGKILL)
-            self.proc.wait(timeout=30)
-
-    def stop(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                self.kill()
 
 
 def _dashboard_html(url: str, token: str) -> str:
@@ -152,9 +108,9 @@ def collect(study: Path, out: Path, *, raters: int, outliers: int, seed: int, lo
                              "--server", url), log)
     if res.returncode:
         raise SystemExit(1)
-    server = Server(study, port, env)
+    server = ServeProcess(study, ["--stats-every", "5"], port=port, env=env, cwd=REPO)
     t0 = time.monotonic()
-    server.start()
+    server.start(timeout=120.0)
     print(f"\n>>> the study server runs at {server.url}; watch it live: {server.url}/dashboard "
           f"(admin token {token})\n", flush=True)
     local = out / "participants"
@@ -172,7 +128,7 @@ def collect(study: Path, out: Path, *, raters: int, outliers: int, seed: int, lo
                   flush=True)
             server.kill()
             time.sleep(3.0)
-            server.start()
+            server.start(timeout=120.0)
             facts["restarts"] = 1
             print(f">>> the study server is back at {server.url}/dashboard", flush=True)
         code = sim.wait(timeout=1800)

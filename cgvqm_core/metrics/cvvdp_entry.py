@@ -40,6 +40,7 @@ from .registry import (
     VideoScorer,
     package_version,
 )
+from .standins import modules_replaced
 
 log = logging.getLogger(__name__)
 SUPPORTED = "0.5.7"
@@ -111,16 +112,8 @@ def load_cvvdp() -> tuple[Any, Any, bool]:
     for name in ("ffmpeg", "imageio", "imageio.v2"):
         if not _importable(name):
             fakes[name] = _placeholder(name)
-    saved = {k: sys.modules.get(k) for k in fakes}
-    sys.modules.update(fakes)
-    try:
+    with modules_replaced(fakes):
         from pycvvdp import cvvdp_metric, video_source, vq_metric
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                sys.modules.pop(k, None)
-            else:
-                sys.modules[k] = v
     sys.modules["pycvvdp"].vq_exception = vq_metric.vq_exception  # used by its error paths
     _STATE.update(mod=cvvdp_metric.cvvdp, vs=video_source.video_source_dm, standin=standin)
     return _STATE["mod"], _STATE["vs"], standin

@@ -6,6 +6,7 @@ import sqlite3
 from pathlib import Path
 
 import pytest
+from support.sessions import session_tables
 from support.tamper import recompute_rating_chain
 
 from session_store import (
@@ -21,7 +22,6 @@ from session_store import (
 from session_store.chain import canonical
 from session_store.errors import StudyError
 from session_store.outbox import OutboxEntry, entry_hash, read_entries
-from session_store.replica import _dump
 from session_store.schema import open_existing
 
 
@@ -61,12 +61,6 @@ def _entries(path: Path) -> list[OutboxEntry]:
         con.close()
 
 
-def _tables(path: Path):
-    con = open_existing(path, readonly=True)
-    try:
-        return _dump(con)
-    finally:
-        con.close()
 
 
 def test_a_replica_built_in_batches_equals_the_original(tmp_path):
@@ -81,7 +75,7 @@ def test_a_replica_built_in_batches_equals_the_original(tmp_path):
         assert replica.accept(entries[6:]) == len(entries)
         assert replica.accept(entries[6:]) == len(entries)  # idempotent
     copy = tmp_path / "server" / "P01.sqlite"
-    assert _tables(copy) == _tables(original)
+    assert session_tables(copy) == session_tables(original)
     report = verify_session(copy)
     assert report.intact and report.complete and report.n_ratings == 5
     rec = read_session(copy)
@@ -94,7 +88,7 @@ def test_replica_refuses_contradictions_gaps_and_forgeries(tmp_path):
     path = tmp_path / "server.sqlite"
     with Replica.create(path, entries[0]) as replica:
         replica.accept(entries[1:6])
-        before = _tables(path)
+        before = session_tables(path)
         # an acknowledged entry edited (and its chain recomputed by the participant)
         e = entries[4]
         body = {**e.body, "row": {**e.body["row"], "rating": 99.0}}
@@ -113,7 +107,7 @@ def test_replica_refuses_contradictions_gaps_and_forgeries(tmp_path):
                              entry_hash(e.prev_hash, e.seq, e.kind, body))
         with pytest.raises(StudyError, match="does not match its hash"):
             replica.accept([forged])
-        assert _tables(path) == before  # nothing of a refused batch was stored
+        assert session_tables(path) == before  # nothing of a refused batch was stored
         assert replica.accept(entries[6:]) == len(entries)
 
 

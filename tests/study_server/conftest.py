@@ -5,19 +5,16 @@ from __future__ import annotations
 
 import contextlib
 import os
-import queue
-import signal
 import subprocess
 import sys
-import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from stimuli_manifests import fill_checksums, load_manifest, parse_manifest, save_manifest
+from study_server.child import ServeProcess
 
 REPO = Path(__file__).resolve().parents[2]
 ADMIN = "test-admin-token-0123456789abcdef"
@@ -63,63 +60,9 @@ def cli_env() -> dict[str, str]:
     return env
 
 
-@dataclass
-class RunningServer:
-    """``cgvq-study serve`` in a subprocess."""
-
-    study: Path
-    args: list[str] = field(default_factory=list)
-    port: int = 0
-    url: str = ""
-    proc: subprocess.Popen | None = None
-    output: list[str] = field(default_factory=list)
-
-    def start(self, timeout: float = 90.0) -> RunningServer:
-        cmd = [sys.executable, "-m", "cgvq_cli.study_cli", "serve", str(self.study), "--host",
-               "127.0.0.1", "--port", str(self.port), *self.args]
-        self.proc = subprocess.Popen(cmd, env=cli_env(), stdout=subprocess.PIPE,
-                                     stderr=subprocess.STDOUT, text=True, cwd=REPO)
-        lines: queue.Queue[str | None] = queue.Queue()
-
-        def pump() -> None:
-            assert self.proc is not None and self.proc.stdout is not None
-            for line in self.proc.stdout:
-                self.output.append(line)
-                lines.put(line)
-            lines.put(None)
-
-        threading.Thread(target=pump, daemon=True).start()
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            try:
-                line = lines.get(timeout=max(deadline - time.monotonic(), 0.1))
-            except queue.Empty:
-                break
-            if line is None:
-                raise RuntimeError("serve exited: " + "".join(self.output))
-            if line.startswith("serving study"):
-                self.url = line.rsplit(" at ", 1)[1].strip()
-                self.port = int(self.url.rsplit(":", 1)[1])
-                return self
-        self.kill()
-        raise RuntimeError("serve did not start in time: " + "".join(self.output))
-
-    def kill(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGKILL)
-            self.proc.wait(timeout=30)
-
-    def stop(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                self.kill()
-
-    @property
-    def alive(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
+def RunningServer(study: Path, args: list[str] | None = None, port: int = 0) -> ServeProcess:
+    """``cgvq-study serve`` of ``study`` in a child process with the tests' environment."""
+    return ServeProcess(study, list(args or []), port=port, env=cli_env(), cwd=REPO)
 
 
 def run_cli(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess:

@@ -10,12 +10,12 @@ import sqlite3
 from pathlib import Path
 
 import pytest
+from support.sessions import session_tables
 from support.tamper import recompute_rating_chain
 
 from session_store.chain import canonical
 from session_store.errors import StudyError
 from session_store.outbox import entry_hash
-from session_store.replica import _dump
 from session_store.schema import open_existing
 from study_app.remote import ServerClient, ServerRefused, sync_session
 
@@ -82,12 +82,6 @@ EDITS = {
 }
 
 
-def _tables(path: Path):
-    con = open_existing(path, readonly=True)
-    try:
-        return _dump(con)
-    finally:
-        con.close()
 
 
 def test_edits_after_upload_are_flagged_and_the_server_copy_is_unchanged(
@@ -100,7 +94,7 @@ def test_edits_after_upload_are_flagged_and_the_server_copy_is_unchanged(
         write_session(served_study, path, i.participant, ratings=12, finish=True).close()
         client = ServerClient(srv.url, i.token)
         assert sync_session(path, client, i.participant).complete
-        originals[i.participant] = (name, _tables(path))
+        originals[i.participant] = (name, session_tables(path))
         edit(path)
         with contextlib.suppress(ServerRefused, StudyError):  # the app, started again
             sync_session(path, client, i.participant)
@@ -116,7 +110,7 @@ def test_edits_after_upload_are_flagged_and_the_server_copy_is_unchanged(
         block = re.search(rf"^  {pid}: .*?(?=^  P\d\d: |\Z)", out, re.S | re.M).group(0)
         assert "complete" in block.splitlines()[0], (name, block)
         assert "FLAG " in block, (name, block)
-        assert _tables(tmp_path / "pulled" / f"{pid}.sqlite") == tables, name
+        assert session_tables(tmp_path / "pulled" / f"{pid}.sqlite") == tables, name
         row = re.search(rf'<tr data-participant="{pid}">.*?</tr>', html, re.S).group(0)
         assert 'class="flag"' in row, name
     assert f"{len(EDITS)} participant(s) flagged" in out

@@ -9,29 +9,20 @@ import time
 from pathlib import Path
 
 import pytest
+from support.sessions import session_tables
 
 from session_store import read_session, verify_session
-from session_store.replica import _dump
-from session_store.schema import open_existing
 from study_app.remote.admin import pull
 from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
 
 from .conftest import ADMIN, make_served_study, run_cli
 
 
-def _tables(path: Path):
-    con = open_existing(path, readonly=True)
-    try:
-        return _dump(con)
-    finally:
-        con.close()
-
-
 def _assert_all_arrived_once(local_dir: Path, pulled_dir: Path, participants: list[str],
                              n_trials: int) -> None:
     for pid in participants:
         local, pulled = local_dir / f"{pid}.sqlite", pulled_dir / f"{pid}.sqlite"
-        assert _tables(pulled) == _tables(local), pid  # identical, row for row
+        assert session_tables(pulled) == session_tables(local), pid  # identical, row for row
         report = verify_session(pulled)
         assert report.complete and report.n_ratings == n_trials, (pid, report.problems)
         trials = [r["trial"] for r in read_session(pulled).ratings]

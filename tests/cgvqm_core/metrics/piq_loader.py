@@ -32,6 +32,8 @@ def load_piq() -> Any:
         pytest.skip("piq is not installed")
     import torch
 
+    from cgvqm_core.metrics.standins import modules_replaced
+
     names = ("torchvision", "torchvision.models", "torchvision.models.utils",
              "torchvision.models.inception")
     fake = {name: types.ModuleType(name) for name in names}
@@ -45,14 +47,6 @@ def load_piq() -> Any:
         return type(name, (torch.nn.Module,), {})
 
     fake["torchvision.models.inception"].__getattr__ = _block  # type: ignore[attr-defined]
-    saved = {k: sys.modules.get(k) for k in fake}
-    sys.modules.update(fake)
-    try:
+    with modules_replaced(fake):
         import piq
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                sys.modules.pop(k, None)
-            else:
-                sys.modules[k] = v
     return piq

@@ -59,25 +59,43 @@ def _wait_for_statistics(url: str, token: str, n_ratings: int, timeout: float) -
     return False
 
 
-def screenshot(url: str, token: str, path: Path) -> str | None:
-    """The dashboard as a PNG through headless Chromium; None, or why it was not taken."""
+def missing_browser() -> str | None:
+    """None when Selenium, Chromium and chromium-driver are installed, else what is missing."""
     try:
-        from selenium import webdriver
-        from selenium.webdriver.chrome.service import Service
-        from selenium.webdriver.common.by import By
+        import selenium  # noqa: F401 - only whether it is there
     except ImportError:
         return "Selenium is not installed (pip install '.[dev]')"
     if not (CHROMEDRIVER.exists() and CHROMIUM.exists()):
         return "chromium and chromium-driver are not installed (make system-deps)"
+    return None
+
+
+def headless_chromium(width: int, height: int):
+    """Debian's Chromium, headless, driven by Selenium with an explicit driver path (nothing
+    downloads a driver); the caller quits it. Also the browser of the dashboard's tests."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
     options = webdriver.ChromeOptions()
     options.binary_location = str(CHROMIUM)
     for flag in HEADLESS:
         options.add_argument(flag)
-    options.add_argument("--window-size=1500,1200")
+    options.add_argument(f"--window-size={width},{height}")
     driver = webdriver.Chrome(service=Service(executable_path=str(CHROMEDRIVER)),
                               options=options)
+    driver.set_page_load_timeout(60)
+    return driver
+
+
+def screenshot(url: str, token: str, path: Path) -> str | None:
+    """The dashboard as a PNG through headless Chromium; None, or why it was not taken."""
+    why = missing_browser()
+    if why:
+        return why
+    from selenium.webdriver.common.by import By
+
+    driver = headless_chromium(1500, 1200)
     try:
-        driver.set_page_load_timeout(60)
         driver.get(url + "/dashboard")
         driver.find_element(By.ID, "token").send_keys(token)
         driver.find_element(By.ID, "login").click()

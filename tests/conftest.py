@@ -1,4 +1,11 @@
-"""Fixtures shared by every test area. Area-specific fixtures live in tests/<area>/conftest.py."""
+"""Fixtures shared by every test area. Area-specific fixtures live in tests/<area>/conftest.py.
+
+Helpers several areas need live in tests/support/ and are imported as ``support`` (this file
+puts the tests folder on the import path); the fixtures among them are registered here for
+every area: ``egl`` (an off-screen OpenGL context or a skip), ``tiny_study`` and
+``study_factory`` (study folders made on the fly), ``xdisplay``, ``xvfb_factory`` and
+``app_driver`` (the participant's app under Xvfb).
+"""
 
 from __future__ import annotations
 
@@ -8,9 +15,10 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-# Shared helpers live in tests/support/ and are imported as ``support``.
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 SHARED_DATA = REPO.parent / "shared" / "data"
+
+pytest_plugins = ("support.egl", "support.studies", "support.gui")
 
 
 @pytest.fixture

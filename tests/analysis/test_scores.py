@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from analysis.inputs import ratings_from_frame
+from analysis.inputs import RatingSet, ratings_from_frame
 from analysis.scores import dmos_table, fit_scores
-from analysis.synthetic import synthetic_study
+from analysis.synthetic import SyntheticStudy, synthetic_study
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +52,8 @@ def test_mle_recovers_quality_and_bias(clean, model: str) -> None:
         assert res.content_ambiguity is not None and len(res.content) == 6
 
 
-def test_p910_downweights_an_inconsistent_rater() -> None:
+def _one_inconsistent_rater() -> tuple[SyntheticStudy, RatingSet]:
+    """Ten consistent raters, then P03's ratings made very noisy (s.d. 20): (study, ratings)."""
     st = synthetic_study(n_scenes=5, levels=3, n_raters=10, noise_sd=2.0, bias_sd=0, seed=2)
     frame = st.ratings.copy()
     rng = np.random.default_rng(0)
@@ -60,6 +61,11 @@ def test_p910_downweights_an_inconsistent_rater() -> None:
     frame.loc[sel, "rating"] = np.clip(frame.loc[sel, "rating"] + rng.normal(0, 20, sel.sum()),
                                        0, 100)
     rs = ratings_from_frame(frame, st.manifest)
+    return st, rs
+
+
+def test_p910_downweights_an_inconsistent_rater() -> None:
+    st, rs = _one_inconsistent_rater()
     res = fit_scores(rs, "p910")
     inc = dict(zip(res.raters, res.rater_inconsistency, strict=True))
     assert inc["P03"] == max(inc.values()) and inc["P03"] > 10
@@ -98,13 +104,7 @@ def test_missing_hidden_reference_falls_back(clean) -> None:
 
 def test_diverging_mle_falls_back_to_p910() -> None:
     """One very noisy rater makes SUREAL's full MLE diverge; the fallback is reported."""
-    st = synthetic_study(n_scenes=5, levels=3, n_raters=10, noise_sd=2.0, bias_sd=0, seed=2)
-    frame = st.ratings.copy()
-    rng = np.random.default_rng(0)
-    sel = frame["participant"] == "P03"
-    frame.loc[sel, "rating"] = np.clip(frame.loc[sel, "rating"] + rng.normal(0, 20, sel.sum()),
-                                       0, 100)
-    rs = ratings_from_frame(frame, st.manifest)
+    st, rs = _one_inconsistent_rater()
     res = fit_scores(rs, "mle")
     assert res.model == "p910"
     assert any("fell back" in p.message for p in res.problems)

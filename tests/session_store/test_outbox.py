@@ -6,8 +6,8 @@ import sqlite3
 from pathlib import Path
 
 import pytest
-from support.sessions import session_tables
-from support.tamper import recompute_rating_chain
+from support.sessions import session_entries, session_tables
+from support.tamper import edit_database, recompute_rating_chain
 
 from session_store import (
     ContradictionError,
@@ -21,8 +21,7 @@ from session_store import (
 )
 from session_store.chain import canonical
 from session_store.errors import StudyError
-from session_store.outbox import OutboxEntry, entry_hash, read_entries
-from session_store.schema import open_existing
+from session_store.outbox import OutboxEntry, entry_hash
 
 
 def _result(v: float, dropped: int = 0) -> TrialResult:
@@ -53,19 +52,9 @@ def _full_session(path: Path) -> Path:
     return path
 
 
-def _entries(path: Path) -> list[OutboxEntry]:
-    con = open_existing(path, readonly=True)
-    try:
-        return read_entries(con)
-    finally:
-        con.close()
-
-
-
-
 def test_a_replica_built_in_batches_equals_the_original(tmp_path):
     original = _full_session(tmp_path / "P01.sqlite")
-    entries = _entries(original)
+    entries = session_entries(original)
     assert [e.kind for e in entries][:4] == ["session", "preflight", "event", "start"]
     assert entries[-1].kind == "finish"
     replica = Replica.create(tmp_path / "server" / "P01.sqlite", entries[0])
@@ -84,7 +73,7 @@ def test_a_replica_built_in_batches_equals_the_original(tmp_path):
 
 
 def test_replica_refuses_contradictions_gaps_and_forgeries(tmp_path):
-    entries = _entries(_full_session(tmp_path / "P01.sqlite"))
+    entries = session_entries(_full_session(tmp_path / "P01.sqlite"))
     path = tmp_path / "server.sqlite"
     with Replica.create(path, entries[0]) as replica:
         replica.accept(entries[1:6])
@@ -141,10 +130,7 @@ def test_removed_tail_with_updated_header_and_edited_preflight_are_caught(tmp_pa
 
 def test_an_edited_change_log_breaks_its_own_chain(tmp_path):
     path = _full_session(tmp_path / "P01.sqlite")
-    con = sqlite3.connect(path)
-    con.execute("UPDATE outbox SET body=replace(body, '\"skipped\":false', '\"skipped\":true') "
-                "WHERE kind='preflight'")
-    con.commit()
-    con.close()
+    edit_database(path, "UPDATE outbox SET body=replace(body, '\"skipped\":false', "
+                        "'\"skipped\":true') WHERE kind='preflight'")
     assert tables_match_outbox(path) == [
         "the change log is broken: entry 2's content does not match its hash"]

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from support.tamper import edit_database
 
 from session_store import (
     RATINGS_COLUMNS,
@@ -120,10 +121,7 @@ def _filled(tmp_path: Path) -> Path:
 
 def test_edited_rating_breaks_chain_from_that_row(tmp_path):
     path = _filled(tmp_path)
-    con = sqlite3.connect(path)
-    con.execute("UPDATE ratings SET rating = 95 WHERE trial = 2")
-    con.commit()
-    con.close()
+    edit_database(path, "UPDATE ratings SET rating = 95 WHERE trial = 2")
     rows, problems = read_ratings(path)
     assert [r["rating"] for r in rows] == [10.0, 20.0]
     assert len(problems) == 1 and problems[0].row == 2 and "hash chain" in problems[0].message
@@ -133,16 +131,10 @@ def test_edited_rating_breaks_chain_from_that_row(tmp_path):
 
 def test_edited_participant_and_removed_tail_detected(tmp_path):
     path = _filled(tmp_path)
-    con = sqlite3.connect(path)
-    con.execute("DELETE FROM ratings WHERE seq = 4")
-    con.commit()
-    con.close()
+    edit_database(path, "DELETE FROM ratings WHERE seq = 4")
     rows, problems = read_ratings(path)
     assert len(rows) == 3 and len(problems) == 1 and "removed" in problems[0].message
-    con = sqlite3.connect(path)
-    con.execute("UPDATE session SET participant = 'P99'")
-    con.commit()
-    con.close()
+    edit_database(path, "UPDATE session SET participant = 'P99'")
     rows, problems = read_ratings(path)
     assert rows == [] and problems[0].row == 0
 
@@ -150,10 +142,7 @@ def test_edited_participant_and_removed_tail_detected(tmp_path):
 def test_schema_version_and_foreign_files(tmp_path):
     path = _filled(tmp_path)
     assert read_info(path).participant == "P01"
-    con = sqlite3.connect(path)
-    con.execute("UPDATE meta SET value = 'cgvq-session/2' WHERE key = 'schema'")
-    con.commit()
-    con.close()
+    edit_database(path, "UPDATE meta SET value = 'cgvq-session/2' WHERE key = 'schema'")
     with pytest.raises(StudyError, match="not supported"):
         read_ratings(path)
     other = tmp_path / "other.sqlite"

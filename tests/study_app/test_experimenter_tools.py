@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import csv
-import sqlite3
 import zipfile
 
 import pytest
+from support.tamper import edit_database
 
 from cgvq_cli.study_cli import main
 from session_store import RATINGS_COLUMNS, SessionStore, TrialResult
@@ -91,10 +91,7 @@ def test_verify_exit_codes(tiny_study, tmp_path):
     path = _session(tiny_study, 2)
     assert main(["verify", str(path)]) == 1
     assert verify_file(export_session(path, tmp_path / "x.zip")).exit_code == 1
-    con = sqlite3.connect(path)
-    con.execute("UPDATE ratings SET rt_ms = 5 WHERE seq = 1")
-    con.commit()
-    con.close()
+    edit_database(path, "UPDATE ratings SET rt_ms = 5 WHERE seq = 1")
     assert main(["verify", str(path)]) == 2
     junk = tmp_path / "junk.sqlite"
     junk.write_text("not a database")

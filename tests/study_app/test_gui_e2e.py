@@ -46,6 +46,18 @@ def _view_then_rate(app, trial: int) -> str:
     return app.open_rating()  # the minimum viewing time is one loop (1 s)
 
 
+def _ended(finished: tuple[int, str], says: str, lock: Path, session: Path) -> list[dict]:
+    """The run exited with 0 saying ``says`` and released its lock; the session file reads
+    without problems. Returns its rating rows."""
+    code, out = finished
+    assert code == 0, out
+    assert says in out
+    assert not lock.exists()
+    rows, problems = read_ratings(session)
+    assert problems == []
+    return rows
+
+
 def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory, app_driver):
     study = study_factory(tmp_path / "study")
     session = study / "sessions" / "P01.sqlite"
@@ -73,10 +85,7 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory, app_driver):
     app.wait("practice-end")
     app.key("space")
 
-    app.wait("viewing trial=0")
-    time.sleep(0.3)
-    app.key("space")
-    app.wait("switch to=reference")
+    app.switch_to_reference(0)
     time.sleep(1.2)  # the blank (0.5 s) is over: the reference shows for about 0.7 s
     app.key("space")
     app.wait("switch to=test")
@@ -99,16 +108,7 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory, app_driver):
     app.wait("confirm-quit")  # quitting asks first; "no" goes back to the pause screen
     app.key("Escape")
     app.wait("pause")
-    app.key("q")
-    app.wait("confirm-quit")
-    app.key("y")
-    code, out = app.finish()
-    assert code == 0, out
-    assert "2 of 3 trials answered" in out
-    assert not lock.exists()
-
-    rows, problems = read_ratings(session)
-    assert problems == []
+    rows = _ended(app.quit_confirmed(), "2 of 3 trials answered", lock, session)
     assert [r["trial"] for r in rows] == [0, 1]
     assert rows[0]["rating"] == pytest.approx(70.0, abs=0.15)  # one pixel of the track
     assert rows[1]["rating"] == 69.0
@@ -152,10 +152,7 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory, app_driver):
 
     # -- run 2: resume; a second run of the same participant is refused; SIGKILL ----------
     app = app_driver(xdisplay, args)
-    app.wait("preflight-passed")
-    app.key("space")
-    app.wait("welcome-back")
-    app.key("space")
+    app.resume()
     app.wait("viewing trial=2")
     second = subprocess.run(
         [sys.executable, "-m", "cgvq_cli.study_cli", "run", *args],
@@ -171,10 +168,7 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory, app_driver):
 
     # -- run 3: takes the dead run's lock over, resumes at trial 2 and finishes -----------
     app = app_driver(xdisplay, args)
-    app.wait("preflight-passed")
-    app.key("space")
-    app.wait("welcome-back")
-    app.key("space")
+    app.resume()
     line = _view_then_rate(app, 2)
     x0, x1, y = _slider(line)
     bx, by, bw, bh = (float(v) for v in re.search(r"submit=([\d.,]+)", line).group(1).split(","))
@@ -186,13 +180,7 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory, app_driver):
     app.click(bx + bw / 2, by + bh / 2)
     app.wait("end")
     app.key("Return")
-    code, out = app.finish()
-    assert code == 0, out
-    assert "Session finished: 3 trials" in out
-    assert not lock.exists()
-
-    rows, problems = read_ratings(session)
-    assert problems == []
+    rows = _ended(app.finish(), "Session finished: 3 trials", lock, session)
     assert [r["trial"] for r in rows] == [0, 1, 2]
     assert rows[2]["rating"] == pytest.approx(20.0, abs=0.15)
     manifest = load_manifest(study / "manifest.json").manifest
@@ -229,10 +217,7 @@ def test_gui_preflight_failure_says_what_to_change(tmp_path, xdisplay, study_fac
     and consent, and leaves nothing behind: no session file, no lock, no sessions folder."""
     study = study_factory(tmp_path / "study", min_display=(1920, 1080))
     app = app_driver(xdisplay, [str(study), "--participant", "P02", "--practice", "0", PILOT])
-    app.wait("preflight-failed")
-    app.key("Escape")
-    code, _ = app.finish()
-    assert code == 2
+    assert app.leave_failed_preflight("Escape") == 2
     err = " ".join(app.lines)
     assert "1280x1024" in err and "1920x1080" in err and "monitor" in err
     assert "--" not in err.split("pre-flight failed:", 1)[1]  # no command-line flag for them
@@ -246,10 +231,7 @@ def test_gui_without_vsync_a_participant_run_stops_at_the_preflight(tmp_path, xd
     pre-flight, telling the participant what to change on the computer."""
     study = study_factory(tmp_path / "study")
     app = app_driver(xdisplay, [str(study), "--participant", "P03"])
-    app.wait("preflight-failed")
-    app.key("Return")
-    code, _ = app.finish()
-    assert code == 2
+    assert app.leave_failed_preflight("Return") == 2
     err = " ".join(app.lines)
     assert "refresh_rate" in err and "vertical sync" in err and "graphics driver" in err
     assert "--" not in err.split("pre-flight failed:", 1)[1]

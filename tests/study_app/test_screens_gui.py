@@ -118,10 +118,7 @@ def test_every_screen_fits_and_never_draws_on_the_video(tmp_path, xvfb_factory, 
     _rate(app)
     app.wait("practice-end")
     app.key("space")
-    app.wait("viewing trial=0")
-    time.sleep(0.3)
-    app.key("space")
-    app.wait("switch to=reference")
+    app.switch_to_reference(0)
     app.open_rating()
     time.sleep(0.3)
     app.key("Right")
@@ -137,18 +134,12 @@ def test_every_screen_fits_and_never_draws_on_the_video(tmp_path, xvfb_factory, 
     app.wait("confirm-withdraw")
     app.key("Escape")
     app.wait("pause")
-    app.key("q")
-    app.wait("confirm-quit")
-    app.key("y")
-    code, out = app.finish()
+    code, out = app.quit_confirmed()
     assert code == 0, out
 
     # -- resume to the end ---------------------------------------------------------------
     app = app_driver(env, base)
-    app.wait("preflight-passed")
-    app.key("space")
-    app.wait("welcome-back")
-    app.key("space")
+    app.resume()
     app.wait("viewing trial=1")
     _rate(app)
     app.wait("break")
@@ -164,9 +155,7 @@ def test_every_screen_fits_and_never_draws_on_the_video(tmp_path, xvfb_factory, 
     big = _make_study(tmp_path / "big", video, (screen[0] + 640, screen[1] + 360))
     app = app_driver(env, [str(big), "--participant", "P02", "--screenshots", str(shots),
                            PILOT])
-    app.wait("preflight-failed")
-    app.key("Escape")
-    assert app.finish()[0] == 2
+    assert app.leave_failed_preflight("Escape") == 2
 
     missing = [s for s in SCREENS if not (shots / f"{s}.png").exists()]
     assert not missing, missing

@@ -3,38 +3,35 @@ by Selenium with an explicit driver path: nothing downloads a driver)."""
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
 import time
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
 from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
 
-from .conftest import ADMIN, ARTIFACTS, make_served_study
+from .conftest import ADMIN, ARTIFACTS, REPO, make_served_study
 
-CHROMEDRIVER = Path("/usr/bin/chromedriver")
-CHROMIUM = Path("/usr/bin/chromium")
-HEADLESS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-            "--disable-background-networking", "--disable-component-update", "--disable-sync",
-            "--no-first-run")
+
+def _demo_server() -> ModuleType:
+    """scripts/demo_server.py (a program, not a package), whose browser launcher is reused."""
+    spec = importlib.util.spec_from_file_location("demo_server",
+                                                  REPO / "scripts" / "demo_server.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 @pytest.fixture
 def browser():
-    webdriver = pytest.importorskip("selenium.webdriver")
-    if not (CHROMEDRIVER.exists() and CHROMIUM.exists()):
-        pytest.skip("chromium and chromium-driver (Debian packages) are not installed")
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = str(CHROMIUM)
-    for flag in HEADLESS:
-        options.add_argument(flag)
-    options.add_argument("--window-size=1500,1900")
-    driver = webdriver.Chrome(service=Service(executable_path=str(CHROMEDRIVER)),
-                              options=options)
-    driver.set_page_load_timeout(60)
+    demo_server = _demo_server()
+    why = demo_server.missing_browser()
+    if why:
+        pytest.skip(why)
+    driver = demo_server.headless_chromium(1500, 1900)
     yield driver
     driver.quit()
 

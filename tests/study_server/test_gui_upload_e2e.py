@@ -1,6 +1,6 @@
 """The real app under Xvfb downloads its study from a real server and uploads as it rates:
 ``cgvq-study run --server URL --participant ID --token T`` end to end, driven by X input
-(the e2e driver of tests/study_app), in a process where the research stack cannot be
+(the driver in tests/support/gui.py), in a process where the research stack cannot be
 imported. The end screen says everything arrived; the server's copy equals the local file."""
 
 from __future__ import annotations
@@ -8,37 +8,21 @@ from __future__ import annotations
 import shutil
 
 import pytest
+from support.gui import AppDriver
+from support.sessions import session_tables
+from support.studies import make_study
 
 from session_store import verify_session
-from session_store.replica import _dump
-from session_store.schema import open_existing
 from study_app.remote.admin import pull
 
-from ..study_app.conftest import REPO, AppDriver, make_study, start_xvfb
-from .conftest import ADMIN, cli_env, run_cli
+from .conftest import ADMIN, REPO, cli_env, run_cli
 
 pytestmark = pytest.mark.gui
 
 ARTIFACTS = REPO / "test-artifacts" / "server" / "app-e2e"
 
 
-@pytest.fixture
-def xdisplay_1280():
-    proc, env = start_xvfb((1280, 1024))
-    yield env
-    proc.terminate()
-    proc.wait(timeout=10)
-
-
-def _tables(path):
-    con = open_existing(path, readonly=True)
-    try:
-        return _dump(con)
-    finally:
-        con.close()
-
-
-def test_the_app_downloads_and_uploads_to_the_server(tmp_path, xdisplay_1280, invites,
+def test_the_app_downloads_and_uploads_to_the_server(tmp_path, xdisplay, invites,
                                                      server_factory):
     study = make_study(tmp_path / "served", min_display=(640, 480))  # 3 stimuli, 64x64, 1 s
     [inv] = invites(1, study=study)
@@ -48,7 +32,7 @@ def test_the_app_downloads_and_uploads_to_the_server(tmp_path, xdisplay_1280, in
     args = ["--server", srv.url, "--participant", "P01", "--token", inv.token, "--data-dir",
             str(data), "--seed", "5", "--practice", "0", "--max-dropped-frames", "-1",
             "--screenshots", str(ARTIFACTS), "--pilot-no-vsync"]
-    env = {**xdisplay_1280, **{k: v for k, v in cli_env().items() if k == "CGVQ_ADMIN_TOKEN"}}
+    env = {**xdisplay, **{k: v for k, v in cli_env().items() if k == "CGVQ_ADMIN_TOKEN"}}
     app = AppDriver(env, args)
     app.wait("preflight-passed", timeout=90)  # after the download
     app.key("space")
@@ -73,7 +57,7 @@ def test_the_app_downloads_and_uploads_to_the_server(tmp_path, xdisplay_1280, in
     assert verify_session(local).complete
     pulled = pull(srv.url, ADMIN, tmp_path / "pulled")
     assert [s.report.state for s in pulled.sessions] == ["complete"]
-    assert _tables(tmp_path / "pulled" / "P01.sqlite") == _tables(local)
+    assert session_tables(tmp_path / "pulled" / "P01.sqlite") == session_tables(local)
     assert (ARTIFACTS / "end.png").is_file()
     # the same command again: the session is finished, nothing to run, everything arrived
     again = run_cli("run", *args[:8])

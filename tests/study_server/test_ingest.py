@@ -8,12 +8,12 @@ import sqlite3
 from datetime import UTC, datetime, timedelta
 
 import pytest
+from support.sessions import session_entries
+from support.tamper import edit_database, rewrite_change_log
 
 from session_store import utc_now
-from session_store.chain import canonical
-from session_store.outbox import entry_hash, read_entries
+from session_store.outbox import entry_hash
 from session_store.protocol import PROTOCOL
-from session_store.schema import open_existing
 from study_server.config import ServerConfig
 from study_server.ingest import Refused
 from study_server.state import ServerState
@@ -30,14 +30,6 @@ def state(served_study, invites, monkeypatch):
     st.stop()
 
 
-def _log(path):
-    con = open_existing(path, readonly=True)
-    try:
-        return read_entries(con)
-    finally:
-        con.close()
-
-
 def _upload(st, pid, entries, session_id=None):
     return st.ingest.upload(pid, {
         "protocol": PROTOCOL, "session_id": session_id or entries[0].body.get("header", {})
@@ -50,7 +42,7 @@ def _sid(st, pid):
 
 
 def _handshake(st, pid, path, problems=(), client_time=None):
-    entries = _log(path)
+    entries = session_entries(path)
     return st.ingest.handshake(pid, {
         "protocol": PROTOCOL, "session_id": entries[0].body["header"]["session_id"],
         "client_time": client_time or utc_now(), "app_version": "t",
@@ -68,7 +60,7 @@ def _snapshot(st):
 def test_uploads_in_pieces_resends_and_the_summary(state, served_study, tmp_path):
     path = tmp_path / "P01.sqlite"
     write_session(served_study, path, "P01", ratings=5).close()
-    entries = _log(path)
+    entries = session_entries(path)
     assert _handshake(state, "P01", path)["acked_seq"] == 0
     assert _upload(state, "P01", entries[:3])["acked_seq"] == 3
     assert _upload(state, "P01", entries[1:6])["acked_seq"] == 6  # overlap: idempotent
@@ -86,7 +78,7 @@ def test_uploads_in_pieces_resends_and_the_summary(state, served_study, tmp_path
 def test_a_changed_acknowledged_entry_is_refused_and_flagged(state, served_study, tmp_path):
     path = tmp_path / "P01.sqlite"
     write_session(served_study, path, "P01", ratings=4).close()
-    entries = _log(path)
+    entries = session_entries(path)
     _upload(state, "P01", entries)
     before = _snapshot(state)
     rating = next(e for e in entries if e.kind == "rating")
@@ -108,29 +100,17 @@ def test_a_changed_acknowledged_entry_is_refused_and_flagged(state, served_study
 def test_handshake_compares_the_whole_log(state, served_study, tmp_path):
     path = tmp_path / "P01.sqlite"
     write_session(served_study, path, "P01", ratings=4).close()
-    _upload(state, "P01", _log(path))
+    _upload(state, "P01", session_entries(path))
     # the participant rewrites an acknowledged rating in the change log and re-hashes it
-    con = sqlite3.connect(path)
-    rows = con.execute("SELECT seq, kind, body, prev_hash FROM outbox ORDER BY seq").fetchall()
-    prev = None
-    for seq, kind, text, prev_hash in rows:
-        body = json.loads(text)
+    def edit(kind: str, body: dict) -> None:
         if kind == "rating" and body["row"]["seq"] == 2:
             body["row"]["rating"] = 1.0
-        prev = prev_hash if prev is None else prev
-        digest = entry_hash(prev, seq, kind, body)
-        con.execute("UPDATE outbox SET body=?, prev_hash=?, entry_hash=? WHERE seq=?",
-                    (canonical(body), prev, digest, seq))
-        prev = digest
-    con.commit()
-    con.close()
+
+    rewrite_change_log(path, edit)
     with pytest.raises(Refused, match="differs from the one the server acknowledged"):
         _handshake(state, "P01", path)
     # removed entries (a shorter log) are a contradiction too
-    con = sqlite3.connect(path)
-    con.execute("DELETE FROM outbox WHERE seq > 5")
-    con.commit()
-    con.close()
+    edit_database(path, "DELETE FROM outbox WHERE seq > 5")
     with pytest.raises(Refused):
         _handshake(state, "P01", path)
     kinds = [f.message for f in state.store.flags("P01")]
@@ -140,17 +120,17 @@ def test_handshake_compares_the_whole_log(state, served_study, tmp_path):
 def test_second_session_foreign_header_and_other_participant(state, served_study, tmp_path):
     first = tmp_path / "a" / "P01.sqlite"
     write_session(served_study, first, "P01", ratings=2).close()
-    _upload(state, "P01", _log(first))
+    _upload(state, "P01", session_entries(first))
     before = _snapshot(state)
     again = tmp_path / "b" / "P01.sqlite"  # deleted the file and started again
     write_session(served_study, again, "P01", ratings=3, seed=2).close()
     with pytest.raises(Refused, match="second session"):
-        _upload(state, "P01", _log(again))
+        _upload(state, "P01", session_entries(again))
     with pytest.raises(Refused, match="another session"):
         _handshake(state, "P01", again)
     # P02 uploads P01's file with its own (valid) token: the header names P01
     with pytest.raises(Refused, match="belongs to participant 'P01'"):
-        _upload(state, "P02", _log(first))
+        _upload(state, "P02", session_entries(first))
     # a session made for another manifest
     other = tmp_path / "c" / "P03.sqlite"
     store = write_session(served_study, other, "P03", ratings=0)
@@ -158,7 +138,7 @@ def test_second_session_foreign_header_and_other_participant(state, served_study
     con = sqlite3.connect(other)
     text = con.execute("SELECT body FROM outbox WHERE seq=1").fetchone()[0]
     con.close()
-    entries = _log(other)
+    entries = session_entries(other)
     body = json.loads(text)
     body["header"]["manifest_sha256"] = "0" * 64
     from session_store.outbox import OutboxEntry, outbox_genesis
@@ -182,7 +162,7 @@ def test_a_rating_out_of_order_with_a_valid_chain_is_refused(state, served_study
 
     path = tmp_path / "P01.sqlite"
     write_session(served_study, path, "P01", ratings=1).close()
-    entries = _log(path)
+    entries = session_entries(path)
     *head, rating = entries
     _upload(state, "P01", head)
     con = sqlite3.connect(path)
@@ -210,22 +190,14 @@ def test_clock_skew_local_problems_and_offline_gaps_are_flagged(state, served_st
                         client_time=ahead)
     assert -9.5 * 60000 < answer["clock_offset_ms"] < -8.5 * 60000
     # entries written 20 min ago (by a clock 9 min ahead) arrive now
-    con = sqlite3.connect(path)
-    rows = con.execute("SELECT seq, kind, body, prev_hash FROM outbox ORDER BY seq").fetchall()
     old = (datetime.now(UTC) - timedelta(minutes=11)).isoformat()
-    prev = None
-    for seq, kind, text, prev_hash in rows:
-        body = json.loads(text)
+
+    def backdate(kind: str, body: dict) -> None:
         if kind in ("event", "preflight", "start"):
             body["at"] = old
-        prev = prev_hash if prev is None else prev
-        digest = entry_hash(prev, seq, kind, body)
-        con.execute("UPDATE outbox SET body=?, prev_hash=?, entry_hash=? WHERE seq=?",
-                    (canonical(body), prev, digest, seq))
-        prev = digest
-    con.commit()
-    con.close()
-    _upload(state, "P01", _log(path))
+
+    rewrite_change_log(path, backdate)
+    _upload(state, "P01", session_entries(path))
     flags = {f.kind: f.message for f in state.store.flags("P01")}
     assert "ahead of the server" in flags["clock_skew"]
     assert "table ratings differs" in flags["local_edit"]

@@ -7,6 +7,7 @@ import threading
 from pathlib import Path
 
 import pytest
+from support.tamper import edit_database
 
 from session_store.errors import StudyError
 from study_server.storage import (
@@ -94,17 +95,11 @@ def test_failing_migration_leaves_the_database_as_it_was(tmp_path, monkeypatch):
 def test_newer_or_foreign_databases_are_refused(tmp_path):
     path = tmp_path / "state.sqlite"
     ServerStore(path).close()
-    con = sqlite3.connect(path)
-    con.execute("UPDATE meta SET value=? WHERE key='schema'", (str(SCHEMA_VERSION + 1),))
-    con.commit()
-    con.close()
+    edit_database(path, f"UPDATE meta SET value='{SCHEMA_VERSION + 1}' WHERE key='schema'")
     with pytest.raises(StudyError, match="newer than this toolkit"):
         ServerStore(path)
     other = tmp_path / "other.sqlite"
-    con = sqlite3.connect(other)
-    con.execute("CREATE TABLE x (a)")
-    con.commit()
-    con.close()
+    edit_database(other, "CREATE TABLE x (a)")
     with pytest.raises(StudyError, match="not a study-server database"):
         ServerStore(other)
     junk = tmp_path / "junk.sqlite"

@@ -4,18 +4,15 @@ recomputed chain: the server flags it (dashboard and pull) and its copy stays un
 from __future__ import annotations
 
 import contextlib
-import json
 import re
 import sqlite3
 from pathlib import Path
 
 import pytest
 from support.sessions import session_tables
-from support.tamper import recompute_rating_chain
+from support.tamper import edit_database, recompute_rating_chain, rewrite_change_log
 
-from session_store.chain import canonical
 from session_store.errors import StudyError
-from session_store.outbox import entry_hash
 from session_store.schema import open_existing
 from study_app.remote import ServerClient, ServerRefused, sync_session
 
@@ -23,13 +20,7 @@ from .conftest import ADMIN, raw_request, run_cli, write_session
 
 
 def _sql(*statements: str):
-    def edit(path: Path) -> None:
-        con = sqlite3.connect(path)
-        for s in statements:
-            con.execute(s)
-        con.commit()
-        con.close()
-    return edit
+    return lambda path: edit_database(path, *statements)
 
 
 def _remove_tail_and_fix_header(path: Path) -> None:
@@ -46,24 +37,18 @@ def _rewrite_change_log(path: Path) -> None:
     log, every hash recomputed, and the upload state reset so that everything is re-sent."""
     recompute_rating_chain(path)
     con = sqlite3.connect(path)
-    rows = con.execute("SELECT seq, kind, body, prev_hash FROM outbox ORDER BY seq").fetchall()
     ratings = {r[0]: r for r in con.execute("SELECT seq, rating, prev_hash, row_hash FROM "
                                             "ratings")}
-    prev = None
-    for seq, kind, text, prev_hash in rows:
-        body = json.loads(text)
+    con.close()
+
+    def follow_the_tables(kind: str, body: dict) -> None:
         if kind == "rating":
             n = body["row"]["seq"]
             body["row"].update(rating=ratings[n][1], prev_hash=ratings[n][2],
                                row_hash=ratings[n][3])
-        prev = prev_hash if prev is None else prev
-        digest = entry_hash(prev, seq, kind, body)
-        con.execute("UPDATE outbox SET body=?, prev_hash=?, entry_hash=? WHERE seq=?",
-                    (canonical(body), prev, digest, seq))
-        prev = digest
-    con.execute("UPDATE upload_state SET value='0' WHERE key='acked_seq'")
-    con.commit()
-    con.close()
+
+    rewrite_change_log(path, follow_the_tables)
+    edit_database(path, "UPDATE upload_state SET value='0' WHERE key='acked_seq'")
 
 
 EDITS = {
@@ -80,8 +65,6 @@ EDITS = {
     "schema version changed": _sql("UPDATE meta SET value = 'cgvq-session/2' "
                                    "WHERE key = 'schema'"),
 }
-
-
 
 
 def test_edits_after_upload_are_flagged_and_the_server_copy_is_unchanged(

@@ -17,6 +17,7 @@ import pytest
 
 from support.lean_install import lean_pythonpath
 
+
 def _free_display() -> int:
     for n in range(90, 200):
         if not Path(f"/tmp/.X{n}-lock").exists() and not Path(f"/tmp/.X11-unix/X{n}").exists():
@@ -131,6 +132,34 @@ class AppDriver:
         for k in keys:
             subprocess.run(["xdotool", "key", k], env=self.env, check=True)
             time.sleep(0.12)
+
+    def resume(self) -> None:
+        """A returning participant: past the display check and the welcome-back screen."""
+        self.wait("preflight-passed")
+        self.key("space")
+        self.wait("welcome-back")
+        self.key("space")
+
+    def switch_to_reference(self, trial: int) -> None:
+        """Once ``trial`` shows its test video, switch to the reference (a blank comes first)."""
+        self.wait(f"viewing trial={trial}")
+        time.sleep(0.3)
+        self.key("space")
+        self.wait("switch to=reference")
+
+    def quit_confirmed(self) -> tuple[int, str]:
+        """From the pause screen: quit, confirm, and wait for the app to exit (as finish)."""
+        self.key("q")
+        self.wait("confirm-quit")
+        self.key("y")
+        return self.finish()
+
+    def leave_failed_preflight(self, key: str) -> int:
+        """Wait for the failed display check, leave it with ``key``; the app's exit code."""
+        self.wait("preflight-failed")
+        self.key(key)
+        code, _ = self.finish()
+        return code
 
     def open_rating(self, min_view_s: float = 1.0) -> str:
         """Enter until the rating screen opens (returns its state line). It needs

@@ -1,11 +1,24 @@
-"""Tampering with a session file the way a participant who read the source would."""
+"""Editing database files behind their owner's back, the way a participant who read the
+source would: plain SQL edits, and a forger who re-hashes the chains so they look intact."""
 
 from __future__ import annotations
 
+import json
 import sqlite3
+from collections.abc import Callable
 from pathlib import Path
 
-from session_store.chain import normalise_row, row_hash
+from session_store.chain import canonical, normalise_row, row_hash
+from session_store.outbox import entry_hash
+
+
+def edit_database(path: Path, *statements: str) -> None:
+    """Run ``statements`` on the SQLite file at ``path`` and commit them."""
+    con = sqlite3.connect(path)
+    for statement in statements:
+        con.execute(statement)
+    con.commit()
+    con.close()
 
 
 def recompute_rating_chain(path: Path, *, seq: int = 2, rating: float = 77.0) -> None:
@@ -24,5 +37,23 @@ def recompute_rating_chain(path: Path, *, seq: int = 2, rating: float = 77.0) ->
                     (r["rating"], r["prev_hash"], r["row_hash"], r["seq"]))
         prev = r["row_hash"]
     con.execute("UPDATE session SET head_hash=?", (prev,))
+    con.commit()
+    con.close()
+
+
+def rewrite_change_log(path: Path, edit: Callable[[str, dict], None]) -> None:
+    """Let ``edit(kind, body)`` change the body of every change-log (outbox) entry in place,
+    then re-hash the whole log, so that its own chain looks intact."""
+    con = sqlite3.connect(path)
+    rows = con.execute("SELECT seq, kind, body, prev_hash FROM outbox ORDER BY seq").fetchall()
+    prev = None
+    for seq, kind, text, prev_hash in rows:
+        body = json.loads(text)
+        edit(kind, body)
+        prev = prev_hash if prev is None else prev
+        digest = entry_hash(prev, seq, kind, body)
+        con.execute("UPDATE outbox SET body=?, prev_hash=?, entry_hash=? WHERE seq=?",
+                    (canonical(body), prev, digest, seq))
+        prev = digest
     con.commit()
     con.close()

@@ -2,14 +2,9 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
-
-from calib_synthetic import Synthetic, make
+from .calib_synthetic import Synthetic, make
 
 
 @pytest.fixture(scope="session")

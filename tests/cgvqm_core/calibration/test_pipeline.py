@@ -6,12 +6,13 @@ import json
 
 import numpy as np
 import pytest
-from calib_synthetic import make
 
 from cgvqm_core.calibration import CalibrationData, FitConfig, apply_anchor, pooled_errors
 from cgvqm_core.calibration.pipeline import calibrate
 from cgvqm_core.calibration.stats import correlations
 from cgvqm_core.weights import load_weights, resolve_weights
+
+from .calib_synthetic import make
 
 CFG = FitConfig(steps=600, lr_omega=1e-3, show_progress=False, objective="plcc-signed")
 UPSTREAM = FitConfig(steps=600, lr_omega=1e-3, show_progress=False)

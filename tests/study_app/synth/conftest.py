@@ -1,11 +1,11 @@
-"""Fixtures of the synthetic-stimuli tests: an EGL context (or a skip) and one tiny study."""
+"""Fixtures of the synthetic-stimuli tests: one tiny synthesized study (``egl``, the EGL
+context or a skip, comes from tests/support)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
-from support.egl import egl  # noqa: F401 - a fixture
 
 TINY = {"width": 64, "height": 64, "seconds": 0.2, "fps": 30, "seed": 7}
 
@@ -16,7 +16,7 @@ def tiny_options() -> dict:
 
 
 @pytest.fixture(scope="session")
-def tiny_study(egl, tmp_path_factory) -> Path:  # noqa: F811 - egl is the fixture
+def tiny_study(egl, tmp_path_factory) -> Path:
     """A 64x64, 0.2 s study with both scenes and all six families (manifest path)."""
     from study_app.synth import SynthOptions, synthesize
 

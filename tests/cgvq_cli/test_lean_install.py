@@ -9,15 +9,13 @@ import sys
 from pathlib import Path
 
 import pytest
-
-REPO = Path(__file__).resolve().parents[2]
-LEAN_SITE = REPO / "tests" / "support" / "lean_site"
+from support.lean_install import lean_pythonpath
 
 
 def lean_env(**extra: str) -> dict[str, str]:
     """Environment of a Python process that looks like the participant's base install."""
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    env.update(PYTHONPATH=f"{LEAN_SITE}{os.pathsep}{REPO}", **extra)
+    env.update(PYTHONPATH=lean_pythonpath(), **extra)
     return env
 
 

@@ -1,0 +1,87 @@
+"""Returning results: exports of many participants have unique names and unzip into one
+folder, verify takes files, folders and zips at once, hostile zips and files edited into bad
+ids or bad JSON are refused."""
+
+from __future__ import annotations
+
+import zipfile
+
+from support.sessions import bare_session, plain_result
+from support.tamper import edit_database
+
+from cgvq_cli.study_cli import main
+from session_store import read_session
+from study_app.export import export_session, verify_many
+
+
+def test_exports_of_many_participants_unzip_into_one_folder(tmp_path, monkeypatch):
+    paths = []
+    for pid in ("P01", "P02"):
+        path = tmp_path / "sessions" / f"{pid}.sqlite"
+        with bare_session(path, pid) as store:
+            store.record(0, plain_result(50.0))
+        paths.append(path)
+    returns = tmp_path / "returns"
+    returns.mkdir()
+    monkeypatch.chdir(returns)  # the default: the current folder, as the README says
+    zips = [export_session(p) for p in paths]
+    assert [z.parent for z in zips] == [returns, returns] and len(set(zips)) == 2
+    unpacked = tmp_path / "unpacked"
+    for z in zips:
+        with zipfile.ZipFile(z) as zf:
+            zf.extractall(unpacked)
+    sqlites = sorted(unpacked.glob("*.sqlite"))
+    assert len(sqlites) == 2
+    assert {read_session(p).info.participant for p in sqlites} == {"P01", "P02"}
+
+
+def test_verify_takes_files_folders_and_zips_at_once(tmp_path, capsys):
+    done = tmp_path / "in" / "P01.sqlite"
+    with bare_session(done, "P01", n=2) as store:
+        store.record(0, plain_result(1.0))
+        store.record(1, plain_result(2.0))
+        store.finish()
+    with bare_session(tmp_path / "in" / "P02.sqlite", "P02") as store:
+        store.record(0, plain_result(1.0))
+    z = export_session(done, tmp_path / "zips")
+    broken = tmp_path / "broken.sqlite"
+    broken.write_bytes(b"garbage")
+    code = main(["verify", str(tmp_path / "in"), str(z), str(broken)])
+    out = capsys.readouterr().out
+    assert code == 2
+    assert "P01.sqlite: intact and complete" in out
+    assert "P02.sqlite: intact but INCOMPLETE" in out
+    assert f"{z}:P01_" in out and "broken.sqlite: DAMAGED" in out
+    assert "4 session files: 2 complete, 1 incomplete, 1 damaged" in out
+    assert main(["verify", str(tmp_path / "in" / "P01.sqlite"), str(z)]) == 0
+    capsys.readouterr()
+
+
+def test_hostile_zip_members_stay_in_their_folder(tmp_path):
+    path = tmp_path / "P01.sqlite"
+    bare_session(path).close()
+    evil = tmp_path / "evil.zip"
+    with zipfile.ZipFile(evil, "w") as zf:
+        zf.write(path, "../../escaped.sqlite")
+    reports = verify_many([evil])
+    assert len(reports) == 1 and reports[0].intact
+    assert "no SHA256SUMS" in reports[0].warnings[0]
+    assert not (tmp_path.parent / "escaped.sqlite").exists()
+
+
+def test_export_refuses_files_edited_into_bad_ids_or_bad_json(tmp_path, capsys):
+    path = tmp_path / "P01.sqlite"
+    bare_session(path).close()
+    edit_database(path, "UPDATE session SET participant='../../x'")
+    assert main(["export", str(path), "--out", str(tmp_path / "z")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'../../x' is not valid" in err
+    assert not (tmp_path.parent / "x").exists() and not list(tmp_path.glob("*.zip"))
+    path2 = tmp_path / "P02.sqlite"
+    bare_session(path2, "P02").close()
+    edit_database(path2, "UPDATE session SET settings='{not json'")
+    assert main(["export", str(path2)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "settings is not valid JSON" in err
+    assert main(["verify", str(path2)]) == 2
+    capsys.readouterr()

@@ -93,13 +93,17 @@ def screenshot(url: str, token: str, path: Path) -> str | None:
     if why:
         return why
     from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions
+    from selenium.webdriver.support.ui import WebDriverWait
 
     driver = headless_chromium(1500, 1200)
     try:
         driver.get(url + "/dashboard")
         driver.find_element(By.ID, "token").send_keys(token)
         driver.find_element(By.ID, "login").click()
-        driver.find_element(By.ID, "participants")
+        # the login answers with a redirect to the dashboard: wait for it on a busy machine
+        WebDriverWait(driver, 60).until(
+            expected_conditions.presence_of_element_located((By.ID, "participants")))
         height = driver.execute_script("return document.body.scrollHeight")
         driver.set_window_size(1500, int(height) + 150)
         driver.save_screenshot(str(path))

@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import secrets
 import socket
 import subprocess
 import sys
@@ -20,6 +19,7 @@ import time
 import urllib.request
 from pathlib import Path
 
+from study_server.auth import command_line_token
 from study_server.child import ServeProcess
 
 REPO = Path(__file__).resolve().parents[1]
@@ -116,7 +116,7 @@ def collect(study: Path, out: Path, *, raters: int, outliers: int, seed: int, lo
             run) -> tuple[Path, Path, dict]:
     """Serve ``study``, let the simulated panel upload, pull. Returns (folder of pulled
     session files, the simulation's truth file, facts for the summary)."""
-    token = secrets.token_urlsafe(24)
+    token = command_line_token(24)
     env = {**os.environ, "CGVQ_ADMIN_TOKEN": token, "PYTHONPATH": str(REPO)}
     port = _free_port()
     url = f"http://127.0.0.1:{port}"

@@ -23,9 +23,17 @@ COOKIE = "cgvq_admin"
 COOKIE_LIFETIME_S = 12 * 3600
 
 
+def command_line_token(nbytes: int) -> str:
+    """``nbytes`` random bytes, URL-safe, never starting with ``-``: a token is typed after
+    ``--token`` / ``--admin-token``, where a leading dash would read as another option."""
+    while (token := secrets.token_urlsafe(nbytes)).startswith("-"):
+        pass
+    return token
+
+
 def new_token() -> str:
     """A participant token: 192 random bits, URL-safe (32 characters)."""
-    return secrets.token_urlsafe(24)
+    return command_line_token(24)
 
 
 def token_sha256(token: str) -> str:
@@ -51,7 +59,7 @@ def admin_token(server_dir: Path, *, create: bool = True) -> tuple[str, bool]:
     if not create:
         raise StudyError(f"no admin token: set ${ADMIN_ENV} or run 'cgvq-study serve' once")
     server_dir.mkdir(parents=True, exist_ok=True)
-    token = secrets.token_urlsafe(32)
+    token = command_line_token(32)
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w", encoding="ascii") as fh:
         fh.write(token + "\n")

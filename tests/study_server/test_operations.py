@@ -184,3 +184,15 @@ def test_tls_serving_and_a_lab_ca(served_study, tmp_path, invites, server_factor
         sync_session(path, ServerClient(srv.url, inv.token), "P01")  # unknown CA: refused
     monkeypatch.setenv("CGVQ_CA_FILE", str(cert))
     assert sync_session(path, ServerClient(srv.url, inv.token), "P01").complete
+
+
+def test_tokens_never_start_with_a_dash(monkeypatch):
+    """A token is typed after --token: a leading '-' would read as an option (it failed a CI
+    run once, one token in 64 does), so such a draw is drawn again."""
+    from study_server import auth
+
+    draws = iter(["-starts-with-a-dash", "-again", "fine_token_0123456789"])
+    monkeypatch.setattr(auth.secrets, "token_urlsafe", lambda n: next(draws))
+    assert auth.new_token() == "fine_token_0123456789"
+    monkeypatch.undo()
+    assert not any(auth.new_token().startswith("-") for _ in range(2000))

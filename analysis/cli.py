@@ -10,9 +10,14 @@ from pathlib import Path
 from stimuli_manifests.cli_runner import run_command
 
 from .errors import AnalysisError
-from .pipeline import DEFAULT_MIN_COMPLETENESS
-from .scores import MODELS
+from .exports import write_dmos_csv, write_exports
+from .inputs import load_ratings
+from .metrics import load_metric_scores
+from .pipeline import DEFAULT_MIN_COMPLETENESS, AnalysisConfig, prepare, run_analysis
+from .report import summary_text, write_report, write_tables
+from .scores import MODELS, fit_scores
 from .screening import DEFAULT_METHOD, method_names, methods_help
+from .sureal_io import load_sureal
 
 MAX_LINES = 20  # input problems and exclusions printed on stderr before "... and N more"
 
@@ -71,9 +76,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _load(args: argparse.Namespace):
-    from .inputs import load_ratings
-    from .sureal_io import load_sureal
-
     given = [x for x in (args.sessions, args.ratings, args.sureal) if x]
     if len(given) != 1:
         raise AnalysisError("give the ratings with exactly one of --sessions, --ratings, "
@@ -107,10 +109,6 @@ def _say(lines: list[str], what: str) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from .metrics import load_metric_scores
-    from .pipeline import AnalysisConfig, prepare, run_analysis
-    from .report import summary_text, write_report, write_tables
-
     if args.bootstrap < 1 or args.splits < 1:
         raise AnalysisError("--bootstrap and --splits must be at least 1")
     config = AnalysisConfig(model=args.model, outliers=args.outliers, alpha=args.alpha,
@@ -121,9 +119,6 @@ def _run(args: argparse.Namespace) -> int:
     _say([str(x) for x in rs.exclusions], "excluded")
     _say([str(p) for p in rs.problems], "input problem")
     if args.command in ("dmos", "export"):
-        from .exports import write_dmos_csv, write_exports
-        from .scores import fit_scores
-
         _, screen, kept = prepare(rs, config)
         _say([str(x) for x in kept.exclusions if x not in rs.exclusions], "excluded")
         res = fit_scores(kept, args.model, n_boot=config.n_boot, seed=config.seed)

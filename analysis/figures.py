@@ -7,9 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib import colormaps
 from matplotlib.figure import Figure
 
 from .pipeline import Analysis
+from .quality import THRESHOLDS
 
 _DPI = 100
 
@@ -26,8 +28,6 @@ def _grid(n: int, max_cols: int = 4) -> tuple[int, int]:
 
 
 def _method_colors(methods: list[str]) -> dict[str, tuple]:
-    from matplotlib import colormaps
-
     cmap = colormaps["tab10"]
     return {m: cmap(i % 10) for i, m in enumerate(methods)}
 
@@ -308,8 +308,6 @@ def rater_agreement(a: Analysis, path: Path) -> Path | None:
     q = a.quality
     if q is None or "loo_r" not in q.columns or q["loo_r"].isna().all():
         return None
-    from .quality import THRESHOLDS
-
     n = len(q)
     fig = Figure(figsize=(max(5, 0.32 * n + 2), 3.4))
     ax = fig.add_subplot()

@@ -22,8 +22,7 @@ from stimuli_manifests.tables import FORMAT_COLUMN, RATINGS
 from .data import Exclusion, InputProblem, RatingSet
 from .errors import AnalysisError
 from .quality import facts_from_rows, facts_from_sessions
-from .sessions import SESSION_SUFFIXES, read_one, select_sessions
-from .sessions import session_files as _session_sources
+from .sessions import SESSION_SUFFIXES, read_one, select_sessions, session_files
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +69,7 @@ def _frame_from_sessions(
     paths: Sequence[str | Path], loaded: LoadedManifest
 ) -> tuple[pd.DataFrame, list[InputProblem], list[Exclusion], pd.DataFrame]:
     records = []
-    with _session_sources(paths) as (sources, problems):
+    with session_files(paths) as (sources, problems):
         for source in tqdm(sources, desc="sessions", unit="file", leave=False,
                            disable=len(sources) < 20):
             try:

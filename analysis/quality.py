@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Iterable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from .data import RatingSet
+from .data import Exclusion, InputProblem, RatingSet
+from .errors import AnalysisError
+from .reliability import repetition_correlation
 
 # Flag thresholds (documented in the report's methods section and the README).
 THRESHOLDS: dict[str, float] = {
@@ -167,8 +170,6 @@ def quality_table(rs: RatingSet, *, screening: pd.DataFrame | None = None,
     their row with status ``dropped``; ``screening`` (indexed by rater) adds the screening
     statistics and the decision.
     """
-    from .reliability import repetition_correlation
-
     info = rs.rater_info.copy() if rs.rater_info is not None else pd.DataFrame(
         index=pd.Index(rs.raters, name="rater"))
     for col in FACT_COLUMNS:
@@ -189,12 +190,13 @@ def quality_table(rs: RatingSet, *, screening: pd.DataFrame | None = None,
     if screening is not None:
         for col in screening.columns:
             info[f"screen_{col}"] = screening[col]
-    info["flags"] = ["; ".join(_flags(row, min_completeness)) for _, row in info.iterrows()]
+    info["flags"] = ["; ".join(rater_flags(row, min_completeness)) for _, row in info.iterrows()]
     info.index.name = "rater"
     return info
 
 
-def _flags(row: pd.Series, min_completeness: float | None) -> list[str]:
+def rater_flags(row: pd.Series, min_completeness: float | None) -> list[str]:
+    """The flags of one row of the quality table, each naming its threshold."""
     t = THRESHOLDS
     out = []
     c = row.get("completeness")
@@ -241,11 +243,6 @@ def drop_incomplete(rs: RatingSet, min_completeness: float) -> RatingSet:
     Each one becomes an :class:`~analysis.data.Exclusion`; stimuli that only they rated are
     left out too (reported as an input problem).
     """
-    from dataclasses import replace
-
-    from .data import Exclusion, InputProblem
-    from .errors import AnalysisError
-
     comp = rs.completeness()
     drop = [k for k, c in enumerate(comp) if np.isfinite(c) and c < min_completeness]
     if not drop:

@@ -11,6 +11,7 @@ import pandas as pd
 
 from .data import RatingSet
 from .errors import AnalysisError
+from .icc import icc_unbalanced
 
 # pingouin >= 0.7 names the two-way ICCs after McGraw & Wong; older versions after Shrout & Fleiss.
 _ICC_NAMES = {"ICC(2,k)": ("ICC(A,k)", "ICC2k"), "ICC(3,k)": ("ICC(C,k)", "ICC3k"),
@@ -83,8 +84,6 @@ def repetition_correlation(scores: np.ndarray) -> np.ndarray:
 
 def reliability(rs: RatingSet, *, n_boot: int = 200, seed: int = 0) -> Reliability:
     """All reliability figures of a rating set (ratings averaged over repetitions)."""
-    from .icc import icc_unbalanced
-
     means = rs.rater_means()
     rated = np.isfinite(means)
     n_stim = int(rated.any(axis=1).sum())

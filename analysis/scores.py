@@ -25,6 +25,7 @@ import pandas as pd
 
 from .data import InputProblem, RatingSet
 from .errors import AnalysisError
+from .intervals import estimator_weights, rater_bootstrap
 from .subject_models import (
     bt500_rejection,
     mos_and_t,
@@ -152,8 +153,6 @@ def fit_scores(rs: RatingSet, model: str = "mle", *, n_boot: int = 1000,
     result.dmos, _, dmos_problems = dmos_from_quality(rs, result.quality,
                                                       result.quality_halfwidth)
     result.problems += dmos_problems
-    from .intervals import estimator_weights, rater_bootstrap
-
     boot = rater_bootstrap(work, estimator_weights(work, result), n_boot, seed)
     half = boot.halfwidth()  # bt500: over the raters its screening kept, like the DMOS
     result.dmos_halfwidth = np.where(rs.hidden_reference_mask, 0.0, half)

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from session_store.records import SessionInfo
+from session_store import SessionInfo, StudyError, read_session, session_sources
 
 from .data import Exclusion, InputProblem
 from .errors import AnalysisError
@@ -28,14 +28,6 @@ from .errors import AnalysisError
 log = logging.getLogger(__name__)
 
 SESSION_SUFFIXES = (".sqlite",)
-
-
-def _store():
-    try:  # the one allowed arrow into the study app: its session-store package
-        import session_store as store
-    except ImportError as exc:  # pragma: no cover - the study app ships with the toolkit
-        raise AnalysisError(f"session files need session_store ({exc})") from None
-    return store
 
 
 @dataclass
@@ -78,8 +70,7 @@ class Session:
 def session_files(paths: Sequence[str | Path]) -> Iterator[tuple[list, list[InputProblem]]]:
     """The session sources in ``paths`` (files, folders, zips) and the notes about them.
     A path that does not exist, or a folder without session files, is an error."""
-    store = _store()
-    with store.session_sources(paths) as (sources, found):
+    with session_sources(paths) as (sources, found):
         notes = []
         for prob in found:
             where = Path(prob.path)
@@ -96,11 +87,10 @@ def session_files(paths: Sequence[str | Path]) -> Iterator[tuple[list, list[Inpu
 def read_one(source) -> Session:
     """One session source as a :class:`Session`; :class:`AnalysisError` when the file is not a
     readable session file."""
-    store = _store()
     name = source.origin
     try:
-        rec = store.read_session(source.path)
-    except (store.StudyError, OSError) as exc:
+        rec = read_session(source.path)
+    except (StudyError, OSError) as exc:
         raise AnalysisError(f"{name}: not used: {str(exc).replace(str(source.path), name)}") \
             from None
     info = rec.info

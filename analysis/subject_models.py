@@ -15,13 +15,12 @@ import numpy as np
 from scipy import stats
 
 from .data import RatingSet
+from .sureal_io import sureal_namespace
 
 
 def quiet_sureal(model_cls: type, rs: RatingSet) -> dict:
     """Run one of SUREAL's subjective models on ``rs`` with its printing and warnings silenced."""
     from sureal.dataset_reader import RawDatasetReader
-
-    from .sureal_io import sureal_namespace
 
     with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings(), \
             np.errstate(all="ignore"):

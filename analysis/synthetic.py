@@ -15,6 +15,7 @@ The truth (Q, biases, who is an outlier, each special rater's kind) is returned.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -103,8 +104,6 @@ def synthetic_study(
                          "trial": trial, "stimulus": s.id, "reference": s.reference,
                          "repetition": rep, "is_hidden_reference": s.is_hidden_reference,
                          "rating": float(np.clip(value, 0, 100))})
-    from pathlib import Path
-
     if study_id != "synthetic":
         manifest = manifest.model_copy(update={"study_id": study_id})
     loaded = LoadedManifest(manifest, None, Path("."))

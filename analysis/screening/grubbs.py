@@ -99,5 +99,5 @@ def grubbs_screen(rs: RatingSet, alpha: float = 0.05) -> OutlierResult:
 
 
 RULE = ScreeningRule(
-    name="grubbs", order=1, summary="the CGVQM+D paper's rule (Grubbs' test on rater deviation)",
+    name="grubbs", order=1, summary="the CGVQM+D paper's rule: Grubbs' test on rater deviation",
     screen=grubbs_screen, uses_alpha=True)

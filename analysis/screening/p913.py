@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from ..data import RatingSet
-from ..quality import loo_correlation
+from ..quality import MIN_PANEL_STIMULI, loo_correlation
 from ..subject_models import mos_and_t, plausible, rater_stats_from_means, run_sureal
 from .result import OutlierResult, RemovedRater
 from .rule import ScreeningRule
@@ -48,7 +48,8 @@ R2_MIN = 0.8
 Z_MAX = 3.5
 MIN_HRCS = 4
 MIN_RATERS_FOR_Z = 6
-MIN_STIMULI = 5
+MIN_STIMULI = MIN_PANEL_STIMULI
+"""r1 is the report's panel correlation, so it needs as many stimuli; fewer: no screening."""
 
 
 def hrc_labels(rs: RatingSet) -> np.ndarray:

@@ -98,12 +98,12 @@ def test_agreement_figures_from_ratings_alone() -> None:
 
 
 def test_a_simulated_session_is_not_flagged_for_its_missing_pre_flight() -> None:
-    from analysis.quality import _flags
+    from analysis.quality import rater_flags
 
     real = pd.Series({"preflight_skipped": True, "timing_mode": "vsync"})
     simulated = pd.Series({"preflight_skipped": True, "timing_mode": "simulated"})
-    assert _flags(real, None) == ["pre-flight skipped"]
-    assert _flags(simulated, None) == []
+    assert rater_flags(real, None) == ["pre-flight skipped"]
+    assert rater_flags(simulated, None) == []
 
 
 def test_simulated_sessions_say_so_in_their_timing_mode() -> None:

@@ -8,9 +8,12 @@ failed pre-flight or a declined consent stores nothing. A resumed session repeat
 check and says where it continues.
 
 What each part does lives elsewhere: :mod:`.display` (window, DPI, vsync'd flips),
-:mod:`.vsync` (refresh estimate), :mod:`.preflight` (the checks), :mod:`.trial` (one trial as a
-state machine), :mod:`.layout` and :mod:`.screens` (what goes where, what screens say),
-:mod:`.keys` (keyboard layouts), :mod:`.run_lock` (one run per participant).
+:mod:`.vsync` (refresh estimate), :mod:`.preflight` (the checks), :mod:`.trial_screen` (one
+trial on screen, under the real-time guard) with :mod:`.trial` (its state machine),
+:mod:`.text_screen` and :mod:`.waiting_screen` (the screens between trials), :mod:`.input_map`
+and :mod:`.keys` (events as actions, keyboard layouts), :mod:`.layout` and :mod:`.screens`
+(what goes where, what screens say, how they are drawn), :mod:`.run_lock` (one run per
+participant).
 """
 
 from __future__ import annotations
@@ -33,8 +36,7 @@ from . import __version__, realtime
 from .decode import DecodedPair, Prefetcher, decode_pair, pair_bytes
 from .display import MIN_WINDOW, PACED_PILOT, Display
 from .duration import describe_duration
-from .keys import RATING, SCROLL, VIEWING, Keymap, merge
-from .layout import text_screen_layout
+from .keys import RATING, VIEWING, Keymap
 from .preflight import (
     Check,
     PixelGeometry,
@@ -50,21 +52,13 @@ from .reveal import reveal_in_file_manager
 from .run_lock import RunLock
 from .schedule import make_schedule, participant_seed, pick_practice, schedule_items
 from .screens import content
-from .screens.draw import (
-    draw_text_screen,
-    draw_viewing,
-    warm_up_viewing,
-)
-from .screens.markdown import parse_markdown
-from .screens.text_state import TextScreenState
-from .screens.textflow import flow_blocks
-from .trial_screen import OnGpu, TrialScreen, viewing_layout_for
+from .text_screen import TextScreen
+from .trial_screen import OnGpu, TrialScreen, upload_pair, viewing_layout_for
+from .waiting_screen import draw_checking_display, wait_for
 
-__all__ = ["Display", "OnGpu", "RunOptions", "RunOutcome", "draw_viewing", "needs_requeue",
-           "run_study", "warm_up_viewing"]
+__all__ = ["RunOptions", "RunOutcome", "needs_requeue", "run_study"]
 
 log = logging.getLogger(__name__)
-
 
 
 @dataclass
@@ -274,7 +268,7 @@ class App:
     def _run(self, resume: bool) -> RunOutcome:
         d = self.display
         self._state("checking-display")
-        d.measure_refresh(draw=self._draw_checking)
+        d.measure_refresh(draw=lambda i: draw_checking_display(d, i))
         timing = d.set_timing(pilot_allowed=self.opts.pilot_allowed)
         plan: list[PlannedTrial] | None = None
         if resume:
@@ -363,14 +357,6 @@ class App:
         return store
 
     # -- pre-flight -------------------------------------------------------------------
-    def _draw_checking(self, i: int) -> None:
-        d = self.display
-        r = d.renderer
-        r.clear((0.14, 0.15, 0.17, 1.0))
-        px = 24 if d.size[1] >= 900 else 20
-        r.text("Checking your display...", d.size[0] / 2, d.size[1] / 2 - px, px=px,
-               anchor="center")
-
     def _preflight(self, first: PlannedTrial | None
                    ) -> tuple[list[Check], PixelGeometry]:
         d = self.display
@@ -406,20 +392,7 @@ class App:
 
     def _background(self, fn: Callable[[], Any], message: str) -> Any:
         """Run ``fn`` in a worker thread while a waiting screen keeps the window alive."""
-        from concurrent.futures import ThreadPoolExecutor
-
-        d = self.display
-        with ThreadPoolExecutor(max_workers=1) as pool:
-            job = pool.submit(fn)
-            while not job.done():
-                for event in d.pg.event.get():
-                    if event.type == d.pg.QUIT:
-                        self._on_close()
-                r = d.renderer
-                r.clear((0.14, 0.15, 0.17, 1.0))
-                r.text(message, d.size[0] / 2, d.size[1] / 2 - 12, px=22, anchor="center")
-                d.flip()
-            return job.result()
+        return wait_for(self.display, fn, message, self._on_close)
 
     def _on_close(self) -> None:
         """The window's close button outside a text screen: confirm, or nothing stored yet."""
@@ -432,48 +405,7 @@ class App:
     # -- text screens -----------------------------------------------------------------
     def _screen(self, spec: content.ScreenSpec) -> str:
         """Show a text screen until one of its actions is chosen; returns the action."""
-        d = self.display
-        pg, r, fonts = d.pg, d.renderer, d.fonts
-        lay = text_screen_layout(d.size, fonts, title=spec.title, buttons=spec.buttons)
-        flow = flow_blocks(parse_markdown(spec.body), lay.column.w, fonts, px=lay.px)
-        st = TextScreenState(spec, flow, lay.column.h)
-        keys = merge(spec.keys, SCROLL)
-        hover = None
-        self._state(spec.name)
-        if d.pacer is not None:
-            d.pacer.reset()
-        while True:
-            for event in pg.event.get():
-                action = None
-                if event.type == pg.QUIT and spec.close_action == "quit":
-                    self._on_close()  # stops the run (confirmed) or returns to this screen
-                    self._state(spec.name)
-                    continue
-                if event.type == pg.QUIT:
-                    action = spec.close_action
-                elif event.type == pg.KEYDOWN:
-                    action = keys.action(event.key, event.scancode)
-                elif event.type == pg.MOUSEWHEEL:
-                    st.wheel(int(event.y))
-                elif event.type in (pg.MOUSEMOTION, pg.MOUSEBUTTONDOWN):
-                    x, y = d.to_pixels(event.pos)
-                    under = next((b.action for b in lay.buttons
-                                  if b.rect.contains_point(x, y)), None)
-                    if event.type == pg.MOUSEMOTION:
-                        hover = under
-                    elif event.button == 1:
-                        action = under
-                refused = len(st.refusals)
-                outcome = st.handle(action)
-                if len(st.refusals) > refused:
-                    self._state(f"{spec.name}-scroll", reason="read-to-end")
-                if outcome is not None:
-                    self._state(f"{spec.name}-done", choice=outcome)
-                    return outcome
-            draw_text_screen(r, lay, flow, st.offset, primary=spec.primary,
-                             disabled=st.disabled, hover=hover, scroll_hint=st.hint())
-            self._shot(spec.name)
-            d.flip()
+        return TextScreen(self.display, self._state, self._shot, self._on_close).show(spec)
 
     # -- practice and main loop -------------------------------------------------------
     def _practice(self) -> None:
@@ -490,7 +422,7 @@ class App:
                 pair = self._background(lambda t=trial: decode_pair(t.stimulus,
                                                                     *self._paths(t)),
                                         "Loading...")
-                gpu = self._upload(pair)
+                gpu = upload_pair(self.display, pair)
                 del pair
                 try:
                     while True:
@@ -540,7 +472,7 @@ class App:
                     pair = self._background(
                         lambda t=trial: decode_pair(t.stimulus, *self._paths(t)), "Loading...")
             answered, total = store.progress()
-            gpu = self._upload(pair)
+            gpu = upload_pair(self.display, pair)
             pair = None  # the frames live in textures now; free the decoded arrays
             try:
                 while not isinstance(
@@ -593,14 +525,6 @@ class App:
             self.prefetch.start(nxt.index, nxt.stimulus, *self._paths(nxt))
 
     # -- the trial --------------------------------------------------------------------
-    def _upload(self, pair: DecodedPair) -> OnGpu:
-        """Both videos of a trial into textures, before its first frame."""
-        r = self.display.renderer
-        t, h, w = pair.test.shape[:3]
-        tex = {"test": r.upload_video(pair.test), "reference": r.upload_video(pair.reference)}
-        self.display.ctx.finish()
-        return OnGpu(pair.stimulus, tex, w, h, t, pair.fps, pair.seconds)
-
     def _trial_loop(self, trial: PlannedTrial, gpu: OnGpu, k: int, total: int
                     ) -> TrialResult | str:
         """Show one trial until its rating is submitted (see :mod:`.trial_screen`)."""

@@ -1,13 +1,14 @@
-"""Input events as trial commands: keys of any keyboard layout, the mouse on the slider and
-the buttons. Pure mapping; the trial's state machine (:mod:`.trial`) decides what they do."""
+"""Input events as what they mean on screen: keys of any keyboard layout, the mouse on the
+slider and on buttons. Pure mapping; the trial's state machine (:mod:`.trial`) and a text
+screen's state (:mod:`.screens.text_state`) decide what the meaning does."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
-from .keys import RATING, VIEWING
-from .layout import RatingLayout
+from .keys import RATING, VIEWING, Keymap
+from .layout import Button, RatingLayout
 from .trial import RATE, VIEW, Command
 
 STEP_ACTIONS = ("left", "right", "up_coarse", "down_coarse")
@@ -41,4 +42,20 @@ def event_command(pg: Any, event: Any, phase: str, rlay: RatingLayout,
         return Command("drag", x=x)
     if event.type == pg.MOUSEBUTTONUP and event.button == 1:
         return Command("release")
+    return None
+
+
+def button_at(buttons: Sequence[Button], x: int, y: int) -> str | None:
+    """The action of the button under framebuffer pixel ``(x, y)``, or None."""
+    return next((b.action for b in buttons if b.rect.contains_point(x, y)), None)
+
+
+def text_screen_action(pg: Any, event: Any, keys: Keymap, buttons: Sequence[Button],
+                       to_pixels: Callable[[tuple[int, int]], tuple[int, int]]) -> str | None:
+    """The action a key or a left click on a button chooses on a text screen, or None (the
+    wheel and the pointer's hover only move the view: the text screen reads them itself)."""
+    if event.type == pg.KEYDOWN:
+        return keys.action(event.key, event.scancode)
+    if event.type == pg.MOUSEBUTTONDOWN and event.button == 1:
+        return button_at(buttons, *to_pixels(event.pos))
     return None

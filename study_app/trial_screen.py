@@ -17,6 +17,7 @@ from session_store import PlannedTrial, TrialResult
 from stimuli_manifests import Manifest
 
 from . import realtime
+from .decode import DecodedPair
 from .display import Display
 from .input_map import event_command
 from .keys import RATING, VIEWING, Keymap
@@ -46,6 +47,15 @@ class OnGpu:
     def release(self) -> None:
         for t in self.tex.values():
             t.release()
+
+
+def upload_pair(d: Display, pair: DecodedPair) -> OnGpu:
+    """Both videos of a trial into textures, before its first frame."""
+    r = d.renderer
+    t, h, w = pair.test.shape[:3]
+    tex = {"test": r.upload_video(pair.test), "reference": r.upload_video(pair.reference)}
+    d.ctx.finish()
+    return OnGpu(pair.stimulus, tex, w, h, t, pair.fps, pair.seconds)
 
 
 def viewing_layout_for(d: Display, k: NameKeys, video: tuple[int, int], progress: str,

@@ -1,6 +1,7 @@
 """A text screen's state (pure): where it is scrolled, whether the text was read to the end,
-and which chosen action ends the screen. The app maps keys, clicks and the wheel to actions
-and draws; the rules (e.g. consent is given only after reading to the end) live here."""
+and which chosen action ends the screen. :mod:`study_app.text_screen` maps keys, clicks and
+the wheel to actions and draws; the rules (e.g. consent is given only after reading to the
+end) live here."""
 
 from __future__ import annotations
 

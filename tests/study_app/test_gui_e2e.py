@@ -240,7 +240,8 @@ def test_gui_without_vsync_a_participant_run_stops_at_the_preflight(tmp_path, xd
 
 WARM_UP_PROBE = """
 import numpy as np
-from study_app.app import Display, draw_viewing, warm_up_viewing
+from study_app.display import Display
+from study_app.screens.draw import draw_viewing, warm_up_viewing
 from study_app.layout import viewing_layout
 d = Display(windowed=True, window_size=(800, 600), refresh_hz=60, force_pacer=True)
 r = d.renderer
@@ -274,7 +275,7 @@ def test_warm_up_makes_every_viewing_texture_before_the_first_flip(xdisplay):
 
 ONE_TO_ONE_PROBE = """
 import numpy as np
-from study_app.app import Display
+from study_app.display import Display
 d = Display(windowed=True, window_size=(837, 679), refresh_hz=60, force_pacer=True)
 r, ctx = d.renderer, d.ctx
 W, H = d.window_size

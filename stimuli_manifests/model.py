@@ -264,6 +264,11 @@ class Manifest(_Strict):
         return list(dict.fromkeys(c.method for c in self.conditions))
 
 
+def is_valid_id(text: str) -> bool:
+    """Whether ``text`` can be a reference or stimulus id (letters, digits, ``_-.``)."""
+    return bool(_ID_RE.match(text))
+
+
 def _valid_id(value: str | None) -> str | None:
     if value is not None and not _ID_RE.match(value):
         raise ValueError(

@@ -20,12 +20,12 @@ import av
 import numpy as np
 
 from .errors import VideoError
+from .lossless import LosslessCodec, codec_spec
 
 log = logging.getLogger(__name__)
 
 DEFAULT_FOLDER_FPS = 30.0
 ConversionPolicy = Literal["warn", "error"]
-LosslessCodec = Literal["ffv1", "x264rgb"]
 SourceKind = Literal["video", "frames", "npy"]
 
 
@@ -362,15 +362,21 @@ def write_video(
     *,
     codec: LosslessCodec = "ffv1",
 ) -> Path:
-    """Write uint8 RGB frames losslessly to a Matroska file; returns the path.
+    """Write uint8 RGB frames losslessly; returns the path.
 
-    ``codec="ffv1"`` (default) stores RGB exactly in FFV1; ``"x264rgb"`` uses x264's RGB mode
-    at qp 0 (also lossless, smaller, more widely playable). The output is byte-identical for
-    identical input, so generated stimuli are reproducible.
+    ``codec="ffv1"`` (default) stores RGB exactly in FFV1 (Matroska, ``.mkv``); ``"x264rgb"``
+    uses x264's RGB mode at qp 0 (``.mkv``, widely playable); ``"utvideo"`` writes UT Video in
+    AVI (``.avi``), the fastest to decode (see :mod:`stimuli_manifests.lossless`). The output
+    is byte-identical for identical input, so generated stimuli are reproducible.
     """
     path = Path(path)
-    if path.suffix.lower() != ".mkv":
-        raise VideoError(f"{path}: lossless stimuli are written as Matroska; use a .mkv name")
+    try:
+        spec = codec_spec(codec)
+    except KeyError as exc:
+        raise VideoError(str(exc.args[0])) from None
+    if path.suffix.lower() != spec.suffix:
+        raise VideoError(f"{path}: {codec} stimuli are written as {spec.container}; use a "
+                         f"{spec.suffix} name")
     if not float(fps) > 0:
         raise VideoError(f"{path}: fps must be positive, got {fps}")
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -378,18 +384,11 @@ def write_video(
     rate = _as_fraction(fps)
     count = 0
     try:
-        with av.open(str(tmp), mode="w", format="matroska") as container:
+        with av.open(str(tmp), mode="w", format=spec.container) as container:
             container.flags |= av.container.Flags.bitexact.value
-            if codec == "ffv1":
-                stream = container.add_stream("ffv1", rate=rate)
-                stream.pix_fmt = "bgr0"
-                stream.options = {"level": "3", "slicecrc": "0"}
-            elif codec == "x264rgb":
-                stream = container.add_stream("libx264rgb", rate=rate)
-                stream.pix_fmt = "rgb24"
-                stream.options = {"qp": "0", "preset": "medium"}
-            else:
-                raise VideoError(f"unknown lossless codec {codec!r}; use 'ffv1' or 'x264rgb'")
+            stream = container.add_stream(spec.encoder, rate=rate)
+            stream.pix_fmt = spec.pix_fmt
+            stream.options = dict(spec.options)
             stream.codec_context.flags |= av.codec.context.Flags.bitexact.value
             stream.thread_count = 1
             for frame in frames:

@@ -8,12 +8,26 @@ out on the minimum display (which is why this lives with the player, not with th
 from __future__ import annotations
 
 import logging
+import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from session_store.study_folder import Study
-from stimuli_manifests import StimuliError, VideoInfo, probe_video, validate_manifest
+from stimuli_manifests import (
+    DisplayRequirements,
+    StimuliError,
+    VideoInfo,
+    probe_video,
+    validate_manifest,
+)
+from stimuli_manifests.lossless import LOSSLESS_DECODER_NAMES
+from stimuli_manifests.pairs import pair_mismatches
 
 log = logging.getLogger(__name__)
+
+# Refresh rates displays commonly run at; the cadence warning assumes the lowest one that
+# meets the study's minimum (a 59 Hz minimum means 60 Hz displays).
+COMMON_REFRESH_HZ = (24, 30, 50, 60, 75, 90, 100, 120, 144, 165, 240)
 
 
 @dataclass
@@ -51,48 +65,69 @@ def check_study(study: Study, *, progress: bool = False) -> StudyCheck:
         _probe(study, str(cond.id), cond.path, out)
     for cond in m.conditions:
         a, b = out.videos.get(str(cond.id)), out.videos.get(cond.reference)
-        if a is None or b is None:
-            continue
-        if (a.width, a.height) != (b.width, b.height):
-            out.errors.append(f"{cond.id}: size {a.width}x{a.height} differs from its reference "
-                              f"{cond.reference} ({b.width}x{b.height}); re-encode it")
-        if abs(a.fps - b.fps) > 1e-3:
-            out.errors.append(f"{cond.id}: {a.fps:g} fps differs from its reference "
-                              f"{cond.reference} ({b.fps:g} fps)")
-        if a.frame_count != b.frame_count:
-            out.errors.append(f"{cond.id}: {a.frame_count} frames, its reference "
-                              f"{cond.reference} has {b.frame_count}; both loops must match")
-    disp = m.display
+        if a is not None and b is not None:
+            out.errors += pair_mismatches(str(cond.id), cond.reference, a, b)
     for sid, info in out.videos.items():
-        if info.width > disp.min_width or info.height > disp.min_height:
-            out.errors.append(
-                f"{sid}: {info.width}x{info.height} does not fit the minimum display "
-                f"{disp.min_width}x{disp.min_height} at 1:1 pixels; raise display.min_width/"
-                "min_height in the manifest or use smaller videos")
-        if info.fps > disp.min_refresh_hz + 1.5:
-            out.warnings.append(
-                f"{sid}: {info.fps:g} fps is faster than the minimum refresh rate "
-                f"{disp.min_refresh_hz:g} Hz; frames would be skipped on such a display")
-        if info.duration < 0.5:
-            out.warnings.append(f"{sid}: only {info.duration:.2f} s long")
-        if info.kind == "video" and info.codec not in ("ffv1", "libx264rgb", "h264", "rawvideo",
-                                                       "png", "utvideo", "ffvhuff"):
-            out.warnings.append(f"{sid}: codec {info.codec}; make sure decoding is lossless "
-                                "enough for a quality study")
-    if out.videos:
-        big = (max(v.width for v in out.videos.values()),
-               max(v.height for v in out.videos.values()))
-        if big[0] <= disp.min_width and big[1] <= disp.min_height and not _label_fits(
-                (disp.min_width, disp.min_height), big):
-            out.errors.append(
-                f"videos of {big[0]}x{big[1]} leave no room for the test/reference label on the "
-                f"minimum display {disp.min_width}x{disp.min_height}, so the pre-flight would "
-                "refuse such screens; raise display.min_width/min_height in the manifest")
+        errors, warnings = playback_findings(sid, info, m.display)
+        out.errors += errors
+        out.warnings += warnings
+    if (problem := label_room_problem(out.videos.values(), m.display)) is not None:
+        out.errors.append(problem)
     fps_set = {round(v.fps, 3) for v in out.videos.values()}
     if len(fps_set) > 1:
         out.warnings.append("stimuli use several frame rates: " +
                             ", ".join(f"{f:g}" for f in sorted(fps_set)))
     return out
+
+
+def playback_findings(sid: str, info: VideoInfo, disp: DisplayRequirements
+                      ) -> tuple[list[str], list[str]]:
+    """(errors, warnings) on showing one video frame-accurately on the study's minimum
+    display: 1:1 pixels, every frame shown, an even cadence, a lossless codec."""
+    errors: list[str] = []
+    warnings: list[str] = []
+    if info.width > disp.min_width or info.height > disp.min_height:
+        errors.append(
+            f"{sid}: {info.width}x{info.height} does not fit the minimum display "
+            f"{disp.min_width}x{disp.min_height} at 1:1 pixels; raise display.min_width/"
+            "min_height in the manifest or use smaller videos")
+    if info.fps > disp.min_refresh_hz + 1.5:
+        errors.append(
+            f"{sid}: {info.fps:g} fps is faster than the minimum refresh rate "
+            f"{disp.min_refresh_hz:g} Hz: frames would be skipped on such a display; raise "
+            "display.min_refresh_hz in the manifest or render at a lower frame rate")
+    else:
+        nominal = next((hz for hz in COMMON_REFRESH_HZ if hz >= disp.min_refresh_hz - 1.5),
+                       round(disp.min_refresh_hz))
+        ratio = nominal / info.fps
+        if abs(ratio - round(ratio)) > 0.01:
+            warnings.append(
+                f"{sid}: {info.fps:g} fps on a {nominal} Hz display holds frames for "
+                f"{math.floor(ratio)} and {math.ceil(ratio)} refreshes in turn (uneven "
+                "motion); frame rates that divide the refresh rate play evenly")
+    if info.duration < 0.5:
+        warnings.append(f"{sid}: only {info.duration:.2f} s long")
+    if info.kind == "video" and info.codec not in LOSSLESS_DECODER_NAMES | {"h264"}:
+        warnings.append(f"{sid}: codec {info.codec}; make sure decoding is lossless "
+                        "enough for a quality study")
+    if info.needs_conversion:
+        warnings.append(f"{sid}: {info.bit_depth}-bit{' with alpha' if info.has_alpha else ''}"
+                        f" ({info.pix_fmt}); the player shows it as 8-bit RGB")
+    return errors, warnings
+
+
+def label_room_problem(videos: Iterable[VideoInfo], disp: DisplayRequirements) -> str | None:
+    """Why the largest video leaves no room for the test/reference label, if it does not."""
+    videos = list(videos)
+    if not videos:
+        return None
+    big = (max(v.width for v in videos), max(v.height for v in videos))
+    if big[0] <= disp.min_width and big[1] <= disp.min_height and not _label_fits(
+            (disp.min_width, disp.min_height), big):
+        return (f"videos of {big[0]}x{big[1]} leave no room for the test/reference label on "
+                f"the minimum display {disp.min_width}x{disp.min_height}, so the pre-flight "
+                "would refuse such screens; raise display.min_width/min_height in the manifest")
+    return None
 
 
 def _label_fits(window: tuple[int, int], video: tuple[int, int]) -> bool:

@@ -12,13 +12,13 @@ NAME = "run"
 HELP = "run (or resume) a participant's rating session of a study folder"
 
 
-def parse_size(text: str) -> tuple[int, int]:
+def parse_size(text: str, *, option: str = "--window-size") -> tuple[int, int]:
     """``1280x1024`` -> (1280, 1024); anything else is a one-line user error."""
     from session_store.errors import StudyError
 
     m = re.fullmatch(r"\s*(\d{1,6})\s*[xX]\s*(\d{1,6})\s*", text or "")
     if not m:
-        raise StudyError(f"--window-size expects WIDTHxHEIGHT in pixels (e.g. 1920x1080), "
+        raise StudyError(f"{option} expects WIDTHxHEIGHT in pixels (e.g. 1920x1080), "
                          f"got {text!r}")
     return int(m.group(1)), int(m.group(2))
 

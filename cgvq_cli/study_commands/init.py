@@ -1,0 +1,94 @@
+"""``cgvq-study init FOLDER --out STUDY``: a study folder from a researcher's own videos."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+NAME = "init"
+HELP = ("build a study folder from a folder of videos (reference and test videos per scene): "
+        "probe every file, list every problem, copy or transcode, write the manifest")
+EPILOG = """\
+Files are mapped by two patterns over paths relative to FOLDER (placeholders {scene},
+{method}, {level}, {setting}, {ext}); level 1 is the strongest distortion, higher levels are
+milder. Or list the files in a CSV with the columns path,scene,role,method,level,setting
+(role: reference or test). Re-running on a changed folder updates the study and reports what
+changed; settings edited in STUDY/manifest.json are kept. Exit 0 written (or unchanged),
+2 problems found (nothing written) or bad input."""
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    from stimuli_manifests.from_folder.mapping import (
+        DEFAULT_REFERENCE_PATTERN,
+        DEFAULT_TEST_PATTERN,
+    )
+    from stimuli_manifests.lossless import LOSSLESS_CODECS, PLAYER_CODEC
+
+    parser.epilog = EPILOG
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument("folder", type=Path, help="folder of videos (one subfolder per scene by "
+                                                  "default)")
+    parser.add_argument("--out", type=Path, required=True, metavar="STUDY",
+                        help="the study folder to write (new, or one init made before)")
+    parser.add_argument("--pattern", default=DEFAULT_TEST_PATTERN, metavar="PATTERN",
+                        help=f"path pattern of test videos (default {DEFAULT_TEST_PATTERN})")
+    parser.add_argument("--reference-pattern", default=DEFAULT_REFERENCE_PATTERN,
+                        metavar="PATTERN",
+                        help=f"path pattern of references (default {DEFAULT_REFERENCE_PATTERN})")
+    parser.add_argument("--mapping", type=Path, metavar="CSV",
+                        help="CSV mapping files to path,scene,role,method,level,setting "
+                             "(instead of the patterns)")
+    parser.add_argument("--study-id", help="the study's id (default: the --out folder's name)")
+    parser.add_argument("--transcode", nargs="?", const=PLAYER_CODEC, default=None,
+                        choices=tuple(LOSSLESS_CODECS), metavar="CODEC",
+                        help="write lossless player-ready copies instead of exact copies "
+                             f"(default codec {PLAYER_CODEC}, the fastest to decode; "
+                             f"{', '.join(LOSSLESS_CODECS)})")
+    parser.add_argument("--min-display", metavar="WxH",
+                        help="the participants' minimum screen size in pixels (default: the "
+                             "manifest's, else 1920x1080)")
+    parser.add_argument("--min-refresh-hz", type=float, metavar="HZ",
+                        help="the participants' minimum refresh rate (default: the manifest's, "
+                             "else 59)")
+    parser.add_argument("--force", action="store_true",
+                        help="change stimuli even when the study already holds sessions")
+
+
+def _display(args: argparse.Namespace):
+    from session_store.errors import StudyError
+    from stimuli_manifests import DisplayRequirements
+
+    from .run import parse_size
+
+    if args.min_display is None and args.min_refresh_hz is None:
+        return None
+    base = DisplayRequirements()
+    width, height = (parse_size(args.min_display, option="--min-display")
+                     if args.min_display else (base.min_width, base.min_height))
+    if width < 1 or height < 1:
+        raise StudyError(f"--min-display must be at least 1x1 pixels, got {args.min_display}")
+    hz = base.min_refresh_hz if args.min_refresh_hz is None else args.min_refresh_hz
+    if not 1 <= hz <= 1000:
+        raise StudyError(f"--min-refresh-hz must be between 1 and 1000, got {hz:g}")
+    return DisplayRequirements(min_width=width, min_height=height, min_refresh_hz=hz)
+
+
+def run(args: argparse.Namespace) -> int:
+    from study_app.study_init import InitOptions, init_study
+
+    from .init_tables import print_changes, print_probe_table, print_problems, print_warnings
+
+    opts = InitOptions(folder=args.folder, out=args.out, mapping_csv=args.mapping,
+                       test_pattern=args.pattern, reference_pattern=args.reference_pattern,
+                       study_id=args.study_id, transcode=args.transcode,
+                       display=_display(args), force=args.force, progress=True)
+    result = init_study(opts)
+    print_probe_table(result, opts.folder)
+    print_warnings(result.warnings)
+    if not result.ok:
+        print_problems(result.problems)
+        print(f"{len(result.problems)} problem(s): nothing was written to {args.out}; fix them "
+              "and run init again")
+        return 2
+    print_changes(result, args.out)
+    return 0

@@ -1,0 +1,175 @@
+"""Turning mapped, probed videos into a study folder's files and its manifest.
+
+Videos are copied (or transcoded) under ``STUDY/videos/`` keeping the folder's layout, and
+each manifest entry records where it came from (``metadata.source``: path, sha256, codec of a
+transcode). A re-run compares the new entries with the manifest already there, copies or
+transcodes only what changed, removes the copies nothing refers to any more, and keeps every
+setting the experimenter edited (scale, protocol, display, texts, titles).
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+from tqdm import tqdm
+
+from ..checksums import sha256_file
+from ..lossless import LosslessCodec, codec_spec
+from ..model import Condition, DisplayRequirements, Manifest, Reference
+from ..video import VideoSource, write_video
+from .mapping import MappedVideo
+from .probe import ProbedVideo
+
+VIDEOS_DIR = "videos"
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where one mapped video goes in the study, and how it gets there."""
+
+    video: MappedVideo
+    source: ProbedVideo
+    study_path: PurePosixPath
+    codec: LosslessCodec | None  # None: an exact copy
+
+    def source_record(self) -> dict[str, Any]:
+        record: dict[str, Any] = {"path": self.video.path.as_posix(),
+                                  "sha256": self.source.sha256}
+        if self.codec is not None:
+            record["transcoded"] = self.codec
+        return record
+
+
+@dataclass
+class StudyChanges:
+    """What a (re-)run changed in the study folder, for the experimenter to read."""
+
+    added: list[str] = field(default_factory=list)
+    removed: list[str] = field(default_factory=list)
+    replaced: list[str] = field(default_factory=list)
+    settings: list[str] = field(default_factory=list)
+    files_written: int = 0
+    files_kept: int = 0
+    files_deleted: list[str] = field(default_factory=list)
+
+    @property
+    def stimuli_changed(self) -> bool:
+        return bool(self.added or self.removed or self.replaced)
+
+    @property
+    def any(self) -> bool:
+        return self.stimuli_changed or bool(self.settings or self.files_deleted)
+
+
+def place(videos: list[MappedVideo], probes: dict[Path, ProbedVideo], folder: Path,
+          codec: LosslessCodec | None) -> list[Placement]:
+    """Study paths for every video: ``videos/<its path in the folder>`` (suffix of the
+    transcode codec when transcoding); sorted by scene, references first, method, level."""
+    out = []
+    for video in videos:
+        rel = PurePosixPath(VIDEOS_DIR) / video.path
+        if codec is not None:
+            rel = rel.with_suffix(codec_spec(codec).suffix)
+        out.append(Placement(video, probes[folder / video.path], rel, codec))
+    out.sort(key=lambda p: (p.video.scene, p.video.role != "reference", p.video.method or "",
+                            p.video.level or 0))
+    return out
+
+
+def _recorded_sources(manifest: Manifest | None) -> dict[str, tuple[dict[str, Any], str, str]]:
+    """Stimulus id -> (metadata.source, study path, sha256) of an existing manifest."""
+    if manifest is None:
+        return {}
+    entries: list[Reference | Condition] = [*manifest.references, *manifest.conditions]
+    return {str(e.id): (e.metadata.get("source", {}), e.path, e.sha256 or "") for e in entries}
+
+
+def materialise(placements: list[Placement], study: Path, previous: Manifest | None, *,
+                progress: bool = False) -> dict[str, str]:
+    """Copy or transcode what is not already in the study; returns id -> sha256 of the file
+    in the study. A file is kept when the previous manifest recorded the same source, path
+    and codec and the file there still has the recorded checksum."""
+    recorded = _recorded_sources(previous)
+    shas: dict[str, str] = {}
+    bar = tqdm(placements, desc="copying videos", unit="video", disable=not progress)
+    for pl in bar:
+        sid = pl.video.stimulus_id
+        dest = study / pl.study_path
+        old = recorded.get(sid)
+        if (old is not None and old[0] == pl.source_record() and old[1] == pl.study_path.as_posix()
+                and dest.is_file() and sha256_file(dest) == old[2]):
+            shas[sid] = old[2]
+            continue
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        if pl.codec is None:
+            tmp = dest.with_name(dest.name + ".part")
+            shutil.copyfile(pl.source.path, tmp)
+            tmp.replace(dest)
+        else:
+            source = VideoSource(pl.source.path)
+            write_video(dest, source.frames(), source.info.fps, codec=pl.codec)
+        shas[sid] = sha256_file(dest)
+    return shas
+
+
+def build_manifest(placements: list[Placement], shas: dict[str, str], *, study_id: str,
+                   previous: Manifest | None, display: DisplayRequirements | None
+                   ) -> Manifest:
+    """The manifest of the placed videos; settings come from ``previous`` when there is one,
+    ``display`` overrides the display requirements."""
+    refs, conds = [], []
+    for pl in placements:
+        v, sid = pl.video, pl.video.stimulus_id
+        meta = {"source": pl.source_record()}
+        if v.role == "reference":
+            info = pl.source.info
+            assert info is not None  # placements are made only from decodable videos
+            refs.append(Reference(id=sid, path=pl.study_path.as_posix(), sha256=shas[sid],
+                                  scene=v.scene, fps=round(info.fps, 6), width=info.width,
+                                  height=info.height, frames=info.frame_count, metadata=meta))
+        else:
+            conds.append(Condition(id=sid, reference=v.scene, path=pl.study_path.as_posix(),
+                                   method=str(v.method), level=int(v.level or 0),
+                                   setting=v.setting, sha256=shas[sid], metadata=meta))
+    if previous is None:
+        settings: dict[str, Any] = {"study_id": study_id}
+    else:
+        settings = previous.model_dump(exclude={"references", "conditions", "format"})
+    if display is not None:
+        settings["display"] = display
+    return Manifest(**settings, references=refs, conditions=conds)
+
+
+def compare(previous: Manifest | None, new: Manifest) -> StudyChanges:
+    """Stimuli added, removed or replaced (another file or content), and changed settings."""
+    changes = StudyChanges()
+    old = {sid: (path, sha) for sid, (_, path, sha) in _recorded_sources(previous).items()}
+    now = {sid: (path, sha) for sid, (_, path, sha) in _recorded_sources(new).items()}
+    changes.added = sorted(set(now) - set(old))
+    changes.removed = sorted(set(old) - set(now))
+    changes.replaced = sorted(sid for sid in set(old) & set(now) if old[sid] != now[sid])
+    if previous is not None:
+        before = previous.model_dump(exclude={"references", "conditions"})
+        after = new.model_dump(exclude={"references", "conditions"})
+        changes.settings = sorted(k for k in after if before.get(k) != after[k])
+    return changes
+
+
+def delete_stale(previous: Manifest | None, new: Manifest, study: Path) -> list[str]:
+    """Remove copies the previous manifest listed under ``videos/`` and the new one does not."""
+    if previous is None:
+        return []
+    keep = {e.path for e in [*new.references, *new.conditions]}
+    gone = []
+    for entry in [*previous.references, *previous.conditions]:
+        rel = PurePosixPath(entry.path)
+        if entry.path in keep or not rel.parts or rel.parts[0] != VIDEOS_DIR or ".." in rel.parts:
+            continue
+        path = study / rel
+        if path.is_file():
+            path.unlink()
+            gone.append(entry.path)
+    return gone

@@ -1,0 +1,213 @@
+"""Which file of a researcher's folder of renders is which stimulus.
+
+Two ways to say it: a filename pattern (``{scene}/{method}_L{level}.{ext}`` for test videos
+and ``{scene}/reference.{ext}`` for references by default), or a CSV the researcher writes
+with one row per file (``path,scene,role,method,level,setting``). Both give the same list of
+:class:`MappedVideo`; everything that cannot be mapped is a :class:`Problem`, collected rather
+than raised, so that one run lists all of them.
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+from typing import Literal
+
+from ..model import is_valid_id
+
+Role = Literal["reference", "test"]
+
+DEFAULT_TEST_PATTERN = "{scene}/{method}_L{level}.{ext}"
+DEFAULT_REFERENCE_PATTERN = "{scene}/reference.{ext}"
+VIDEO_SUFFIXES = frozenset({".mkv", ".mp4", ".mov", ".avi", ".webm", ".nut", ".y4m", ".m4v",
+                            ".mpg", ".mpeg", ".ts", ".mxf"})
+CSV_COLUMNS = ("path", "scene", "role", "method", "level", "setting")
+_PLACEHOLDERS = {
+    "scene": r"(?P<scene>[^/]+?)",
+    "method": r"(?P<method>[^/]+?)",
+    "level": r"(?P<level>\d+)",
+    "setting": r"(?P<setting>[^/]+?)",
+    "ext": r"(?P<ext>[A-Za-z0-9]+)",
+}
+_ROLE_WORDS = {"reference": "reference", "ref": "reference", "src": "reference",
+               "test": "test", "condition": "test", "distorted": "test", "pvs": "test"}
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One reason the folder cannot become a study yet: which file or stimulus, and why."""
+
+    kind: str
+    subject: str
+    detail: str
+
+    def __str__(self) -> str:
+        return f"{self.subject}: {self.detail}"
+
+
+@dataclass(frozen=True)
+class MappedVideo:
+    """A file of the folder with its place in the study."""
+
+    path: PurePosixPath
+    scene: str
+    role: Role
+    method: str | None = None
+    level: int | None = None
+    setting: str | None = None
+
+    @property
+    def stimulus_id(self) -> str:
+        """``scene`` for a reference, ``scene_method_Llevel`` for a test video."""
+        if self.role == "reference":
+            return self.scene
+        return f"{self.scene}_{self.method}_L{self.level}"
+
+
+@dataclass
+class FolderMapping:
+    """The mapped videos, the folder's files nothing mapped, and the problems found."""
+
+    videos: list[MappedVideo] = field(default_factory=list)
+    unmatched: list[PurePosixPath] = field(default_factory=list)
+    problems: list[Problem] = field(default_factory=list)
+
+    def references(self) -> dict[str, MappedVideo]:
+        return {v.scene: v for v in self.videos if v.role == "reference"}
+
+
+def compile_pattern(pattern: str, *, required: tuple[str, ...]) -> re.Pattern[str]:
+    """A filename pattern with ``{placeholders}`` as a regular expression over relative
+    POSIX paths; ``ValueError`` names an unknown or missing placeholder."""
+    names = re.findall(r"{([^{}]*)}", pattern)
+    for name in names:
+        if name not in _PLACEHOLDERS:
+            raise ValueError(f"pattern {pattern!r}: unknown placeholder {{{name}}}; use "
+                             + ", ".join(f"{{{p}}}" for p in _PLACEHOLDERS))
+    if len(set(names)) != len(names):
+        raise ValueError(f"pattern {pattern!r} uses a placeholder twice")
+    for name in required:
+        if name not in names:
+            raise ValueError(f"pattern {pattern!r} needs a {{{name}}} placeholder")
+    regex = "".join(
+        _PLACEHOLDERS[part[1:-1]] if part.startswith("{") else re.escape(part)
+        for part in re.split(r"({[^{}]*})", pattern) if part
+    )
+    return re.compile(regex)
+
+
+def video_files(folder: Path, *, exclude: Path | None = None) -> list[PurePosixPath]:
+    """Video files under ``folder`` (by suffix, hidden files and ``exclude`` skipped), sorted."""
+    out = []
+    for path in sorted(folder.rglob("*")):
+        rel = path.relative_to(folder)
+        if any(part.startswith(".") for part in rel.parts) or not path.is_file():
+            continue
+        if exclude is not None and path.resolve().is_relative_to(exclude):
+            continue
+        if path.suffix.lower() in VIDEO_SUFFIXES:
+            out.append(PurePosixPath(rel.as_posix()))
+    return out
+
+
+def map_by_pattern(folder: Path, *, test_pattern: str = DEFAULT_TEST_PATTERN,
+                   reference_pattern: str = DEFAULT_REFERENCE_PATTERN,
+                   exclude: Path | None = None) -> FolderMapping:
+    """Map every video file under ``folder`` with the two filename patterns."""
+    test_re = compile_pattern(test_pattern, required=("scene", "method", "level"))
+    ref_re = compile_pattern(reference_pattern, required=("scene",))
+    out = FolderMapping()
+    for rel in video_files(folder, exclude=exclude):
+        text = rel.as_posix()
+        if m := ref_re.fullmatch(text):
+            out.videos.append(MappedVideo(rel, m["scene"], "reference"))
+        elif m := test_re.fullmatch(text):
+            out.videos.append(MappedVideo(rel, m["scene"], "test", m["method"],
+                                          int(m["level"]), m.groupdict().get("setting")))
+        else:
+            out.unmatched.append(rel)
+    _check(out)
+    return out
+
+
+def map_by_csv(folder: Path, csv_path: Path) -> FolderMapping:
+    """Map the files a researcher listed in a CSV (``path,scene,role,method,level,setting``;
+    paths relative to ``folder``)."""
+    out = FolderMapping()
+    try:
+        with open(csv_path, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            columns = [c.strip() for c in reader.fieldnames or []]
+            missing = [c for c in ("path", "scene", "role") if c not in columns]
+            if missing:
+                raise ValueError(f"{csv_path}: missing column(s) {', '.join(missing)}; "
+                                 f"expected {','.join(CSV_COLUMNS)}")
+            unknown = [c for c in columns if c not in CSV_COLUMNS]
+            if unknown:
+                raise ValueError(f"{csv_path}: unknown column(s) {', '.join(unknown)}; "
+                                 f"expected {','.join(CSV_COLUMNS)}")
+            for line, row in enumerate(reader, start=2):
+                clean = {k.strip(): (v or "").strip() for k, v in row.items() if k}
+                _csv_row(folder, clean, f"{csv_path.name} line {line}", out)
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise ValueError(f"cannot read {csv_path}: {exc}") from None
+    listed = {v.path for v in out.videos}
+    out.unmatched = [p for p in video_files(folder) if p not in listed]
+    _check(out)
+    return out
+
+
+def _csv_row(folder: Path, row: dict[str, str], where: str, out: FolderMapping) -> None:
+    path, scene = row.get("path", ""), row.get("scene", "")
+    role = _ROLE_WORDS.get(row.get("role", "").lower())
+    if not path or not scene:
+        out.problems.append(Problem("mapping", where, "path and scene must not be empty"))
+        return
+    rel = PurePosixPath(path.replace("\\", "/"))
+    if rel.is_absolute() or ".." in rel.parts:
+        out.problems.append(Problem("mapping", where, f"path {path!r} must be relative to "
+                                    "the folder, without '..'"))
+        return
+    if role is None:
+        out.problems.append(Problem("mapping", where, f"role {row.get('role')!r} is not "
+                                    "'reference' or 'test'"))
+        return
+    if not (folder / rel).is_file():
+        out.problems.append(Problem("missing file", where, f"{path} does not exist in "
+                                    f"{folder}"))
+        return
+    if role == "reference":
+        out.videos.append(MappedVideo(rel, scene, "reference", setting=row.get("setting") or None))
+        return
+    method, level = row.get("method", ""), row.get("level", "")
+    if not method or not re.fullmatch(r"\d+", level):
+        out.problems.append(Problem("mapping", where, "a test video needs a method and a "
+                                    f"whole-number level >= 0 (got {method!r}, {level!r})"))
+        return
+    out.videos.append(MappedVideo(rel, scene, "test", method, int(level),
+                                  row.get("setting") or None))
+
+
+def _check(out: FolderMapping) -> None:
+    """Ids that are not valid, used twice, or test videos without a reference."""
+    seen: dict[str, MappedVideo] = {}
+    for video in out.videos:
+        sid = video.stimulus_id
+        if not is_valid_id(sid):
+            out.problems.append(Problem(
+                "bad id", str(video.path), f"id {sid!r} (from scene/method) may contain only "
+                "letters, digits, '_', '-' and '.'; rename the file or map it in a CSV"))
+        if sid in seen:
+            out.problems.append(Problem(
+                "duplicate id", sid, f"{seen[sid].path} and {video.path} are both {sid}"))
+        else:
+            seen[sid] = video
+    refs = out.references()
+    missing = sorted({v.scene for v in out.videos if v.role == "test"} - set(refs))
+    for scene in missing:
+        tests = [str(v.path) for v in out.videos if v.role == "test" and v.scene == scene]
+        out.problems.append(Problem(
+            "missing reference", scene, f"no reference video for scene {scene!r} "
+            f"({len(tests)} test video(s), e.g. {tests[0]})"))

@@ -1,0 +1,65 @@
+"""Probing a researcher's videos: what each is, whether it decodes, and how fast.
+
+Every file is decoded in full through the same reader the player uses, so a file that breaks
+half-way is found now rather than in a participant's trial, and the measured decode speed
+says whether the player's background decoding keeps up (see ``study_app.preflight``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from tqdm import tqdm
+
+from ..checksums import sha256_file
+from ..errors import StimuliError
+from ..video import VideoInfo, VideoSource
+
+
+@dataclass(frozen=True)
+class ProbedVideo:
+    """One file as probed: its info (None when it cannot be read), checksum and decode speed."""
+
+    path: Path
+    sha256: str
+    size_bytes: int
+    info: VideoInfo | None = None
+    decode_seconds: float = 0.0
+    error: str | None = None
+
+    @property
+    def decode_fps(self) -> float:
+        """Frames decoded per second on this machine (0 when it did not decode)."""
+        if self.info is None or self.decode_seconds <= 0:
+            return 0.0
+        return self.info.frame_count / self.decode_seconds
+
+
+def probe_file(path: Path) -> ProbedVideo:
+    """Probe and fully decode one file; problems land in ``error``, never raise."""
+    sha = sha256_file(path)
+    size = path.stat().st_size
+    try:
+        source = VideoSource(path)
+        start = time.perf_counter()
+        count = sum(1 for _ in source.frames())
+        seconds = time.perf_counter() - start
+    except StimuliError as exc:
+        message = str(exc).removeprefix(f"{path}: ")
+        return ProbedVideo(path, sha, size, error=f"cannot be decoded: {message}")
+    info = source.info
+    if count != info.frame_count:  # the container's count was an estimate: trust the decoder
+        info = dataclasses.replace(info, frame_count=count)
+    return ProbedVideo(path, sha, size, info, seconds)
+
+
+def probe_files(paths: Iterable[Path], *, progress: bool = False,
+                desc: str = "probing videos") -> dict[Path, ProbedVideo]:
+    """Probe every file (in order), with a progress bar on request."""
+    paths = list(paths)
+    return {path: probe_file(path)
+            for path in tqdm(paths, desc=desc, unit="video", disable=not progress)}

@@ -1,0 +1,227 @@
+"""``cgvq-study init``: from a folder of a researcher's renders to a study folder.
+
+Maps the files (pattern or CSV), probes and fully decodes every one, and collects every
+problem before writing anything: unmapped ids, duplicates, missing references, undecodable
+files, test videos that differ from their reference, and videos the player could not show
+frame-accurately on the study's minimum display (size, frame rate, decode speed). Only a
+folder without problems becomes a study: copies (or lossless transcodes) under
+``STUDY/videos/`` and a manifest with checksums. Re-running reports what changed. It lives
+with the player because "can the player show it" is the player's rule (see
+:mod:`study_app.study_check` and :mod:`study_app.preflight`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from session_store.errors import StudyError
+from session_store.study_folder import MANIFEST_NAME, SESSIONS_DIR
+from stimuli_manifests import DisplayRequirements, Manifest, StimuliError, load_manifest
+from stimuli_manifests.from_folder.build import (
+    StudyChanges,
+    build_manifest,
+    compare,
+    delete_stale,
+    materialise,
+    place,
+)
+from stimuli_manifests.from_folder.mapping import (
+    DEFAULT_REFERENCE_PATTERN,
+    DEFAULT_TEST_PATTERN,
+    FolderMapping,
+    Problem,
+    map_by_csv,
+    map_by_pattern,
+)
+from stimuli_manifests.from_folder.probe import ProbedVideo, probe_files
+from stimuli_manifests.lossless import LosslessCodec
+from stimuli_manifests.manifest_io import manifest_to_json
+from stimuli_manifests.model import is_valid_id
+from stimuli_manifests.pairs import pair_mismatches
+
+from .preflight import MAX_PAIR_DECODE_S
+from .study_check import label_room_problem, playback_findings
+
+
+@dataclass
+class InitOptions:
+    """What ``cgvq-study init`` was asked to do."""
+
+    folder: Path
+    out: Path
+    mapping_csv: Path | None = None
+    test_pattern: str = DEFAULT_TEST_PATTERN
+    reference_pattern: str = DEFAULT_REFERENCE_PATTERN
+    study_id: str | None = None
+    transcode: LosslessCodec | None = None
+    display: DisplayRequirements | None = None
+    force: bool = False
+    progress: bool = False
+
+
+@dataclass
+class InitResult:
+    """What was found and done; ``manifest`` is None when problems stopped the run."""
+
+    mapping: FolderMapping
+    probes: dict[Path, ProbedVideo] = field(default_factory=dict)
+    study_probes: dict[Path, ProbedVideo] = field(default_factory=dict)
+    problems: list[Problem] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    manifest: Manifest | None = None
+    changes: StudyChanges | None = None
+    manifest_written: bool = False
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def init_study(opts: InitOptions) -> InitResult:
+    """Build (or update) the study folder ``opts.out`` from the videos in ``opts.folder``."""
+    folder, out = opts.folder.resolve(), opts.out.resolve()
+    if not folder.is_dir():
+        raise StudyError(f"{opts.folder} is not a folder of videos")
+    if out == folder:
+        raise StudyError("--out must be a new folder, not the folder of renders itself")
+    previous = _previous_manifest(out)
+    display = opts.display or (previous.display if previous else DisplayRequirements())
+    result = InitResult(_map(opts, folder, out))
+    if not result.mapping.videos and not result.mapping.problems:
+        how = f"listed in {opts.mapping_csv}" if opts.mapping_csv else (
+            f"matching {opts.reference_pattern!r} or {opts.test_pattern!r}")
+        raise StudyError(f"no videos {how} in {opts.folder}")
+    result.problems += result.mapping.problems
+    result.warnings += [f"{p}: matches no pattern, left out" for p in result.mapping.unmatched]
+    paths = [folder / v.path for v in result.mapping.videos]
+    result.probes = probe_files(paths, progress=opts.progress)
+    _video_problems(result, folder, display, check_speed=opts.transcode is None)
+    if result.problems:
+        return result
+    placements = place(result.mapping.videos, result.probes, folder, opts.transcode)
+    study_id = opts.study_id or _default_study_id(out)
+    if previous is not None and not opts.force:
+        _refuse_if_sessions_would_break(previous, placements, out)
+    out.mkdir(parents=True, exist_ok=True)
+    shas = materialise(placements, out, previous, progress=opts.progress)
+    if opts.transcode is not None:
+        result.study_probes = probe_files([out / p.study_path for p in placements],
+                                          progress=opts.progress, desc="probing copies")
+        _speed_problems(result, {p.video.stimulus_id: out / p.study_path for p in placements},
+                        result.study_probes, transcoded=True)
+        if result.problems:
+            return result
+    manifest = build_manifest(placements, shas, study_id=study_id, previous=previous,
+                              display=display)
+    result.changes = compare(previous, manifest)
+    result.changes.files_deleted = delete_stale(previous, manifest, out)
+    result.manifest = manifest
+    path = out / MANIFEST_NAME
+    text = manifest_to_json(manifest)
+    if not path.is_file() or path.read_text(encoding="utf-8") != text:
+        tmp = path.with_name(path.name + ".part")
+        tmp.write_text(text, encoding="utf-8")
+        tmp.replace(path)
+        result.manifest_written = True
+    return result
+
+
+def _previous_manifest(out: Path) -> Manifest | None:
+    path = out / MANIFEST_NAME
+    if not path.exists():
+        if out.is_dir() and any(out.iterdir()):
+            raise StudyError(f"{out} exists, is not empty and holds no {MANIFEST_NAME}; choose "
+                             "a new folder for the study")
+        return None
+    try:
+        return load_manifest(path).manifest
+    except StimuliError as exc:
+        raise StudyError(f"the study's manifest cannot be read, so init cannot update it: "
+                         f"{exc}") from None
+
+
+def _map(opts: InitOptions, folder: Path, out: Path) -> FolderMapping:
+    try:
+        if opts.mapping_csv is not None:
+            return map_by_csv(folder, opts.mapping_csv)
+        return map_by_pattern(folder, test_pattern=opts.test_pattern,
+                              reference_pattern=opts.reference_pattern, exclude=out)
+    except ValueError as exc:
+        raise StudyError(str(exc)) from None
+
+
+def _default_study_id(out: Path) -> str:
+    name = "".join(c if c.isalnum() or c in "_-." else "-" for c in out.name).strip("-.")
+    return name if name and is_valid_id(name) else "study"
+
+
+def _video_problems(result: InitResult, folder: Path, display: DisplayRequirements, *,
+                    check_speed: bool) -> None:
+    """Undecodable files, pair mismatches and what the player cannot show."""
+    videos = result.mapping.videos
+    infos = {}
+    for video in videos:
+        probe = result.probes[folder / video.path]
+        if probe.info is None:
+            result.problems.append(Problem("undecodable", str(video.path), str(probe.error)))
+            continue
+        infos[video.stimulus_id] = probe.info
+        errors, warnings = playback_findings(str(video.path), probe.info, display)
+        result.problems += [Problem("player", str(video.path), e.split(": ", 1)[1])
+                            for e in errors]
+        result.warnings += warnings
+    refs = result.mapping.references()
+    for video in videos:
+        ref = refs.get(video.scene)
+        if video.role != "test" or ref is None:
+            continue
+        test_info, ref_info = infos.get(video.stimulus_id), infos.get(ref.stimulus_id)
+        if test_info is not None and ref_info is not None:
+            for message in pair_mismatches(str(video.path), str(ref.path), test_info, ref_info):
+                result.problems.append(Problem("mismatch", str(video.path),
+                                               message.split(": ", 1)[1]))
+    if (problem := label_room_problem(infos.values(), display)) is not None:
+        result.problems.append(Problem("player", "all videos", problem))
+    if check_speed:
+        _speed_problems(result, {v.stimulus_id: folder / v.path for v in videos},
+                        result.probes, transcoded=False)
+
+
+def _speed_problems(result: InitResult, files: dict[str, Path],
+                    probes: dict[Path, ProbedVideo], *, transcoded: bool) -> None:
+    """A pair the player's background decoding cannot have ready in time on this machine."""
+    refs = result.mapping.references()
+    for video in result.mapping.videos:
+        ref = refs.get(video.scene)
+        if ref is None:
+            continue
+        test, reference = probes[files[video.stimulus_id]], probes[files[ref.stimulus_id]]
+        if test.info is None or reference.info is None:
+            continue
+        seconds = test.decode_seconds + (0.0 if video.role == "reference"
+                                         else reference.decode_seconds)
+        if seconds > MAX_PAIR_DECODE_S:
+            advice = ("even as a transcode: use shorter or smaller videos" if transcoded else
+                      "--transcode makes lossless copies that decode several times faster")
+            result.problems.append(Problem(
+                "player", video.path.as_posix(),
+                f"decoding it with its reference takes {seconds:.1f} s on this computer; the "
+                f"player's pre-flight refuses more than {MAX_PAIR_DECODE_S:g} s per pair "
+                f"({advice})"))
+
+
+def _refuse_if_sessions_would_break(previous: Manifest, placements: list, out: Path) -> None:
+    """Changing stimuli under collected ratings would mix ratings of different videos."""
+    sessions = sorted((out / SESSIONS_DIR).glob("*.sqlite")) if (out / SESSIONS_DIR).is_dir() \
+        else []
+    if not sessions:
+        return
+    old = {str(e.id): (e.metadata.get("source"), e.path)
+           for e in [*previous.references, *previous.conditions]}
+    new = {p.video.stimulus_id: (p.source_record(), p.study_path.as_posix()) for p in placements}
+    if old != new:
+        raise StudyError(
+            f"{out} already holds {len(sessions)} session file(s) and its stimuli would change; "
+            "ratings of different videos would be mixed: init into a new folder (or pass "
+            "--force if no session counts)")

@@ -85,6 +85,9 @@ def init_study(opts: InitOptions) -> InitResult:
         raise StudyError(f"{opts.folder} is not a folder of videos")
     if out == folder:
         raise StudyError("--out must be a new folder, not the folder of renders itself")
+    if opts.study_id is not None and not is_valid_id(opts.study_id):
+        raise StudyError(f"--study-id {opts.study_id!r} may contain only letters, digits, "
+                         "'_', '-' and '.', and must start with a letter or digit")
     previous = _previous_manifest(out)
     display = opts.display or (previous.display if previous else DisplayRequirements())
     result = InitResult(_map(opts, folder, out))
@@ -100,7 +103,7 @@ def init_study(opts: InitOptions) -> InitResult:
     if result.problems:
         return result
     placements = place(result.mapping.videos, result.probes, folder, opts.transcode)
-    study_id = opts.study_id or _default_study_id(out)
+    study_id = opts.study_id or (previous.study_id if previous else _default_study_id(out))
     if previous is not None and not opts.force:
         _refuse_if_sessions_would_break(previous, placements, out)
     out.mkdir(parents=True, exist_ok=True)

@@ -138,6 +138,7 @@ def build_manifest(placements: list[Placement], shas: dict[str, str], *, study_i
         settings: dict[str, Any] = {"study_id": study_id}
     else:
         settings = previous.model_dump(exclude={"references", "conditions", "format"})
+        settings["study_id"] = study_id
     if display is not None:
         settings["display"] = display
     return Manifest(**settings, references=refs, conditions=conds)

@@ -15,6 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from .formats import VersionedFormat
 from .ids import assign_missing_ids
+from .panel import Panel
 
 MANIFEST_FORMAT = VersionedFormat(
     "cgvq-manifest", 1, field="manifest format", document="document",
@@ -173,6 +174,8 @@ class Manifest(_Strict):
     texts: dict[str, str] = Field(
         default_factory=dict,
         description="sha256 of the texts beside the manifest (briefing.md, consent.md)")
+    panel: Panel | None = Field(
+        default=None, description="questionnaires and vision screening (cgvq-panel/1)")
     metadata: dict[str, Any] = Field(default_factory=dict)
 
     @field_validator("texts")

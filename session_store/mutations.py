@@ -15,7 +15,7 @@ from typing import Any
 from .chain import canonical, genesis, normalise_row, row_hash
 from .errors import StudyError
 from .records import PlannedTrial
-from .schema import CHAINED, DDL, SCHEMA_VERSION
+from .schema import CHAINED, DDL, PANEL_DDL, SCHEMA_VERSION, SCREENING_OUTCOMES
 
 Body = dict[str, Any]
 
@@ -23,7 +23,7 @@ Body = dict[str, Any]
 def create_tables(con: sqlite3.Connection) -> None:
     from .outbox import OUTBOX_DDL
 
-    for stmt in (DDL + OUTBOX_DDL).split(";"):
+    for stmt in (DDL + PANEL_DDL + OUTBOX_DDL).split(";"):
         if stmt.strip():
             con.execute(stmt)
 
@@ -134,6 +134,39 @@ def _close(kind: str) -> Callable[[sqlite3.Connection, Body], None]:
     return close
 
 
+def _not_withdrawn(con: sqlite3.Connection, what: str) -> None:
+    if con.execute("SELECT 1 FROM events WHERE kind='withdrawn'").fetchone() is not None:
+        raise StudyError(f"the participant withdrew; the session accepts no {what}")
+
+
+def _answer(con: sqlite3.Connection, body: Body) -> None:
+    """One confirmed answer (also after the last trial: the post-study survey)."""
+    _not_withdrawn(con, "answers")
+    questionnaire, question = str(body["questionnaire"]), str(body["question"])
+    page = int(body["page"])
+    ms = body.get("ms")
+    if not questionnaire or not question or page < 0:
+        raise ValueError("questionnaire, question and page are required")
+    if ms is not None and not (isinstance(ms, int | float) and 0 <= ms < 1e9):
+        raise ValueError(f"ms must be a non-negative number, got {ms!r}")
+    con.execute("INSERT INTO answers (questionnaire, question, value, page, ms, answered_at)"
+                " VALUES (?,?,?,?,?,?)", (questionnaire, question, canonical(body["value"]),
+                                          page, None if ms is None else float(ms),
+                                          str(body["at"])))
+
+
+def _screening(con: sqlite3.Connection, body: Body) -> None:
+    """The result of one vision check."""
+    _not_withdrawn(con, "screening results")
+    outcome = str(body["outcome"])
+    if outcome not in SCREENING_OUTCOMES:
+        raise ValueError(f"outcome {outcome!r} is not one of {', '.join(SCREENING_OUTCOMES)}")
+    if not isinstance(body["result"], dict):
+        raise ValueError("result must be an object")
+    con.execute("INSERT INTO screenings (test, outcome, result, at) VALUES (?,?,?,?)",
+                (str(body["test"]), outcome, canonical(body["result"]), str(body["at"])))
+
+
 APPLY: dict[str, Callable[[sqlite3.Connection, Body], None]] = {
     "session": _session,
     "event": _event,
@@ -143,6 +176,8 @@ APPLY: dict[str, Callable[[sqlite3.Connection, Body], None]] = {
     "requeue": _requeue,
     "finish": _close("finish"),
     "withdrawn": _close("withdrawn"),
+    "answer": _answer,
+    "screening": _screening,
 }
 
 

@@ -17,7 +17,7 @@ from typing import Any
 from .chain import follow_chain
 from .errors import StudyError
 from .records import PlannedTrial, SessionInfo, SessionProblem
-from .schema import open_existing
+from .schema import has_table, open_existing
 
 _INFO_JSON = {"settings": "{}", "display": "{}", "preflight": "[]"}
 
@@ -35,6 +35,11 @@ class SessionRecord:
     """Presentation logs of every trial attempt (``outcome`` rated or requeued), in order."""
     events: list[dict[str, Any]]
     problems: list[SessionProblem] = field(default_factory=list)
+    answers: list[dict[str, Any]] = field(default_factory=list)
+    """Every confirmed questionnaire answer in order (``value`` decoded); later rows of the
+    same question replace earlier ones (see :func:`session_store.answers.latest_answers`)."""
+    screenings: list[dict[str, Any]] = field(default_factory=list)
+    """Vision-check results in order (``result`` decoded)."""
 
     @property
     def n_planned(self) -> int:
@@ -57,6 +62,8 @@ class _Snapshot:
     ratings: list[dict[str, Any]]
     presentations: list[sqlite3.Row]
     events: list[sqlite3.Row]
+    answers: list[sqlite3.Row]
+    screenings: list[sqlite3.Row]
 
 
 def _read_plan(con: sqlite3.Connection) -> list[PlannedTrial]:
@@ -83,9 +90,24 @@ def _snapshot(con: sqlite3.Connection) -> _Snapshot:
             ratings=[dict(r) for r in con.execute("SELECT * FROM ratings ORDER BY seq")],
             presentations=con.execute("SELECT * FROM presentations ORDER BY id").fetchall(),
             events=con.execute("SELECT * FROM events ORDER BY id").fetchall(),
+            answers=_rows_if_present(con, "answers"),
+            screenings=_rows_if_present(con, "screenings"),
         )
     finally:
         con.execute("COMMIT")
+
+
+def _rows_if_present(con: sqlite3.Connection, table: str) -> list[sqlite3.Row]:
+    if not has_table(con, table):
+        return []
+    return con.execute(f"SELECT * FROM {table} ORDER BY id").fetchall()
+
+
+def _value(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except (json.JSONDecodeError, TypeError):
+        return {"unreadable": True}
 
 
 def _json(path: Path, name: str, text: str | None, default: str) -> Any:
@@ -146,7 +168,13 @@ def record_from(con: sqlite3.Connection, path: Path) -> SessionRecord:
                       **_details(path, r["details"])} for r in snap.presentations]
     events = [{"at": r["at"], "kind": r["kind"], **_details(path, r["details"])}
               for r in snap.events]
-    return SessionRecord(path, info, snap.plan, rows, presentations, events, problems)
+    answers = [{"questionnaire": r["questionnaire"], "question": r["question"],
+                "value": _value(r["value"]), "page": r["page"], "ms": r["ms"],
+                "answered_at": r["answered_at"]} for r in snap.answers]
+    screenings = [{"test": r["test"], "outcome": r["outcome"], "result": _details(path,
+                   r["result"]), "at": r["at"]} for r in snap.screenings]
+    return SessionRecord(path, info, snap.plan, rows, presentations, events, problems,
+                         answers, screenings)
 
 
 def read_session(path: str | Path) -> SessionRecord:

@@ -32,7 +32,7 @@ from .outbox import (
     outbox_genesis,
     read_entries,
 )
-from .schema import connect, open_existing
+from .schema import connect, has_table, open_existing
 
 
 class ContradictionError(StudyError):
@@ -219,8 +219,13 @@ def _dump(con: sqlite3.Connection) -> dict[str, list[tuple[Any, ...]]]:
         "presentations": "SELECT trial, outcome, details, logged_at FROM presentations "
                          "ORDER BY id",
         "events": "SELECT at, kind, details FROM events ORDER BY id",
+        "answers": "SELECT questionnaire, question, value, page, ms, answered_at FROM answers "
+                   "ORDER BY id",
+        "screenings": "SELECT test, outcome, result, at FROM screenings ORDER BY id",
     }
-    return {name: [tuple(r) for r in con.execute(sql)] for name, sql in tables.items()}
+    # a file older than the panel tables has none: the same as empty ones
+    return {name: [tuple(r) for r in con.execute(sql)] if has_table(con, name) else []
+            for name, sql in tables.items()}
 
 
 def tables_match_outbox(path: str | Path) -> list[str]:

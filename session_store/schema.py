@@ -24,6 +24,12 @@ Tables
 ``events(id, at, kind, details JSON)``
     Session events (created, consent, start, resume, pause, pre-flight, quit, withdrawn,
     finish).
+``answers(id, questionnaire, question, value JSON, page, ms, answered_at)``
+    Every answer confirmed in a questionnaire of the manifest's panel block, in order; a
+    question answered again (the participant went back) has several rows, the last counts.
+``screenings(id, test, outcome, result JSON, at)``
+    Results of the optional vision checks (``outcome``: passed, failed, inconclusive).
+    Files written before these two tables existed lack them and hold no answers.
 
 SQLite runs in WAL mode with ``synchronous=FULL``; every rating is one committed transaction,
 checkpointed into the main file right after, so the ``.sqlite`` file alone holds every
@@ -110,6 +116,27 @@ CREATE TABLE events (
     details TEXT NOT NULL DEFAULT '{}'
 );
 """
+
+
+# Added within cgvq-session/1 (a file without them simply holds no answers): created with
+# every new file and when an older file is opened for writing.
+PANEL_DDL = """
+CREATE TABLE IF NOT EXISTS answers (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, questionnaire TEXT NOT NULL, question TEXT NOT NULL,
+    value TEXT NOT NULL, page INTEGER NOT NULL, ms REAL, answered_at TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS screenings (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, test TEXT NOT NULL, outcome TEXT NOT NULL,
+    result TEXT NOT NULL, at TEXT NOT NULL
+);
+"""
+SCREENING_OUTCOMES = ("passed", "failed", "inconclusive")
+
+
+def has_table(con: sqlite3.Connection, name: str) -> bool:
+    """Whether the file has table ``name`` (the panel tables are missing in older files)."""
+    return con.execute("SELECT 1 FROM sqlite_master WHERE type='table' AND name=?",
+                       (name,)).fetchone() is not None
 
 
 def connect(path: Path, *, readonly: bool) -> sqlite3.Connection:

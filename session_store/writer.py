@@ -26,7 +26,7 @@ from .outbox import append as append_to_outbox
 from .outbox import has_outbox
 from .reader import SessionRecord, read_header, record_from, session_info
 from .records import PlannedTrial, SessionInfo, TrialResult, utc_now
-from .schema import CHAINED, connect, open_existing
+from .schema import CHAINED, PANEL_DDL, connect, open_existing
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +51,10 @@ class SessionStore:
         self._con.execute("PRAGMA busy_timeout=5000")  # the upload client writes acks
         self._outbox = has_outbox(con)
         self._session_id = str(read_header(con)["session_id"])
+        if not con.execute("PRAGMA query_only").fetchone()[0]:
+            for stmt in PANEL_DDL.split(";"):  # a file older than the panel tables
+                if stmt.strip():
+                    con.execute(stmt)
 
     # -- construction -----------------------------------------------------------------
     @classmethod
@@ -304,6 +308,21 @@ class SessionStore:
                                  "presentation": _presentation(result, reason=reason)})
         return PlannedTrial(new_idx, trial.stimulus, trial.reference, trial.repetition,
                             trial.is_hidden_reference, trial.index)
+
+    def record_answer(self, questionnaire: str, question: str, value: Any, *, page: int,
+                      ms: float | None = None) -> None:
+        """Store one confirmed answer (already checked against its question by the caller,
+        see ``stimuli_manifests.panel.check_answer``); one committed transaction, so a crash
+        loses at most the answer being given. Allowed after the last trial (the post-study
+        survey), refused once the participant withdrew."""
+        self._change("answer", {"at": utc_now(), "questionnaire": questionnaire,
+                                "question": question, "value": value, "page": int(page),
+                                "ms": None if ms is None else float(ms)})
+
+    def record_screening(self, test: str, outcome: str, result: dict[str, Any]) -> None:
+        """Store the result of one vision check (``outcome`` passed, failed, inconclusive)."""
+        self._change("screening", {"at": utc_now(), "test": test, "outcome": outcome,
+                                   "result": result})
 
     def finish(self, *, allow_incomplete: bool = False) -> None:
         """Close the session for good: afterwards it refuses new ratings."""

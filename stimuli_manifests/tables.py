@@ -118,6 +118,21 @@ DMOS = TableFormat(
     what="DMOS",
 )
 
+ANSWERS = TableFormat(
+    "cgvq-answers", 1, 0,
+    required=("study", "session", "participant", "questionnaire", "question", "value",
+              "answered_at"),
+    optional=("page", "ms"),
+    what="questionnaire answers",
+)
+
+SCREENINGS = TableFormat(
+    "cgvq-screenings", 1, 0,
+    required=("study", "session", "participant", "test", "outcome", "at"),
+    optional=("result",),
+    what="vision screening results",
+)
+
 DIRECTIONS = ("higher-better", "lower-better")
 
 

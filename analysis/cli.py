@@ -37,6 +37,9 @@ def _inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-completeness", type=float, default=DEFAULT_MIN_COMPLETENESS,
                    metavar="F", help="leave out raters who answered less than this share of "
                    f"their planned trials ({DEFAULT_MIN_COMPLETENESS}; 0 keeps everyone)")
+    p.add_argument("--exclude-failed-vision", action="store_true",
+                   help="leave out raters who failed a vision check of the study's panel "
+                        "(reported like any other exclusion; default: flag them only)")
     p.add_argument("--alpha", type=float, default=0.05,
                    help="significance level of the tests, in (0, 0.5) (0.05)")
     p.add_argument("--seed", type=int, default=0,
@@ -113,7 +116,8 @@ def _run(args: argparse.Namespace) -> int:
         raise AnalysisError("--bootstrap and --splits must be at least 1")
     config = AnalysisConfig(model=args.model, outliers=args.outliers, alpha=args.alpha,
                             seed=args.seed, n_boot=args.bootstrap, n_splits=args.splits,
-                            min_completeness=args.min_completeness).check()
+                            min_completeness=args.min_completeness,
+                            exclude_failed_vision=args.exclude_failed_vision).check()
     _check_out(args)
     rs = _load(args)
     _say([str(x) for x in rs.exclusions], "excluded")

@@ -8,6 +8,7 @@ reference). Input problems found while building it travel with it so the report 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -31,6 +32,20 @@ class Exclusion:
 
     def __str__(self) -> str:
         return f"{self.kind}: {self.who}: {self.reason}"
+
+
+@dataclass
+class PanelAnswers:
+    """Per participant: the last answer to each questionnaire question (by question id), and
+    each vision check's outcome (passed, failed, inconclusive). See :mod:`analysis.panel`."""
+
+    answers: dict[str, dict[str, Any]] = field(default_factory=dict)
+    screenings: dict[str, dict[str, str]] = field(default_factory=dict)
+    definition: Any = None  # the manifest's panel block (stimuli_manifests.panel.Panel)
+
+    def failed_vision(self) -> list[str]:
+        """Participants with at least one failed vision check, sorted."""
+        return sorted(p for p, tests in self.screenings.items() if "failed" in tests.values())
 
 
 @dataclass(frozen=True)
@@ -68,6 +83,8 @@ class RatingSet:
     # One row per participant seen in the input (also those left out), indexed by rater id:
     # completeness, session and presentation facts, status. See :mod:`analysis.quality`.
     rater_info: pd.DataFrame | None = None
+    # Questionnaire answers and vision checks from the session files (None from a CSV).
+    panel: PanelAnswers | None = None
 
     def __post_init__(self) -> None:
         self.scores = np.asarray(self.scores, dtype=float)

@@ -10,6 +10,7 @@ import pandas as pd
 from matplotlib import colormaps
 from matplotlib.figure import Figure
 
+from .panel_figure import draw_survey
 from .pipeline import Analysis
 from .quality import THRESHOLDS
 
@@ -331,6 +332,12 @@ def rater_agreement(a: Analysis, path: Path) -> Path | None:
     return _save(fig, path)
 
 
+def panel_survey(a: Analysis, path: Path) -> Path | None:
+    if a.panel is None or a.ratings.panel is None or a.ratings.panel.definition is None:
+        return None
+    return draw_survey(a.panel, a.ratings.panel.definition, path)
+
+
 FIGURES = {
     "metric_benchmark": (metric_benchmark, "metric benchmark: PLCC and SRCC with 95% two-way "
                          "bootstrap CIs, sorted; the grey band is the human ceiling; flagged "
@@ -353,6 +360,9 @@ FIGURES = {
                      "versus the number of raters (random panels); right: the DMOS CI "
                      "reduction bought by each added participant, with its exponential decay "
                      "(the CGVQM+D paper's reading)"),
+    "panel_survey": (panel_survey, "the Likert questions of the participants' questionnaires: "
+                     "share of each answer, disagreement left of zero and agreement right; "
+                     "n = participants who chose a point"),
 }
 
 

@@ -19,8 +19,9 @@ from stimuli_manifests import LoadedManifest, StimuliError, load_manifest
 from stimuli_manifests.errors import TableError
 from stimuli_manifests.tables import FORMAT_COLUMN, RATINGS
 
-from .data import Exclusion, InputProblem, RatingSet
+from .data import Exclusion, InputProblem, PanelAnswers, RatingSet
 from .errors import AnalysisError
+from .panel import panel_from_sessions
 from .quality import facts_from_rows, facts_from_sessions
 from .sessions import SESSION_SUFFIXES, read_one, select_sessions, session_files
 
@@ -67,7 +68,7 @@ def _frame_from_csv(path: Path) -> pd.DataFrame:
 
 def _frame_from_sessions(
     paths: Sequence[str | Path], loaded: LoadedManifest
-) -> tuple[pd.DataFrame, list[InputProblem], list[Exclusion], pd.DataFrame]:
+) -> tuple[pd.DataFrame, list[InputProblem], list[Exclusion], pd.DataFrame, PanelAnswers]:
     records = []
     with session_files(paths) as (sources, problems):
         for source in tqdm(sources, desc="sessions", unit="file", leave=False,
@@ -95,7 +96,8 @@ def _frame_from_sessions(
         raise AnalysisError("no usable ratings in the session files: " + (why or "they are "
                                                                            "empty"))
     facts = facts_from_sessions(selection.used)
-    return pd.concat(frames, ignore_index=True), problems, selection.exclusions, facts
+    return (pd.concat(frames, ignore_index=True), problems, selection.exclusions, facts,
+            panel_from_sessions(selection.used, loaded.manifest.panel))
 
 
 def _problem(row: pd.Series, message: str) -> InputProblem:
@@ -269,15 +271,17 @@ def load_ratings(
     problems: list[InputProblem] = []
     exclusions: list[Exclusion] = []
     facts = None
+    panel = None
     if ratings_csv is not None:
         paths = [ratings_csv] if isinstance(ratings_csv, (str, Path)) else list(ratings_csv)
         frame = pd.concat([_frame_from_csv(Path(p)) for p in paths], ignore_index=True)
         source = ", ".join(str(p) for p in paths)
     else:
-        frame, problems, exclusions, facts = _frame_from_sessions(sessions or [], loaded)
+        frame, problems, exclusions, facts, panel = _frame_from_sessions(sessions or [], loaded)
         source = ", ".join(str(p) for p in sessions or [])
     rs = ratings_from_frame(frame, loaded, problems=problems, source=source,
                             exclusions=exclusions, facts=facts)
+    rs.panel = panel
     for prob in rs.problems:
         log.warning("input problem: %s", prob)
     return rs

@@ -15,6 +15,7 @@ from .ceiling import CiCurve, SplitHalf, ci_width_curve, split_half
 from .data import Exclusion, InputProblem, RatingSet
 from .errors import AnalysisError
 from .metrics import MetricScores, MetricValidation, validate_metrics
+from .panel import PanelSummary, drop_failed_vision, summarise_panel, vision_column
 from .quality import drop_incomplete, quality_table
 from .reliability import Reliability, reliability
 from .scores import ScoreResult, check_not_constant, dmos_table, fit_scores
@@ -37,6 +38,7 @@ class AnalysisConfig:
     n_splits: int = 1000
     ci_draws: int = 100
     min_completeness: float = DEFAULT_MIN_COMPLETENESS
+    exclude_failed_vision: bool = False
 
     def check(self) -> AnalysisConfig:
         """Refuse values that would give silently wrong numbers (one clear message each)."""
@@ -72,6 +74,7 @@ class Analysis:
     exclusions: list[Exclusion] = field(default_factory=list)
     quality: pd.DataFrame | None = None  # per rater data quality (analysis.quality)
     used: RatingSet | None = None  # after the completeness rule, before screening
+    panel: PanelSummary | None = None  # who took part, from the questionnaires
 
     def dmos(self) -> pd.DataFrame:
         return dmos_table(self.screened, self.scores)
@@ -87,7 +90,10 @@ class Analysis:
 
 def prepare(rs: RatingSet, config: AnalysisConfig) -> tuple[RatingSet, OutlierResult,
                                                             RatingSet]:
-    """The completeness rule and the rater screening: (used, screening result, screened)."""
+    """The vision and completeness rules and the rater screening: (used, screening result,
+    screened)."""
+    if config.exclude_failed_vision:
+        rs = drop_failed_vision(rs)
     used = drop_incomplete(rs, config.min_completeness)
     check_not_constant(used)
     outliers = screen_raters(used, config.outliers, alpha=config.alpha)
@@ -150,6 +156,15 @@ def run_analysis(rs: RatingSet, config: AnalysisConfig | None = None,
                             min_completeness=config.min_completeness)
     for r in outliers.removed:
         quality.loc[r.rater, "status"] = f"removed ({outliers.method})"
+    if rs.panel is not None and rs.panel.screenings:
+        quality["vision"] = vision_column(rs, list(quality.index))
+        for rater in rs.panel.failed_vision():
+            if config.exclude_failed_vision and rater in quality.index:
+                quality.loc[rater, "status"] = "excluded (vision check)"
+    panel = None
+    if rs.panel is not None and rs.panel.definition is not None:
+        panel = summarise_panel(rs.panel.definition, rs.panel, list(screened.raters),
+                                list(rs.raters))
     done("quality")
     validation = None
     if metric_scores is not None:
@@ -162,4 +177,4 @@ def run_analysis(rs: RatingSet, config: AnalysisConfig | None = None,
         done("metrics")
     bar.close()
     return Analysis(config, rs, screened, outliers, rel, scores, ceiling, curve, validation,
-                    timings, problems, exclusions, quality, used)
+                    timings, problems, exclusions, quality, used, panel)

@@ -19,6 +19,7 @@ import pandas as pd
 
 from .exports import write_dmos_csv, write_rating_matrix
 from .figures import draw_all
+from .panel import panel_json
 from .pipeline import Analysis
 from .quality import THRESHOLDS
 from .report_html import write_html
@@ -31,7 +32,8 @@ SUMMARY_FORMAT = "cgvq-analysis-summary/2"
 _QUALITY_COLUMNS = ("status", "sessions", "n_ratings", "n_planned", "completeness",
                     "timing_mode", "vsync", "preflight_skipped", "presentations",
                     "dropped_frames", "trials_with_drops", "requeued", "median_viewing_s",
-                    "median_toggles", "hidden_ref_mean_share", "loo_r", "repeat_r", "flags")
+                    "median_toggles", "hidden_ref_mean_share", "loo_r", "repeat_r", "vision",
+                    "flags")
 
 
 def _num(x: Any) -> Any:
@@ -117,6 +119,8 @@ def summary(a: Analysis) -> dict[str, Any]:
             "reduction_per_added_rater": {str(k): _num(v) for k, v in red.items()},
             "reduction_decay_rate": _num(c.decay_rate),
             "reduction_power": _num(c.reduction_power)}
+    if a.panel is not None:
+        out["panel"] = panel_json(a.panel)
     if a.metrics is not None:
         m = a.metrics
         out["metrics"] = _records(m.table)

@@ -17,6 +17,7 @@ import pandas as pd
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 from markupsafe import Markup
 
+from .panel import answer_counts_rows
 from .pipeline import Analysis
 from .quality import THRESHOLDS
 from .version import __version__
@@ -104,6 +105,7 @@ def quality_display(q: pd.DataFrame) -> pd.DataFrame:
             "view s": num(r.get("median_viewing_s")), "toggles": num(r.get("median_toggles")),
             "hidden ref": num(r.get("hidden_ref_mean_share")),
             "r others": num(r.get("loo_r")), "repeat r": num(r.get("repeat_r")),
+            "vision": r.get("vision", "") if isinstance(r.get("vision", ""), str) else "",
             "flags": r.get("flags", ""),
         })
     out = pd.DataFrame(rows).set_index("rater")
@@ -212,6 +214,10 @@ def write_html(a: Analysis, out: Path, figures: dict[str, tuple[Path, str]],
         "curve": curve_text(a) if a.ci_curve is not None else None,
         "ceiling_table": (pd.DataFrame(a.ceiling.summary()).T.rename_axis("statistic")
                           if "ceiling" in summary else None),
+        "panel_table": (pd.DataFrame(answer_counts_rows(a.panel)) if a.panel is not None
+                        else None),
+        "screening_table": (pd.DataFrame(a.panel.screening).fillna("")
+                            if a.panel is not None and a.panel.screening else None),
     }
     if a.reliability is not None:
         rel = a.reliability

@@ -42,6 +42,8 @@ class Session:
     n_planned: int
     problems: list[InputProblem] = field(default_factory=list)
     damaged: str = ""  # why the file cannot be trusted (altered in transit); empty if fine
+    answers: list[dict[str, Any]] = field(default_factory=list)
+    screenings: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def timing_mode(self) -> str:
@@ -99,7 +101,8 @@ def read_one(source) -> Session:
     damaged = "; ".join(p.message for p in source.problems)
     return Session(path=name, info=info, ratings=list(rec.ratings),
                    presentations=list(rec.presentations), n_planned=int(rec.n_planned),
-                   problems=problems, damaged=damaged)
+                   problems=problems, damaged=damaged, answers=list(rec.answers),
+                   screenings=list(rec.screenings))
 
 
 # -- deciding what belongs ------------------------------------------------------------------

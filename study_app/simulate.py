@@ -45,6 +45,7 @@ from stimuli_manifests import LoadedManifest, Stimulus, load_manifest
 from . import __version__
 from .remote import ServerClient, ServerUnavailable, Uploader, UploadStatus
 from .schedule import ScheduleItem, make_schedule
+from .simulate_panel import likert_centres, simulated_answers, simulated_colour_check
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +88,7 @@ class SimulationOptions:
     ambiguity_range: tuple[float, float] = (2.0, 6.0)
     repetitions: int | None = None  # None: the manifest's protocol.repetitions
     participant_prefix: str = "sim"
+    colour_failures: int = 0  # raters who fail the colour check (when the panel screens)
 
     def check(self) -> None:
         if self.raters < 1:
@@ -104,6 +106,9 @@ class SimulationOptions:
             raise StudyError("standard deviations of the simulation must not be negative")
         if self.repetitions is not None and self.repetitions < 1:
             raise StudyError(f"--repetitions {self.repetitions}: use at least 1")
+        if not 0 <= self.colour_failures <= self.raters:
+            raise StudyError(f"--colour-failures {self.colour_failures}: choose between 0 and "
+                             f"the number of raters ({self.raters})")
 
 
 @dataclass(frozen=True)
@@ -212,6 +217,8 @@ class _Panel:
     kinds: list[Any]
     rater_seeds: list[int]
     settings: dict[str, Any]
+    likert_centres: dict[str, float] = field(default_factory=dict)
+    colour_failures: frozenset[int] = frozenset()
 
     @property
     def n_trials(self) -> int:
@@ -270,9 +277,16 @@ def _draw_panel(loaded: LoadedManifest, opts: SimulationOptions, repetitions: in
         "simulation": {"model": "sureal-generative", "seed": opts.seed,
                        "repetitions": repetitions, "truth_file": TRUTH_JSON},
     }
+    centres, failures = {}, frozenset()
+    if m.panel is not None:  # drawn after everything above, so older panels stay the same
+        panel_draws = np.random.default_rng(root.spawn(opts.raters + 2)[-1])
+        centres = likert_centres(m.panel, panel_draws)
+        # the colour-check failures are the last raters that are not outliers
+        candidates = [k for k in range(opts.raters) if kinds[k] is None][::-1]
+        failures = frozenset(candidates[:opts.colour_failures])
     return _Panel(loaded, stimuli, repetitions, participants, out, scale, unit, levels,
                   {s.id: true_quality(s, levels, scale) for s in stimuli}, scenes, ambiguity,
-                  kinds, rater_seeds, settings)
+                  kinds, rater_seeds, settings, centres, failures)
 
 
 def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
@@ -302,6 +316,8 @@ def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
         store.save_preflight([{"name": "simulated", "ok": True,
                                "message": "simulated participant: no display"}], skipped=True)
         store.mark_started(display={"simulated": True})
+        answer_rng = np.random.default_rng([seed, 1])
+        _answer_panel(store, panel, k, "before", answer_rng)
         for trial in plan:
             stim = by_id[trial.stimulus]
             rating = _rate(rng, panel.quality[stim.id], bias, sigma, panel.ambiguity[stim.scene],
@@ -313,8 +329,25 @@ def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
             changed()
             bar.update(1)
         store.finish()
+        _answer_panel(store, panel, k, "after", answer_rng)
         changed()
     return truth
+
+
+def _answer_panel(store: SessionStore, panel: _Panel, k: int, when: str,
+                  rng: np.random.Generator) -> None:
+    """Rater ``k``'s questionnaire answers (and, before the trials, vision checks)."""
+    definition = panel.loaded.manifest.panel
+    if definition is None:
+        return
+    if when == "before" and definition.vision_screening is not None \
+            and definition.vision_screening.colour:
+        outcome, result = simulated_colour_check(k in panel.colour_failures)
+        store.record_screening("colour", outcome, result)
+    for questionnaire in definition.questionnaires_at(when):
+        for page, question, value in simulated_answers(questionnaire, rng,
+                                                       panel.likert_centres):
+            store.record_answer(questionnaire.id, question, value, page=page)
 
 
 def _write_truth(panel: _Panel, opts: SimulationOptions, raters: list[RaterTruth]) -> Path:

@@ -26,6 +26,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--outlier-kind", choices=("random", "inverted", "mixed"),
                         default="random", help="how outliers answer (default random)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the whole simulation")
+    parser.add_argument("--colour-failures", type=int, default=0, metavar="N",
+                        help="simulated raters who fail the colour-vision check, when the "
+                             "manifest's panel screens colour vision (default 0)")
     parser.add_argument("--repetitions", type=int, default=None,
                         help="repetitions per stimulus (default: the manifest's protocol)")
     parser.add_argument("--out", required=True,
@@ -60,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
         raise StudyError("--server and --invites go together")
     opts = SimulationOptions(raters=args.raters, outliers=args.outliers,
                              outlier_kind=args.outlier_kind, seed=args.seed,
-                             repetitions=args.repetitions)
+                             repetitions=args.repetitions,
+                             colour_failures=args.colour_failures)
     upload = None
     if args.server is not None:
         from session_store.invite import read_invites

@@ -1,0 +1,254 @@
+"""The panel as a paper describes it: who took part, what they answered, how they were screened.
+
+From the questionnaire answers and vision-check results in the session files (see
+``session_store.answers``) and the manifest's panel block (``stimuli_manifests.panel``) this
+module builds the paper's sentence ("20 participants aged 25-57, 18 male and 2 female, with
+normal or corrected-to-normal vision; 13 of 20 answered the post-study survey"), the counts
+of every answer, the Likert distributions and the screening outcome of every participant.
+Free-text answers are kept apart from participant ids and in a fixed order, so the report
+cannot link a comment to a rater.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from stimuli_manifests.panel import PREFER_NOT_TO_SAY, Likert, Number, Panel, Text
+
+from .data import Exclusion, PanelAnswers, RatingSet
+from .errors import AnalysisError
+from .sessions import Session
+
+NOT_ANSWERED = "(no answer)"
+PREFERRED_NOT = "Prefer not to say"
+# Question ids of the demographics template that the paper's sentence is made from.
+AGE, GENDER, VISION = "age", "gender", "vision"
+CORRECTED_VALUES = ("normal", "corrected")
+
+
+def panel_from_sessions(sessions: list[Session], definition: Panel | None) -> PanelAnswers:
+    """Merge the answers of each participant's sessions (the later answer wins)."""
+    out = PanelAnswers(definition=definition)
+    for session in sorted(sessions, key=lambda s: s.order_key):
+        who = session.info.participant
+        for row in session.answers:
+            out.answers.setdefault(who, {})[row["question"]] = row["value"]
+        for row in session.screenings:
+            out.screenings.setdefault(who, {})[row["test"]] = row["outcome"]
+    return out
+
+
+@dataclass
+class QuestionSummary:
+    """Counts of one question's answers among the panel (labels in the question's order)."""
+
+    id: str
+    questionnaire: str
+    text: str
+    kind: str
+    counts: dict[str, int]
+    n_answered: int
+    values: list[float] = field(default_factory=list)  # numbers (age) as given
+
+
+@dataclass
+class PanelSummary:
+    """Everything the report and summary.json say about the panel."""
+
+    n_participants: int
+    sentence: str
+    questions: list[QuestionSummary]
+    answered: dict[str, int]  # questionnaire id -> participants who answered any question
+    free_text: dict[str, list[str]]  # question id -> answers (sorted, no participant ids)
+    screening: list[dict[str, Any]]  # one row per participant with a vision check
+    failed_vision: list[str]
+
+    def likert(self) -> list[QuestionSummary]:
+        return [q for q in self.questions if q.kind == "likert"]
+
+
+def _label(question: Any, value: Any) -> str:
+    if value is None:
+        return NOT_ANSWERED
+    if value == PREFER_NOT_TO_SAY:
+        return PREFERRED_NOT
+    if isinstance(question, Likert):
+        return question.points[int(value) - 1] if 1 <= int(value) <= len(question.points) \
+            else str(value)
+    options = {o.value: o.label for o in getattr(question, "options", [])}
+    if isinstance(value, list):
+        return ", ".join(options.get(v, str(v)) for v in value)
+    return options.get(value, str(value))
+
+
+def _counts(question: Any, values: list[Any]) -> dict[str, int]:
+    if isinstance(question, Likert):
+        order = list(question.points)
+    else:
+        order = [o.label for o in getattr(question, "options", [])]
+    seen = Counter()
+    for value in values:
+        if isinstance(value, list):  # multiple choice: each chosen option counts
+            seen.update(_label(question, [v]) for v in value)
+        else:
+            seen[_label(question, value)] += 1
+    extra = [k for k in seen if k not in order and k not in (PREFERRED_NOT, NOT_ANSWERED)]
+    keys = order + sorted(extra) + [PREFERRED_NOT, NOT_ANSWERED]
+    return {k: int(seen.get(k, 0)) for k in keys if k in order or seen.get(k)}
+
+
+def summarise_panel(panel: Panel, data: PanelAnswers, participants: list[str],
+                    everyone: list[str] | None = None) -> PanelSummary:
+    """The panel of ``participants`` (the raters whose ratings were used); the screening
+    table covers ``everyone`` (all raters read, also those left out)."""
+    everyone = list(everyone or participants)
+    n = len(participants)
+    questions, free_text, answered = [], {}, {}
+    for qn in panel.questionnaires:
+        answered[qn.id] = sum(
+            any(data.answers.get(p, {}).get(q.id) is not None for q in qn.questions())
+            for p in participants)
+        for q in qn.questions():
+            given = [data.answers.get(p, {}).get(q.id) for p in participants]
+            if isinstance(q, Text):
+                free_text[q.id] = sorted(str(v) for v in given
+                                         if isinstance(v, str) and v != PREFER_NOT_TO_SAY)
+                continue
+            numbers = [float(v) for v in given if isinstance(v, int | float)
+                       and not isinstance(v, bool)] if isinstance(q, Number) else []
+            counts = {} if isinstance(q, Number) else _counts(q, given)
+            if isinstance(q, Number):
+                counts = {PREFERRED_NOT: sum(v == PREFER_NOT_TO_SAY for v in given),
+                          NOT_ANSWERED: sum(v is None for v in given)}
+            questions.append(QuestionSummary(
+                q.id, qn.id, q.text, q.type, counts,
+                sum(v is not None for v in given), numbers))
+    screening = [{"participant": p, **{test: outcome for test, outcome in
+                                       sorted(data.screenings.get(p, {}).items())},
+                  "ratings used": "yes" if p in participants else "no"}
+                 for p in everyone if p in data.screenings]
+    failed = [p for p in data.failed_vision() if p in everyone]
+    return PanelSummary(n, panel_sentence(panel, data, participants), questions, answered,
+                        free_text, screening, failed)
+
+
+def panel_sentence(panel: Panel, data: PanelAnswers, participants: list[str]) -> str:
+    """The sentence a paper writes about its panel, from what the participants answered."""
+    n = len(participants)
+    parts = [f"{n} participant{'s' if n != 1 else ''}"]
+    answers = [data.answers.get(p, {}) for p in participants]
+    ids = {q.id for qn in panel.questionnaires for q in qn.questions()}
+    if AGE in ids:
+        ages = [a[AGE] for a in answers if isinstance(a.get(AGE), int | float)
+                and not isinstance(a.get(AGE), bool)]
+        if ages:
+            parts[0] += f" aged {min(ages):g}-{max(ages):g}"
+            if len(ages) < n:
+                parts[0] += f" ({n - len(ages)} did not give their age)"
+    if GENDER in ids:
+        question = panel.question(GENDER)
+        counts = Counter(_label(question, a.get(GENDER)) for a in answers)
+        listed = [f"{c} {label.lower()}" for label, c in counts.most_common()
+                  if label not in (PREFERRED_NOT, NOT_ANSWERED)]
+        unsaid = counts.get(PREFERRED_NOT, 0) + counts.get(NOT_ANSWERED, 0)
+        if unsaid:
+            listed.append(f"{unsaid} did not say")
+        if listed:
+            parts.append(_join(listed))
+    if VISION in ids:
+        good = sum(a.get(VISION) in CORRECTED_VALUES for a in answers)
+        if good == n:
+            parts.append("with normal or corrected-to-normal vision")
+        else:
+            parts.append(f"{good} of {n} with normal or corrected-to-normal vision")
+    sentence = ", ".join(parts)
+    after = panel.questionnaires_at("after")
+    clauses = []
+    for qn in after:
+        k = sum(any(data.answers.get(p, {}).get(q.id) is not None for q in qn.questions())
+                for p in participants)
+        name = ("the post-study survey" if len(after) == 1 else
+                f"the post-study questionnaire {qn.title!r}")
+        clauses.append(f"{k} of {n} answered {name}")
+    screened = [p for p in participants if p in data.screenings]
+    if screened:
+        failed = sum("failed" in data.screenings[p].values() for p in screened)
+        clauses.append(f"{len(screened)} took the remote vision screening and {failed} "
+                       f"failed it")
+    return sentence + ("; " + "; ".join(clauses) if clauses else "") + "."
+
+
+def _join(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def drop_failed_vision(rs: RatingSet) -> RatingSet:
+    """Leave out raters who failed a vision check (``--exclude-failed-vision``), each as an
+    :class:`~analysis.data.Exclusion` like any other."""
+    failed = set(rs.panel.failed_vision()) if rs.panel is not None else set()
+    drop = [k for k, r in enumerate(rs.raters) if r in failed]
+    if not drop:
+        return rs
+    keep = [k for k in range(rs.n_raters) if k not in drop]
+    if len(keep) < 2:
+        raise AnalysisError(f"only {len(keep)} rater(s) passed the vision screening; analyse "
+                            "without --exclude-failed-vision")
+    info = rs.rater_info.copy() if rs.rater_info is not None else None
+    exclusions = list(rs.exclusions)
+    for k in drop:
+        rater = rs.raters[k]
+        tests = sorted(t for t, o in rs.panel.screenings[rater].items() if o == "failed")
+        if info is not None and rater in info.index:
+            info.loc[rater, "status"] = "excluded (vision check)"
+        exclusions.append(Exclusion(
+            "failed vision check", rater,
+            f"failed the remote {' and '.join(tests)} check (a screening, not a diagnosis)",
+            "--exclude-failed-vision"))
+    out = rs.with_raters(keep)
+    rated = np.isfinite(out.scores).any(axis=(1, 2))
+    out = replace(out, exclusions=exclusions, rater_info=info)
+    if not rated.all():
+        out = replace(out, stimuli=out.stimuli.loc[rated], scores=out.scores[rated])
+    return out
+
+
+def vision_column(rs: RatingSet, raters: list[str]) -> list[str]:
+    """Per rater, the vision checks and their outcomes ("colour failed, acuity passed")."""
+    screenings = rs.panel.screenings if rs.panel is not None else {}
+    return [", ".join(f"{t} {o}" for t, o in sorted(screenings.get(r, {}).items()))
+            for r in raters]
+
+
+def panel_json(summary: PanelSummary) -> dict[str, Any]:
+    """The panel for summary.json: counts only; free-text answers stay in the report."""
+    return {
+        "n_participants": summary.n_participants,
+        "sentence": summary.sentence,
+        "answered": dict(summary.answered),
+        "questions": [{"id": q.id, "questionnaire": q.questionnaire, "type": q.kind,
+                       "text": q.text, "n_answered": q.n_answered, "counts": dict(q.counts),
+                       **({"min": min(q.values), "max": max(q.values)} if q.values else {})}
+                      for q in summary.questions],
+        "n_free_text": {k: len(v) for k, v in summary.free_text.items()},
+        "screening": list(summary.screening),
+        "failed_vision": list(summary.failed_vision),
+    }
+
+
+def answer_counts_rows(summary: PanelSummary) -> list[dict[str, Any]]:
+    """One row per question with every answer's count: the report's panel table."""
+    rows = []
+    for q in summary.questions:
+        parts = []
+        if q.values:
+            parts.append(f"{min(q.values):g}-{max(q.values):g} (median "
+                         f"{float(np.median(q.values)):g}, n={len(q.values)})")
+        parts += [f"{answer} {count}" for answer, count in q.counts.items()
+                  if count or answer not in (PREFERRED_NOT, NOT_ANSWERED)]
+        rows.append({"questionnaire": q.questionnaire, "question": q.text,
+                     "answers (count)": " · ".join(parts)})
+    return rows

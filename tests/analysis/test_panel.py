@@ -1,0 +1,130 @@
+"""The panel section: the paper's sentence, answer counts, the survey figure's data, vision
+screening and its exclusion, and free text kept escaped and out of summary.json."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+
+import pytest
+
+from analysis.data import PanelAnswers
+from analysis.inputs import load_ratings
+from analysis.panel import NOT_ANSWERED, PREFERRED_NOT, panel_sentence, summarise_panel
+from analysis.panel_figure import likert_shares, survey_questions
+from analysis.pipeline import AnalysisConfig, run_analysis
+from analysis.report import write_report
+from session_store import SessionStore, read_session
+from stimuli_manifests import parse_manifest, save_manifest
+from stimuli_manifests.panel import Panel
+from stimuli_manifests.panel_templates import default_panel
+from study_app.simulate import SimulationOptions, run_simulation
+
+PAYLOAD = "<script>alert('x')</script><img src=x onerror=alert(1)>"
+
+
+def _panel() -> Panel:
+    return Panel.model_validate(default_panel())
+
+
+def test_the_papers_sentence_from_known_answers():
+    answers = {
+        "p1": {"age": 25, "gender": "male", "vision": "normal", "notice_artifacts": 4},
+        "p2": {"age": 57, "gender": "female", "vision": "corrected"},
+        "p3": {"age": 31, "gender": "male", "vision": "corrected", "task_clear": 5},
+        "p4": {"age": "prefer-not-to-say", "gender": "prefer-not-to-say", "vision": "normal"},
+    }
+    data = PanelAnswers(answers=answers, screenings={"p1": {"colour": "passed"},
+                                                     "p2": {"colour": "failed"}})
+    panel = _panel()
+    assert panel_sentence(panel, data, ["p1", "p2", "p3", "p4"]) == (
+        "4 participants aged 25-57 (1 did not give their age), 2 male, 1 female and 1 did "
+        "not say, with normal or corrected-to-normal vision; 2 of 4 answered the post-study "
+        "survey; 2 took the remote vision screening and 1 failed it.")
+    answers["p4"]["vision"] = "not_corrected"
+    assert "3 of 4 with normal or corrected-to-normal vision" in panel_sentence(
+        panel, data, ["p1", "p2", "p3", "p4"])
+    summary = summarise_panel(panel, data, ["p1", "p2", "p3"], ["p1", "p2", "p3", "p4"])
+    gender = next(q for q in summary.questions if q.id == "gender")
+    assert gender.counts == {"Female": 1, "Male": 2, "Non-binary": 0, "Another gender": 0}
+    notice = next(q for q in summary.questions if q.id == "notice_artifacts")
+    assert notice.counts["Agree"] == 1 and notice.counts[NOT_ANSWERED] == 2
+    age = next(q for q in summary.questions if q.id == "age")
+    assert age.values == [25, 57, 31]
+    assert summary.failed_vision == ["p2"]
+    assert summary.answered == {"demographics": 3, "post_study": 2}
+
+
+def test_likert_shares_leave_out_prefer_not_to_say():
+    panel = _panel()
+    data = PanelAnswers(answers={f"p{i}": {"task_clear": v} for i, v in
+                                 enumerate([5, 5, 4, 2, "prefer-not-to-say", None])})
+    summary = summarise_panel(panel, data, [f"p{i}" for i in range(6)])
+    ids, points = survey_questions(panel)
+    assert "task_clear" in ids and "games_experience" not in ids  # after the trials only
+    q = next(q for q in summary.likert() if q.id == "task_clear")
+    shares, n = likert_shares(q, points)
+    assert n == 4 and list(shares) == [0, 0.25, 0, 0.25, 0.5]
+    assert q.counts[PREFERRED_NOT] == 1
+
+
+@pytest.fixture(scope="module")
+def panel_study(tmp_path_factory):
+    """A small study whose manifest has the default panel, simulated with one colour-check
+    failure, plus one session with a hostile comment."""
+    folder = tmp_path_factory.mktemp("panel")
+    refs = [{"id": f"R{i}", "path": f"r{i}.mkv", "scene": f"scene{i}"} for i in range(3)]
+    conds = [{"id": f"R{i}_blur_L{lv}", "reference": f"R{i}", "path": f"r{i}_{lv}.mkv",
+              "method": "blur", "level": lv} for i in range(3) for lv in (1, 2)]
+    manifest = parse_manifest({"study_id": "panel-study", "references": refs,
+                               "conditions": conds, "panel": default_panel()})
+    path = save_manifest(manifest, folder / "manifest.json")
+    sessions = folder / "sessions"
+    run_simulation(path, sessions, SimulationOptions(raters=8, seed=3, colour_failures=1),
+                   progress=False)
+    hostile = sessions / "sim01.sqlite"
+    with SessionStore.open(hostile) as store:
+        store.record_answer("post_study", "comments", PAYLOAD, page=1)
+    return path, sessions
+
+
+def test_report_panel_from_simulated_sessions(panel_study, tmp_path):
+    manifest, sessions = panel_study
+    # an independent count straight from the session files
+    records = [read_session(p) for p in sorted(sessions.glob("*.sqlite"))]
+    last = [{a["question"]: a["value"] for a in r.answers} for r in records]
+    genders = Counter(a.get("gender") for a in last)
+    ages = [a["age"] for a in last if isinstance(a.get("age"), int)]
+    failed = [r.info.participant for r in records
+              if any(s["outcome"] == "failed" for s in r.screenings)]
+    survey = sum(any(q in a for q in ("notice_artifacts", "artifacts_annoying",
+                                      "familiar_methods", "task_clear", "confident_ratings",
+                                      "comments")) for a in last)
+    assert len(failed) == 1
+
+    rs = load_ratings(manifest, sessions=[sessions])
+    a = run_analysis(rs, AnalysisConfig(n_boot=20, n_splits=20, ci_draws=5), progress=False)
+    s = a.panel.sentence
+    assert s.startswith(f"8 participants aged {min(ages)}-{max(ages)}")
+    assert f"{genders['male']} male" in s
+    assert f"{survey} of 8 answered the post-study survey" in s
+    assert "8 took the remote vision screening and 1 failed it" in s
+    assert a.quality.loc[failed[0], "vision"] == "colour failed"
+
+    report = write_report(a, tmp_path / "report")
+    summary = json.loads((report.parent / "summary.json").read_text())
+    assert summary["panel"]["sentence"] == s
+    assert summary["panel"]["failed_vision"] == failed
+    assert PAYLOAD not in json.dumps(summary) and summary["panel"]["n_free_text"]["comments"] >= 1
+    html = report.read_text()
+    assert "&lt;script&gt;alert(" in html and "<script>alert(" not in html
+    assert "<img src=x" not in html
+    assert (report.parent / "figures" / "panel_survey.png").is_file()
+
+    excluded = run_analysis(rs, AnalysisConfig(n_boot=20, n_splits=20, ci_draws=5,
+                                               exclude_failed_vision=True), progress=False)
+    assert failed[0] not in excluded.screened.raters
+    assert any(x.kind == "failed vision check" and x.who == failed[0]
+               for x in excluded.exclusions)
+    assert excluded.panel.sentence.startswith("7 participants")
+    assert excluded.quality.loc[failed[0], "status"] == "excluded (vision check)"

@@ -194,6 +194,18 @@ class Panel(_Strict):
     def questionnaires_at(self, when: str) -> list[Questionnaire]:
         return [q for q in self.questionnaires if q.when == when]
 
+    def check(self, questionnaire_id: str, question_id: str, value: Any) -> Any:
+        """:func:`check_answer` for a question named by its questionnaire and id;
+        :class:`PanelError` also for a questionnaire or question the panel does not ask."""
+        for qn in self.questionnaires:
+            if qn.id == questionnaire_id:
+                for q in qn.questions():
+                    if q.id == question_id:
+                        return check_answer(q, value)
+                raise PanelError(f"questionnaire {questionnaire_id} has no question "
+                                 f"{_short(question_id)}")
+        raise PanelError(f"the study asks no questionnaire {_short(questionnaire_id)}")
+
     def question(self, question_id: str) -> Any:
         for qn in self.questionnaires:
             for q in qn.questions():

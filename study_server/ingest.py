@@ -41,6 +41,8 @@ from session_store.protocol import (
 )
 from session_store.records import utc_now
 from session_store.replica import ContradictionError, Replica
+from stimuli_manifests import StimuliError, parse_manifest
+from stimuli_manifests.panel import PanelError
 
 from .storage import ServerStore, SessionRow, StoredEntry
 
@@ -154,6 +156,7 @@ class Ingest:
         self._cache_lock = threading.Lock()
         self._locks: dict[str, threading.Lock] = collections.defaultdict(threading.Lock)
         self._locks_lock = threading.Lock()
+        self._panels: dict[str, Any] = {}
 
     # -- helpers ----------------------------------------------------------------------
     def _lock(self, pid: str) -> threading.Lock:
@@ -241,6 +244,40 @@ class Ingest:
         return {"acked_seq": acked, "server_time": received, "clock_offset_ms": offset_ms}
 
     # -- upload -----------------------------------------------------------------------
+    def _panel(self, manifest_sha256: str) -> Any:
+        """The panel block of a manifest this server served (None: none, or unknown)."""
+        if manifest_sha256 not in self._panels:
+            raw = self.store.version_manifest(manifest_sha256)
+            panel = None
+            if raw is not None:
+                try:
+                    panel = parse_manifest(json.loads(raw), source="manifest").panel
+                except (ValueError, StimuliError):
+                    panel = None
+            self._panels[manifest_sha256] = panel
+        return self._panels[manifest_sha256]
+
+    def _check_answers(self, pid: str, session_id: str, manifest_sha256: str | None,
+                       entries: list[OutboxEntry]) -> None:
+        """Answers must be valid answers to the study's questions (the app checks them with
+        the same rule, so only an altered client sends others); the refusal and the flag
+        never repeat a free-text answer."""
+        answers = [e for e in entries if e.kind == "answer"]
+        if not answers:
+            return
+        panel = self._panel(str(manifest_sha256))
+        for e in answers:
+            body = e.body
+            try:
+                if panel is None:
+                    raise PanelError("the study asks no questionnaire")
+                panel.check(str(body.get("questionnaire")), str(body.get("question")),
+                            body.get("value"))
+            except PanelError as exc:
+                detail = f"entry {e.seq}: answer refused: {exc}"
+                self.flag(pid, session_id, "answer", detail)
+                raise Refused(422, detail) from None
+
     def upload(self, pid: str, data: Any, address: str | None) -> dict[str, Any]:
         msg: UploadIn = parse(UploadIn, data)
         entries = sorted((e.entry() for e in msg.entries), key=lambda e: e.seq)
@@ -249,6 +286,11 @@ class Ingest:
             participant = self.store.participant(pid)
             offset_ms = participant.clock_offset_ms if participant else None
             sess = self.store.session_of(pid)
+            first_header = entries[0].body.get("header") if entries[0].kind == "session" \
+                else None
+            sha = sess.manifest_sha256 if sess is not None else (
+                first_header.get("manifest_sha256") if isinstance(first_header, dict) else None)
+            self._check_answers(pid, msg.session_id, sha, entries)
             if sess is None:
                 acked = self._first_upload(pid, msg.session_id, entries, now, offset_ms,
                                            address)

@@ -49,6 +49,10 @@ class ParticipantStats:
     panel_r: float | None = None
     removed_by_screening: str | None = None
     simulated: bool = False
+    answers: int = 0
+    """Questionnaire answers received (counts only: the dashboard never shows answers)."""
+    vision: dict[str, str] = field(default_factory=dict)
+    """Vision check -> outcome (passed, failed, inconclusive)."""
 
 
 @dataclass
@@ -68,6 +72,12 @@ class StatsSnapshot:
     study: StudyFigures | None = None
     figures: dict[str, bytes] = field(default_factory=dict)
     error: str | None = None
+    has_panel: bool = False
+    """The manifest asks questionnaires or screens vision."""
+    panel_answered: int = 0
+    """Participants who answered at least one questionnaire question."""
+    panel_screened: int = 0
+    panel_failed: int = 0
 
     def age_s(self) -> float | None:
         t = parse_time(self.computed_at)
@@ -105,6 +115,10 @@ def participant_stats(rows: list[tuple[str, str, str, str, str]]
             ps.dropped_frames += int(_num(row.get("dropped_frames")) or 0)
             if row.get("is_hidden_reference") and _num(row.get("rating")) is not None:
                 hidden.setdefault(pid, []).append(float(row["rating"]))
+        elif kind == "answer":
+            ps.answers += 1
+        elif kind == "screening":
+            ps.vision[str(body.get("test"))] = str(body.get("outcome"))
         elif kind == "requeue":
             ps.requeued += 1
             details = body.get("presentation", {}).get("details", {})
@@ -209,9 +223,14 @@ class StatsWorker:
         if not force and marker == self.snapshot().marker:
             return self.snapshot()
         t0 = time.perf_counter()
-        rows = store.entries_of_kinds(["session", "start", "preflight", "rating", "requeue"])
+        rows = store.entries_of_kinds(["session", "start", "preflight", "rating", "requeue",
+                                       "answer", "screening"])
         snap = StatsSnapshot(marker=marker)
         snap.participants = participant_stats(rows)
+        people = snap.participants.values()
+        snap.panel_answered = sum(ps.answers > 0 for ps in people)
+        snap.panel_screened = sum(bool(ps.vision) for ps in people)
+        snap.panel_failed = sum("failed" in ps.vision.values() for ps in people)
         frame = ratings_frame(rows, self.current.study_id)
         snap.n_ratings = len(frame)
         current = self.current
@@ -220,6 +239,7 @@ class StatsWorker:
 
         m = parse_manifest(manifest, source="manifest")
         stimuli = [s.id for s in m.stimuli()]
+        snap.has_panel = m.panel is not None
         reps = m.protocol.repetitions
         snap.planned_per_participant = len(stimuli) * reps
         invited = store.participants()

@@ -17,6 +17,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="folder for the session files")
     parser.add_argument("--csv", type=Path, default=None, metavar="FILE",
                         help="also write the tidy ratings table (cgvq-ratings CSV)")
+    parser.add_argument("--answers", type=Path, default=None, metavar="FILE",
+                        help="also write the questionnaire answers (cgvq-answers CSV; vision "
+                             "checks beside it as FILE_screenings.csv): personal data, kept "
+                             "out of the ratings table")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -26,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
     token = args.admin_token or os.environ.get("CGVQ_ADMIN_TOKEN", "")
     if not token:
         raise StudyError("give --admin-token or set $CGVQ_ADMIN_TOKEN")
-    result = pull(args.url, token, args.out, csv=args.csv)
+    result = pull(args.url, token, args.out, csv=args.csv, answers=args.answers)
     print(f"study {result.study_id}: {len(result.sessions)} session(s) into {args.out}")
     worst = 0
     for s in result.sessions:
@@ -34,6 +38,10 @@ def run(args: argparse.Namespace) -> int:
         state = r.state if r else "?"
         line = (f"  {s.participant}: {r.n_ratings if r else '?'} of {r.n_planned if r else '?'}"
                 f" ratings, {state}, version {s.version} ({(s.manifest_sha256 or '')[:12]})")
+        if s.n_answers or s.vision:
+            line += f"; {s.n_answers} question(s) answered"
+            if s.vision:
+                line += "; vision: " + ", ".join(f"{t} {o}" for t, o in sorted(s.vision.items()))
         print(line)
         for f in s.flags:
             times = f" (x{f['count']})" if f.get("count", 1) > 1 else ""
@@ -50,4 +58,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"{flagged} participant(s) flagged; server listing: {result.listing_path}")
     if result.csv_path is not None:
         print(f"ratings CSV: {result.csv_path} ({result.n_csv_rows} rows)")
+    if result.answers_path is not None:
+        print(f"answers CSV: {result.answers_path} ({result.n_answer_rows} rows)"
+              + (f"; vision checks: {result.screenings_path}" if result.screenings_path else ""))
     return 2 if worst == 2 else 0

@@ -19,6 +19,13 @@ from typing import Any
 from urllib.parse import urlencode
 
 from session_store import OutboxEntry, Replica, VerifyReport, read_session, verify_session
+from session_store.answers import (
+    answer_rows,
+    latest_answers,
+    screening_rows,
+    write_answers_csv,
+    write_screenings_csv,
+)
 from session_store.errors import StudyError
 from session_store.ids import check_participant_id
 from session_store.protocol import ADMIN_SESSIONS, admin_entries_path
@@ -40,6 +47,8 @@ class PulledSession:
     version: int | None
     manifest_sha256: str | None
     flags: list[dict[str, Any]] = field(default_factory=list)
+    n_answers: int = 0  # questions answered (the answers themselves stay in the file)
+    vision: dict[str, str] = field(default_factory=dict)  # vision check -> outcome
 
 
 @dataclass
@@ -51,6 +60,9 @@ class PullResult:
     listing_path: Path
     csv_path: Path | None = None
     n_csv_rows: int = 0
+    answers_path: Path | None = None
+    n_answer_rows: int = 0
+    screenings_path: Path | None = None
 
 
 def _entries(client: ServerClient, pid: str) -> list[OutboxEntry]:
@@ -80,8 +92,12 @@ def _build(path: Path, entries: list[OutboxEntry]) -> None:
 
 
 def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | None = None,
+         answers: str | Path | None = None,
          progress: Callable[[str], None] | None = None) -> PullResult:
-    """Fetch every session into ``out/<participant>.sqlite`` (see the module doc)."""
+    """Fetch every session into ``out/<participant>.sqlite`` (see the module doc); ``csv``
+    writes the ratings table, ``answers`` the questionnaire answers (and the vision checks
+    beside it as ``<name>_screenings.csv``), which are personal data and never go into the
+    ratings table."""
     client = ServerClient(server, admin_token, timeout=120)
     listing = client.json("GET", ADMIN_SESSIONS)
     out = Path(out)
@@ -91,6 +107,8 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
     sessions: list[PulledSession] = []
     not_started: list[str] = []
     rows: list[dict[str, Any]] = []
+    answer_table: list[dict[str, Any]] = []
+    screening_table: list[dict[str, Any]] = []
     for p in listing["participants"]:
         pid = check_participant_id(p["participant"])
         s = p.get("session")
@@ -106,10 +124,16 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
         path = out / f"{pid}.sqlite"
         _build(path, entries)
         report = verify_session(path)
-        sessions.append(PulledSession(pid, path, report, s.get("version"),
-                                      s.get("manifest_sha256"), list(p.get("flags", []))))
+        record = read_session(path)
+        sessions.append(PulledSession(
+            pid, path, report, s.get("version"), s.get("manifest_sha256"),
+            list(p.get("flags", [])), len(latest_answers(record.answers)),
+            {x["test"]: x["outcome"] for x in record.screenings}))
         if csv is not None:
-            rows += read_session(path).ratings
+            rows += record.ratings
+        if answers is not None:
+            answer_table += answer_rows(record)
+            screening_table += screening_rows(record)
     listing_path = out / LISTING_FILE
     listing_path.write_text(json.dumps(listing, indent=2) + "\n", encoding="utf-8")
     result = PullResult(str(listing["study_id"]), sessions, not_started,
@@ -117,4 +141,11 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
     if csv is not None:
         write_ratings_csv(rows, csv)
         result.csv_path, result.n_csv_rows = Path(csv), len(rows)
+    if answers is not None:
+        answers = Path(answers)
+        result.answers_path = write_answers_csv(answer_table, answers)
+        result.n_answer_rows = len(answer_table)
+        if screening_table:
+            result.screenings_path = write_screenings_csv(
+                screening_table, answers.with_name(f"{answers.stem}_screenings.csv"))
     return result

@@ -141,6 +141,7 @@ def collect(study: Path, out: Path, *, raters: int, outliers: int, seed: int, lo
     sim = subprocess.Popen(
         _cli("simulate", "--manifest", str(study / "manifest.json"), "--raters", str(raters),
              "--outliers", str(outliers), "--seed", str(seed), "--out", str(local),
+             "--colour-failures", "1",
              "--overwrite", "--server", server.url, "--invites", str(invites), "--pace",
              "0.04", "--offline", offline, "--no-progress"), env=env, cwd=REPO)
     try:

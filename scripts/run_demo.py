@@ -1,8 +1,11 @@
 """The end-to-end demo: from nothing to a report, with a simulated panel whose truth is known.
 
-1. ``cgvq-study synth``: synthetic CG stimuli (two GLSL scenes x six families x 4 levels);
+1. ``cgvq-study synth``: synthetic CG stimuli (two GLSL scenes x six families x 4 levels),
+   and ``cgvq-study panel --add-templates``: the demographics questionnaire, the post-study
+   survey and the colour-vision check in the manifest;
 2. through the study server (``scripts/demo_server.py``): ``cgvq-study serve`` on 127.0.0.1,
-   ``invite``, 20 simulated raters (one of them an outlier) uploading at once through the
+   ``invite``, 20 simulated raters (one of them an outlier, one failing the colour check,
+   all answering the questionnaires) uploading at once through the
    app's client (one offline for a while, the server SIGKILLed and restarted once), a
    dashboard screenshot (``dashboard.png``), ``pull`` of every session as received;
 3. ``cgvqm batch --metrics all``: every metric of the registry available here (the PIQ-family
@@ -246,6 +249,10 @@ def main(argv: list[str] | None = None) -> int:
                          str(args.size), "--seconds", str(args.seconds), "--scenes",
                          args.scenes, "--methods", args.methods, "--seed", str(args.seed),
                          "--overwrite"], log)
+    if res.returncode:
+        return _fail(log)
+    res = _run("panel", [*_cli("cgvq_cli.study_cli"), "panel", str(study), "--add-templates"],
+               log)
     if res.returncode:
         return _fail(log)
     try:

@@ -23,6 +23,14 @@ def run(args: argparse.Namespace) -> int:
     print(f"study {m.study_id}: {result.n_stimuli} stimuli x {m.protocol.repetitions} "
           f"repetitions = {result.n_trials} trials; briefing "
           f"{'yes' if study.briefing else 'no'}, consent {'yes' if study.consent else 'no'}")
+    if m.panel is not None:
+        questions = [q for qn in m.panel.questionnaires for q in qn.questions()]
+        vs = m.panel.vision_screening
+        checks = [n for n, on in (("colour", vs.colour), ("acuity", vs.acuity)) if on] \
+            if vs is not None else []
+        print(f"panel: {len(m.panel.questionnaires)} questionnaire(s), {len(questions)} "
+              f"question(s); vision checks: {', '.join(checks) or 'none'} "
+              "(see: cgvq-study panel STUDY)")
     for w in result.warnings:
         print(f"  warning: {w}")
     for e in result.errors:

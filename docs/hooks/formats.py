@@ -47,6 +47,13 @@ def manifest_section() -> str:
                 model.DisplayRequirements, model.Reference, model.Condition):
         parts += [f"**{cls.__name__}**" + (f": {cls.__doc__.strip().splitlines()[0]}"
                                            if cls.__doc__ else ""), "", _model_table(cls), ""]
+    from stimuli_manifests import panel
+
+    parts += [f"The `panel` block: format value `{panel.PANEL_FORMAT.version}` (field "
+              "`format`); see [Describing the panel](panel.md).", ""]
+    for cls in (panel.Panel, panel.Questionnaire, panel.Page, panel.VisionScreening):
+        parts += [f"**{cls.__name__}**" + (f": {cls.__doc__.strip().splitlines()[0]}"
+                                           if cls.__doc__ else ""), "", _model_table(cls), ""]
     return "\n".join(parts)
 
 
@@ -54,7 +61,8 @@ def session_section() -> str:
     from session_store import schema
 
     return (f"Format value: `{schema.SCHEMA_VERSION}` (table `meta`, key `schema`). "
-            "The tables, as created:\n\n```sql\n" + schema.DDL.strip() + "\n```")
+            "The tables, as created:\n\n```sql\n" + schema.DDL.strip() + "\n"
+            + schema.PANEL_DDL.strip() + "\n```")
 
 
 def tables_section() -> str:

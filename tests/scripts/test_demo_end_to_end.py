@@ -46,6 +46,14 @@ def test_reduced_demo_finds_the_outlier_and_orders_levels(egl, tmp_path):
 
     html = (out / "report" / "report.html").read_text()
     assert "SIMULATED DATA" in html
+    # the panel: every simulated participant answered the demographics, one failed the
+    # colour check (flagged, not removed by default)
+    panel = summary["panel"]
+    assert panel["answered"]["demographics"] == panel["n_participants"] == len(
+        summary["data_quality"]) - len(removed)
+    assert len(panel["failed_vision"]) == 1 and "failed it" in panel["sentence"]
+    assert "answered the post-study survey" in panel["sentence"]
+    assert "id='panel'" in html and (out / "report" / "figures" / "panel_survey.png").is_file()
     scores = pd.read_csv(out / "scores.csv")
     # every available registry metric, CGVQM flagged (untrained backbone, uniform weights)
     assert {"psnr", "ssim", "ms-ssim", "gmsd", "flip", "cvvdp", "cgvqm-2-uniform",

@@ -24,7 +24,7 @@ from study_server.config import ServerConfig
 from study_server.ingest import Refused
 from study_server.state import ServerState
 
-from .conftest import ADMIN, make_served_study, raw_request, write_session
+from .conftest import ADMIN, make_served_study, raw_request, run_cli, write_session
 
 COMMENT = "<b>secret remark</b> about the videos"
 
@@ -97,6 +97,14 @@ def test_answers_travel_with_the_ratings_and_stay_off_the_dashboard(tmp_path, in
     assert re.search(rb'id="panel-answered">4<', page), page[:2000]
     assert b"1 failed" in page and b"colour failed" in page
     assert b"secret remark" not in page
+
+    # a withdrawal deletes the answers with everything else
+    res = run_cli("withdraw", str(study), failed)
+    assert res.returncode == 0, res.stderr
+    again = pull(srv.url, ADMIN, tmp_path / "pulled2", answers=tmp_path / "answers2.csv")
+    assert failed not in {s.participant for s in again.sessions}
+    with open(tmp_path / "answers2.csv", newline="") as fh:
+        assert failed not in {r["participant"] for r in csv.DictReader(fh)}
 
 
 @pytest.fixture

@@ -1,0 +1,41 @@
+"""``cgvq-study panel``: the templates go into a manifest once, not under collected sessions,
+and the listing says what the panel asks."""
+
+from __future__ import annotations
+
+import json
+
+from support.studies import make_study
+
+from cgvq_cli.study_cli import main
+from stimuli_manifests import load_manifest
+from stimuli_manifests.panel_templates import DEMOGRAPHICS, POST_STUDY_SURVEY
+
+
+def test_templates_added_once_and_listed(tmp_path, capsys):
+    study = make_study(tmp_path / "study")
+    before = json.loads((study / "manifest.json").read_text())
+    assert main(["panel", str(study)]) == 0
+    assert "has no panel block" in capsys.readouterr().out
+    assert main(["panel", str(study), "--add-templates", "--acuity", "--on-fail", "end"]) == 0
+    out = capsys.readouterr().out
+    m = load_manifest(study / "manifest.json").manifest
+    assert [q.id for q in m.panel.questionnaires] == [DEMOGRAPHICS["id"], POST_STUDY_SURVEY["id"]]
+    vs = m.panel.vision_screening
+    assert (vs.colour, vs.acuity, vs.on_fail) == (True, True, "end")
+    after = json.loads((study / "manifest.json").read_text())
+    assert {k: v for k, v in after.items() if k != "panel"} == before  # nothing else changed
+    assert "post_study (after the last trial, voluntary)" in out
+    assert "vision checks: colour, acuity at 60 cm; a failed check: end" in out
+
+    assert main(["panel", str(study), "--add-templates"]) == 2
+    assert "already has a panel block" in capsys.readouterr().err
+
+
+def test_templates_are_not_added_under_sessions(tmp_path, capsys):
+    study = make_study(tmp_path / "study")
+    (study / "sessions").mkdir()
+    (study / "sessions" / "P01.sqlite").write_bytes(b"x")
+    assert main(["panel", str(study), "--add-templates"]) == 2
+    assert "already holds session files" in capsys.readouterr().err
+    assert load_manifest(study / "manifest.json").manifest.panel is None

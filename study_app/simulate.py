@@ -43,6 +43,7 @@ from session_store.errors import StudyError
 from stimuli_manifests import LoadedManifest, Stimulus, load_manifest
 
 from . import __version__
+from .panel_progress import QUESTIONNAIRE_EVENT
 from .remote import ServerClient, ServerUnavailable, Uploader, UploadStatus
 from .schedule import ScheduleItem, make_schedule
 from .simulate_panel import likert_centres, simulated_answers, simulated_colour_check
@@ -328,8 +329,8 @@ def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
             store.record(trial.index, result)
             changed()
             bar.update(1)
+        _answer_panel(store, panel, k, "after", answer_rng)  # as the app: before finishing
         store.finish()
-        _answer_panel(store, panel, k, "after", answer_rng)
         changed()
     return truth
 
@@ -345,9 +346,11 @@ def _answer_panel(store: SessionStore, panel: _Panel, k: int, when: str,
         outcome, result = simulated_colour_check(k in panel.colour_failures)
         store.record_screening("colour", outcome, result)
     for questionnaire in definition.questionnaires_at(when):
-        for page, question, value in simulated_answers(questionnaire, rng,
-                                                       panel.likert_centres):
+        answers = simulated_answers(questionnaire, rng, panel.likert_centres)
+        for page, question, value in answers:
             store.record_answer(questionnaire.id, question, value, page=page)
+        store.log_event(QUESTIONNAIRE_EVENT, questionnaire=questionnaire.id,
+                        outcome="done" if answers else "skipped")
 
 
 def _write_truth(panel: _Panel, opts: SimulationOptions, raters: list[RaterTruth]) -> Path:

@@ -65,6 +65,7 @@ class WorkUnit:
     allow_resample: bool = False
     on_conversion: str = "warn"
     group_size: int = 4
+    strict: bool = False  # refuse a test whose frame count differs from the reference's
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -254,7 +255,8 @@ def run_unit(unit: WorkUnit, *, scorers: Sequence[Scorer] | None = None,
         results = score_reference(unit.reference.path, [unit.tests[ti].path for ti in group],
                                   [scorers[si] for si in used], device=options.device,
                                   allow_resample=unit.allow_resample,
-                                  on_conversion=unit.on_conversion, progress=progress)
+                                  on_conversion=unit.on_conversion, progress=progress,
+                                  strict=unit.strict)
         for ti, per_test in zip(group, results, strict=True):
             t = unit.tests[ti]
             it = iter(per_test)
@@ -280,15 +282,47 @@ class BatchSummary:
     not_applicable: list[str] = field(default_factory=list)
 
 
+def _load(manifest: str | Path, root: str | Path | None) -> Any:
+    try:
+        return load_manifest(manifest, root=root)
+    except StimuliError as exc:
+        raise CGVQMError(str(exc)) from None
+
+
+def refuse_frame_count_mismatches(manifest: str | Path, *, include_references: bool = False,
+                                  root: str | Path | None = None,
+                                  on_conversion: str = "warn") -> None:
+    """``--strict``: refuse the run, before any network is built or file hashed, when a test
+    video's frame count differs from its reference's (every such pair is probed, headers only,
+    and up to five are named)."""
+    from .stream import open_input
+
+    loaded = _load(manifest, root)
+    refs: dict[str, Any] = {}
+    bad = []
+    for s in loaded.manifest.stimuli(include_hidden_references=include_references):
+        if s.reference not in refs:
+            refs[s.reference] = open_input(loaded.reference_path(s.reference),
+                                           name=s.reference, on_conversion=on_conversion)
+        ref = refs[s.reference]
+        test = open_input(loaded.stimulus_path(s.id), name=s.id, on_conversion=on_conversion)
+        nr, nt = int(ref.info.frame_count), int(test.info.frame_count)
+        if nr != nt:
+            bad.append(f"{s.id} has {nt} frames, its reference {s.reference} {nr}")
+    if bad:
+        raise CGVQMError(f"--strict: {len(bad)} test video(s) differ from their reference in "
+                         f"frame count ({'; '.join(bad[:5])}{'; ...' if len(bad) > 5 else ''})"
+                         "; without --strict they are resampled in time (frames repeated or "
+                         "dropped); trim or re-render them")
+
+
 def manifest_units(manifest: str | Path, metrics: Sequence[str], options: MetricOptions, *,
                    include_references: bool = False, root: str | Path | None = None,
                    group_size: int = 4, allow_resample: bool = False,
-                   on_conversion: str = "warn", progress: bool = True) -> list[WorkUnit]:
+                   on_conversion: str = "warn", progress: bool = True,
+                   strict: bool = False) -> list[WorkUnit]:
     """One work unit per reference, after checking every input's sha256."""
-    try:
-        loaded = load_manifest(manifest, root=root)
-    except StimuliError as exc:
-        raise CGVQMError(str(exc)) from None
+    loaded = _load(manifest, root)
     stimuli = loaded.manifest.stimuli(include_hidden_references=include_references)
     by_ref: dict[str, list[Any]] = {}
     for s in stimuli:
@@ -321,7 +355,7 @@ def manifest_units(manifest: str | Path, metrics: Sequence[str], options: Metric
         ref = InputFile(ref_id, str(paths[ref_id][0]), digests[ref_id])
         tests = [InputFile(s.id, str(paths[s.id][0]), digests[s.id]) for s in group]
         units.append(WorkUnit(ref_id, ref, tests, list(metrics), opts, allow_resample,
-                              on_conversion, group_size))
+                              on_conversion, group_size, strict))
     return units
 
 
@@ -329,15 +363,21 @@ def score_manifest(manifest: str | Path, out: str | Path, metrics: Sequence[str]
                    options: MetricOptions | None = None, *, include_references: bool = False,
                    root: str | Path | None = None, group_size: int = 4,
                    allow_resample: bool = False, on_conversion: str = "warn",
-                   progress: bool = True) -> BatchSummary:
-    """Score the manifest's conditions (and hidden references if asked) with each metric."""
+                   progress: bool = True, strict: bool = False) -> BatchSummary:
+    """Score the manifest's conditions (and hidden references if asked) with each metric.
+
+    ``strict`` refuses the run when any test's frame count differs from its reference's
+    (checked first, from the headers); otherwise such a test is resampled in time."""
     options = options or MetricOptions()
     out = Path(out)
     done = read_done(out)
+    if strict:
+        refuse_frame_count_mismatches(manifest, include_references=include_references,
+                                      root=root, on_conversion=on_conversion)
     scorers = build_scorers(metrics, options)
     units = manifest_units(manifest, metrics, options, include_references=include_references,
                            root=root, group_size=group_size, allow_resample=allow_resample,
-                           on_conversion=on_conversion, progress=progress)
+                           on_conversion=on_conversion, progress=progress, strict=strict)
     summary = BatchSummary()
     total = sum(len(u.tests) for u in units)
     appender = Appender(out)

@@ -1,8 +1,9 @@
 """Command line of ``cgvqm``: parses arguments, prints, sets exit codes.
 
-User errors (missing or corrupt video, fps mismatch, 10-bit/alpha input without
---allow-convert, weights failing their hash check, no backbone offline) print one line on
-stderr and exit with code 2.
+User errors (missing or corrupt video, fps mismatch, a frame-count mismatch under --strict,
+10-bit/alpha input without --allow-convert, weights failing their hash check or malformed, no
+backbone offline, a count, seed or frame rate out of range) print one line on stderr and exit
+with code 2. Options are checked before any network is built or video decoded.
 """
 
 from __future__ import annotations
@@ -71,6 +72,12 @@ def _add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = Fal
                    help="CPU threads for PyTorch (default: PyTorch's choice)")
     p.add_argument("--allow-resample", action="store_true",
                    help="accept a test video whose fps differs from the reference's")
+    p.add_argument("--strict", action="store_true",
+                   help="refuse (exit 2) a test video whose frame count differs from its "
+                        "reference's. Without it such a test is resampled in time to the "
+                        "reference's frame count as upstream does (nearest neighbour: frames "
+                        "are repeated or dropped, never interpolated) with a warning saying "
+                        "how many frames were invented or dropped")
     p.add_argument("--allow-convert", action="store_true",
                    help="convert 10-bit or alpha input to 8-bit RGB (with a warning) "
                         "instead of refusing it")
@@ -134,12 +141,33 @@ def _on_conversion(args: argparse.Namespace) -> str:
     return "warn" if args.allow_convert else "error"
 
 
+def _at_least_one(option: str, value: int | None, what: str) -> None:
+    if value is not None and value < 1:
+        raise CGVQMError(f"{option} must be at least 1 ({what}), got {value}")
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """Refuse counts, seeds and rates out of range before any work. argparse takes any int
+    or float, and downstream nothing would fail: a batch size of 0 is clamped to 1, an
+    infinite fps gives clips of 30 frames, a negative seed is another seed's network."""
+    from .hub import check_seed
+    from .stream import check_rate
+
+    _at_least_one("--batch-size", args.batch_size, "videos per network pass")
+    _at_least_one("--patch-scale", args.patch_scale, "the patch grid divides H and W by it")
+    _at_least_one("--threads", args.threads, "CPU threads for PyTorch")
+    _at_least_one("--group-size", getattr(args, "group_size", None),
+                  "test videos scored together")
+    if args.random_backbone is not None:
+        check_seed(args.random_backbone, "--random-backbone SEED")
+    check_rate(getattr(args, "fps", None), "--fps")
+
+
 def _threads(args: argparse.Namespace) -> None:
-    if args.threads:
+    if args.threads is not None:
         import torch
 
-        if args.threads < 1:
-            raise CGVQMError(f"--threads must be at least 1, got {args.threads}")
+        _at_least_one("--threads", args.threads, "CPU threads for PyTorch")
         torch.set_num_threads(args.threads)
 
 
@@ -233,7 +261,7 @@ def _cmd_score_peer(args: argparse.Namespace, name: str) -> int:
     (results,) = score_reference(args.ref, [args.test], [scorer], device=args.device,
                                  fps=args.fps, allow_resample=args.allow_resample,
                                  on_conversion=_on_conversion(args),
-                                 progress=sys.stderr.isatty())
+                                 progress=sys.stderr.isatty(), strict=args.strict)
     (m,) = results
     if args.json:
         out = m.to_dict()
@@ -264,12 +292,25 @@ def _cmd_score_peer(args: argparse.Namespace, name: str) -> int:
     return 0
 
 
+def _refuse_mismatched_pair(args: argparse.Namespace) -> None:
+    """--strict: compare the two headers' frame counts before the network is built."""
+    from .stream import check_frame_count, open_input
+
+    conv = _on_conversion(args)
+    ref = open_input(args.ref, fps=args.fps, name="reference", on_conversion=conv)
+    test = open_input(args.test, fps=args.fps, name="test", on_conversion=conv)
+    check_frame_count(ref, test, strict=True)
+
+
 def _cmd_score(args: argparse.Namespace) -> int:
     from .batch import Appender, read_done
 
+    _check_options(args)
     name = (args.metric or args.variant or "cgvqm-2").strip().lower()
     if args.metric and args.variant and args.metric != args.variant:
         raise CGVQMError("give --metric or --variant, not both")
+    if args.strict:
+        _refuse_mismatched_pair(args)
     if name not in ("cgvqm-2", "cgvqm-5"):
         if args.emap or args.emap_png:
             raise CGVQMError(f"error maps are written for CGVQM only, not {name}")
@@ -278,7 +319,7 @@ def _cmd_score(args: argparse.Namespace) -> int:
     res = metric.score(args.ref, args.test, pool=args.pool, fps=args.fps,
                        allow_resample=args.allow_resample, emap=args.emap or False,
                        emap_png_dir=args.emap_png, on_conversion=_on_conversion(args),
-                       progress=sys.stderr.isatty())
+                       progress=sys.stderr.isatty(), strict=args.strict)
     if args.json:
         print(json.dumps(res.to_dict(patches=True)))
     else:
@@ -313,6 +354,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     from .metrics import parse_metric_list
 
     cluster = ray_settings(args, args.device)  # no Ray: says so before any work
+    _check_options(args)
     requested = [args.metrics] if args.metrics else []
     requested += list(args.variant or [])
     pools = list(dict.fromkeys(args.pool or ["max"]))
@@ -328,7 +370,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     s = run(args.manifest, args.out, names, options,
             include_references=args.include_references, root=args.root,
             group_size=args.group_size, allow_resample=args.allow_resample,
-            on_conversion=_on_conversion(args))
+            on_conversion=_on_conversion(args), strict=args.strict)
     print(f"{s.scored} scored, {s.skipped} already in {args.out}, {s.rows} rows written "
           f"({', '.join(names)})")
     for name in s.not_applicable:

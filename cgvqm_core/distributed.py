@@ -42,6 +42,7 @@ from .batch import (
     canonical_json,
     manifest_units,
     read_done,
+    refuse_frame_count_mismatches,
     run_unit,
     scorer_plan,
     unit_keys,
@@ -344,13 +345,17 @@ def score_manifest(manifest: str | Path, out: str | Path, metrics: Sequence[str]
                    options: MetricOptions, settings: RaySettings, *,
                    include_references: bool = False, root: str | Path | None = None,
                    group_size: int = 4, allow_resample: bool = False,
-                   on_conversion: str = "warn", progress: bool = True) -> RaySummary:
+                   on_conversion: str = "warn", progress: bool = True,
+                   strict: bool = False) -> RaySummary:
     """:func:`cgvqm_core.batch.score_manifest` on Ray (same units, keys, rows and CSV)."""
     read_done(Path(out))  # a file of another layout is refused before any work
+    if strict:
+        refuse_frame_count_mismatches(manifest, include_references=include_references,
+                                      root=root, on_conversion=on_conversion)
     units = manifest_units(manifest, metrics, absolute_options(options),
                            include_references=include_references, root=root,
                            group_size=group_size, allow_resample=allow_resample,
-                           on_conversion=on_conversion, progress=progress)
+                           on_conversion=on_conversion, progress=progress, strict=strict)
     for u in units:  # a worker's working folder is not this one
         u.reference = replace(u.reference, path=os.path.abspath(u.reference.path))
         u.tests = [replace(t, path=os.path.abspath(t.path)) for t in u.tests]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import operator
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -118,8 +119,27 @@ def state_dict_sha256(sd: Mapping[str, torch.Tensor]) -> str:
     return h.hexdigest()
 
 
+#: the seeds torch.manual_seed takes without wrapping: it also accepts -2**63..-1, but maps
+#: a negative seed s to 2**64 + s, so -1 and 18446744073709551615 would be one network
+#: under two labels
+MAX_SEED = 2**64 - 1
+
+
+def check_seed(seed: int, what: str = "random backbone seed") -> int:
+    """``seed`` if it is an integer in 0..2**64-1; a :class:`CGVQMError` naming it otherwise."""
+    try:
+        value = None if isinstance(seed, bool) else operator.index(seed)
+    except TypeError:
+        value = None
+    if value is None or not 0 <= value <= MAX_SEED:
+        raise CGVQMError(f"{what} must be an integer from 0 to {MAX_SEED} (2**64 - 1, the "
+                         f"range torch.manual_seed takes without wrapping), got {seed!r}")
+    return value
+
+
 def random_backbone(seed: int, arch: str = "r3d_18") -> Backbone:
     """A seeded torchvision-style random initialisation, labelled as such."""
+    seed = check_seed(seed)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(int(seed))
         sd = build_backbone(arch).state_dict()

@@ -29,6 +29,7 @@ from .stream import (
     StreamOutput,
     VideoInput,
     check_fps,
+    check_frame_count,
     open_input,
     patch_channel_msd,
     reference_geometry,
@@ -198,10 +199,13 @@ class CGVQM:
     ) -> None:
         self.weights = resolve_weights(weights, variant, allow_download=allow_download)
         self.variant = self.weights.variant
-        self.backbone = resolve_backbone(backbone, random_seed=random_backbone,
-                                         allow_download=allow_download)
         if patch_scale < 1:
             raise CGVQMError(f"patch scale must be at least 1, got {patch_scale}")
+        if batch_size < 1:
+            raise CGVQMError(f"batch size (videos per network pass) must be at least 1, "
+                             f"got {batch_size}")
+        self.backbone = resolve_backbone(backbone, random_seed=random_backbone,
+                                         allow_download=allow_download)
         self.patch_scale = int(patch_scale)
         self.seamless = bool(seamless)
         self.net = FeatureNet(self.backbone, self.weights.n_levels, device=device,
@@ -238,22 +242,27 @@ class CGVQM:
     def score(self, ref: VideoInput, test: VideoInput, *, pool: str = "max",
               fps: float | None = None, allow_resample: bool = False,
               emap: bool | str | Path = False, emap_png_dir: str | Path | None = None,
-              on_conversion: str = "warn", progress: bool = False) -> CGVQMResult:
+              on_conversion: str = "warn", progress: bool = False,
+              strict: bool = False) -> CGVQMResult:
         """Score one test video against its reference.
 
         ``emap=True`` returns the error map as an array in the result (memory: frames x H x W
         float32); ``emap=PATH`` writes the heat-map video (.mp4 or .mkv) streamed instead;
-        ``emap_png_dir`` also writes one PNG per frame.
+        ``emap_png_dir`` also writes one PNG per frame. ``strict`` refuses a test whose frame
+        count differs from the reference's (by default it is resampled in time, with a
+        warning saying how many frames were invented or dropped).
         """
         return self.score_many(ref, [test], pool=pool, fps=fps, allow_resample=allow_resample,
                                emap=[emap], emap_png_dirs=[emap_png_dir],
-                               on_conversion=on_conversion, progress=progress)[0]
+                               on_conversion=on_conversion, progress=progress,
+                               strict=strict)[0]
 
     def score_many(self, ref: VideoInput, tests: Sequence[VideoInput], *, pool: str = "max",
                    fps: float | None = None, allow_resample: bool = False,
                    emap: Sequence[bool | str | Path] | None = None,
                    emap_png_dirs: Sequence[str | Path | None] | None = None,
-                   on_conversion: str = "warn", progress: bool = False) -> list[CGVQMResult]:
+                   on_conversion: str = "warn", progress: bool = False,
+                   strict: bool = False) -> list[CGVQMResult]:
         """Score several test videos that share ``ref``; its features are computed once."""
         if pool not in POOLINGS:
             raise CGVQMError(f"unknown pooling {pool!r}; choose max or mean")
@@ -264,6 +273,7 @@ class CGVQM:
                             array_fps=geom.fps) for i, t in enumerate(tests)]
         for t in tsrcs:
             check_fps(rsrc, t, allow_resample)
+            check_frame_count(rsrc, t, strict)
         emap = list(emap) if emap is not None else [False] * len(tests)
         pngs = list(emap_png_dirs) if emap_png_dirs is not None else [None] * len(tests)
         if self.seamless and (any(emap) or any(pngs)):

@@ -76,6 +76,7 @@ def open_input(video: VideoInput | FrameSource, *, fps: float | None = None, nam
     their own); in-memory
     arrays take ``array_fps`` (the reference's), else ``fps``, else 30.
     """
+    check_rate(fps)
     if isinstance(video, np.ndarray | torch.Tensor):
         return ArraySource(video, array_fps or fps or DEFAULT_ARRAY_FPS, name)
     if isinstance(video, str | Path):
@@ -91,6 +92,20 @@ def open_input(video: VideoInput | FrameSource, *, fps: float | None = None, nam
     if hasattr(video, "info") and hasattr(video, "frames"):
         return video
     raise CGVQMError(f"{name}: unsupported video input of type {type(video).__name__}")
+
+
+def check_rate(fps: float | None, what: str = "fps") -> None:
+    """Refuse a frame rate that is not a finite number above 0: an infinite one would pass
+    as clips of 30 frames and a silently wrong time axis, never as an error."""
+    if fps is None:
+        return
+    try:
+        ok = math.isfinite(float(fps)) and float(fps) > 0
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise CGVQMError(f"{what} must be a finite frame rate above 0 (frames per second of "
+                         f"PNG folders and .npy arrays), got {fps!r}")
 
 
 def png_bit_depth(path: Path) -> int | None:
@@ -194,6 +209,41 @@ def resize_frame(frame: np.ndarray, height: int, width: int) -> np.ndarray:
     return out[0].permute(1, 2, 0).contiguous().numpy()
 
 
+def resampling_note(n_test: int, n_ref: int) -> str:
+    """What resampling ``n_test`` frames to ``n_ref`` does, counted from the very index
+    :func:`aligned_frames` uses: how many frames are invented (repeats) or dropped."""
+    idx = time_index(n_test, n_ref)
+    used = len(np.unique(idx))
+    invented, dropped = n_ref - used, n_test - used
+    what = []
+    if invented:
+        what.append(f"{invented} frame{'s were' if invented != 1 else ' was'} invented by "
+                    "repeating test frames")
+    if dropped:
+        what.append(f"{dropped} test frame{'s were' if dropped != 1 else ' was'} dropped")
+    return (f"test has {n_test} frames, reference {n_ref}: {' and '.join(what)} "
+            "(nearest-neighbour resampling in time to the reference's frame count, as "
+            "upstream; no interpolation); --strict refuses such a pair")
+
+
+def frame_count_mismatch(ref: FrameSource, test: FrameSource) -> str | None:
+    """Why ``test`` cannot be compared frame for frame with ``ref``, or None if it can."""
+    nr, nt = int(ref.info.frame_count), int(test.info.frame_count)
+    if nr == nt:
+        return None
+    return (f"{test.info.path}: test has {nt} frames, reference {nr} ({ref.info.path})")
+
+
+def check_frame_count(ref: FrameSource, test: FrameSource, strict: bool) -> None:
+    """With ``strict``, a test whose frame count differs from the reference's is an error
+    (otherwise :func:`aligned_frames` resamples it in time and says how)."""
+    why = frame_count_mismatch(ref, test) if strict else None
+    if why is not None:
+        raise CGVQMError(f"{why}; --strict (strict=True) refuses a frame-count mismatch "
+                         "instead of resampling the test in time (repeating or dropping "
+                         "frames); trim or re-render one of them")
+
+
 def aligned_frames(test: FrameSource, geom: Geometry, name: str = "test") -> Iterator[np.ndarray]:
     """The test video's frames resized and resampled in time to the reference's geometry."""
     info = test.info
@@ -203,8 +253,7 @@ def aligned_frames(test: FrameSource, geom: Geometry, name: str = "test") -> Ite
         log.warning("%s: resizing %dx%d to the reference's %dx%d (bilinear, as upstream)",
                     info.path, info.width, info.height, geom.width, geom.height)
     if idx is not None:
-        log.warning("%s: resampling %d frames to the reference's %d (nearest, as upstream)",
-                    info.path, info.frame_count, geom.frames)
+        log.warning("%s: %s", info.path, resampling_note(int(info.frame_count), geom.frames))
     frames = _counted(test, name)
     if idx is None:
         for f in frames:
@@ -354,13 +403,14 @@ def patch_channel_msd(ref: VideoInput, tests: VideoInput | Sequence[VideoInput],
                       *, patch_scale: int = 4, fps: float | None = None,
                       allow_resample: bool = False, batch_size: int = 2,
                       on_conversion: str = "warn", progress: bool = False,
-                      seamless: bool = False) -> list[StreamOutput]:
+                      seamless: bool = False, strict: bool = False) -> list[StreamOutput]:
     """The per-patch, per-channel mean squared feature differences of test videos vs ``ref``.
 
     Returns one :class:`StreamOutput` per test video; ``.msd`` is (n_patches, N) with N = 131
     (CGVQM-2) or 1027 (CGVQM-5) columns in level order, ``.patch_index`` says which clip, row
     and column each row is. A CGVQM patch error is ``alpha * msd @ |omega|``. This is what a
-    calibration caches: it does not depend on omega or alpha.
+    calibration caches: it does not depend on omega or alpha. ``strict`` refuses a test whose
+    frame count differs from the reference's instead of resampling it.
     """
     single = isinstance(tests, str | Path | np.ndarray | torch.Tensor)
     test_list = [tests] if single else list(tests)  # type: ignore[list-item]
@@ -370,5 +420,6 @@ def patch_channel_msd(ref: VideoInput, tests: VideoInput | Sequence[VideoInput],
                         array_fps=geom.fps) for i, t in enumerate(test_list)]
     for t in tsrcs:
         check_fps(rsrc, t, allow_resample)
+        check_frame_count(rsrc, t, strict)
     scorer = PatchScorer(net, None, batch_size=batch_size)
     return run(rsrc, tsrcs, scorer, geom, progress=progress, seamless=seamless)

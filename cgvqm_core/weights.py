@@ -19,6 +19,7 @@ import hashlib
 import io
 import json
 import logging
+import math
 import os
 import pickle
 import shutil
@@ -64,14 +65,15 @@ VARIANTS: dict[str, Variant] = {
 }
 
 
-def variant_for_channels(n: int) -> Variant:
+def variant_for_channels(n: int, where: str | Path | None = None) -> Variant:
     """The variant whose levels have ``n`` channels in all (131 or 1027)."""
     for v in VARIANTS.values():
         if v.n_channels == n:
             return v
+    prefix = f"{where}: " if where is not None else ""
     raise CGVQMError(
-        f"omega has {n} entries; CGVQM-2 needs {VARIANTS['cgvqm-2'].n_channels} and CGVQM-5 "
-        f"{VARIANTS['cgvqm-5'].n_channels}"
+        f"{prefix}omega has {n} entries; CGVQM-2 needs {VARIANTS['cgvqm-2'].n_channels} and "
+        f"CGVQM-5 {VARIANTS['cgvqm-5'].n_channels}"
     )
 
 
@@ -153,10 +155,13 @@ def load_upstream_pickle(path: str | Path, *, expected_sha256: str | None = None
             and all(isinstance(t, torch.Tensor) for t in obj)):
         raise CGVQMError(f"{path}: expected a pickled [omega, alpha] pair of tensors")
     omega_t, alpha_t = obj
+    if not (omega_t.is_floating_point() and alpha_t.is_floating_point()):
+        raise CGVQMError(f"{path}: omega and alpha must be floating-point tensors, got "
+                         f"{omega_t.dtype} and {alpha_t.dtype}")
     omega = omega_t.detach().reshape(-1).to(torch.float32).numpy().copy()
     if alpha_t.numel() != 1:
         raise CGVQMError(f"{path}: alpha must be a single number, got shape {tuple(alpha_t.shape)}")
-    variant = variant_for_channels(omega.size)
+    variant = variant_for_channels(omega.size, path)
     alpha = float(alpha_t.reshape(()))
     _check_values(path, omega, alpha)
     return FeatureWeights(variant.name, omega, alpha, digest, str(path),
@@ -174,6 +179,61 @@ def _check_values(path: Path, omega: np.ndarray, alpha: float) -> None:
 
 
 # -- the project format ----------------------------------------------------------------------
+
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+_JSON_TYPES = {list: "array", dict: "object", str: "string", bool: "boolean",
+               type(None): "null", int: "number", float: "number"}
+
+
+def _json_type(value: Any) -> str:
+    return _JSON_TYPES.get(type(value), type(value).__name__)
+
+
+def _shown(value: Any) -> str:
+    text = json.dumps(value) if _json_type(value) in _JSON_TYPES.values() else repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _a(value: Any) -> str:
+    """'an array ([1, 2])', 'a string ("x")', 'null': what a JSON value is, for messages."""
+    kind = _json_type(value)
+    if value is None:
+        return "null"
+    return f"{'an' if kind[0] in 'aeiou' else 'a'} {kind} ({_shown(value)})"
+
+
+def _json_number(path: Path, name: str, value: Any) -> float:
+    """A JSON number (not a string, boolean, array...) that is finite within float32."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise CGVQMError(f"{path}: {name} is {_a(value)}, not a number")
+    try:
+        x = float(value)
+    except OverflowError:  # an integer beyond any float
+        x = math.inf
+    if not (math.isfinite(x) and abs(x) <= _FLOAT32_MAX):
+        raise CGVQMError(f"{path}: {name} is {_shown(value)}; it must be a finite number "
+                         "(within float32's range)")
+    return x
+
+
+def _json_omega(path: Path, value: Any) -> np.ndarray:
+    """omega as the format defines it: one flat array of N numbers, N = 131 or 1027.
+
+    Checked entry by entry so that nothing numpy would coerce passes: a list of lists of
+    the right total size, strings that parse as numbers, booleans, NaN or overflowing values.
+    """
+    sizes = " or ".join(f"{v.n_channels} ({v.name.upper()})" for v in VARIANTS.values())
+    shape = f"omega must be a flat JSON array of {sizes} numbers"
+    if not isinstance(value, list):
+        raise CGVQMError(f"{path}: {shape}, not {_a(value)}")
+    for i, x in enumerate(value):
+        if isinstance(x, list | dict):
+            raise CGVQMError(f"{path}: {shape}; omega[{i}] is a nested {_json_type(x)} "
+                             f"({_shown(x)})")
+        _json_number(path, f"omega[{i}]", x)
+    variant_for_channels(len(value), path)
+    return np.asarray(value, dtype=np.float32)
+
 
 
 def save_weights(path: str | Path, weights: FeatureWeights) -> Path:
@@ -214,15 +274,19 @@ def load_project_weights(path: str | Path) -> FeatureWeights:
     if major != "1":
         raise CGVQMError(f"{path}: weights format {fmt!r} is not supported (this version "
                          f"reads {PROJECT_FORMAT!r}); upgrade the toolkit")
-    try:
-        omega = np.asarray(doc["omega"], dtype=np.float32).reshape(-1)
-        alpha = float(doc["alpha"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CGVQMError(f"{path}: weights file lacks a valid omega/alpha ({exc})") from None
-    variant = variant_for_channels(omega.size)
+    missing = [k for k in ("omega", "alpha") if k not in doc]
+    if missing:
+        raise CGVQMError(f"{path}: weights file lacks {' and '.join(missing)}")
+    omega = _json_omega(path, doc["omega"])
+    alpha = _json_number(path, "alpha", doc["alpha"])
+    variant = variant_for_channels(omega.size, path)
     if doc.get("variant") not in (None, variant.name):
-        raise CGVQMError(f"{path}: says variant {doc['variant']!r} but omega has "
+        raise CGVQMError(f"{path}: says variant {_shown(doc['variant'])} but omega has "
                          f"{omega.size} entries ({variant.name})")
+    if doc.get("n_levels") not in (None, variant.n_levels) or isinstance(doc.get("n_levels"),
+                                                                          bool):
+        raise CGVQMError(f"{path}: says n_levels {_shown(doc['n_levels'])} but omega has "
+                         f"{omega.size} entries ({variant.name}: {variant.n_levels} levels)")
     _check_values(path, omega, alpha)
     provenance = doc.get("provenance") or {}
     if not isinstance(provenance, dict):

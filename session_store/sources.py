@@ -35,6 +35,11 @@ class SessionSource:
     """Problems of the container (a zip member failing its checksum)."""
     warnings: list[str] = field(default_factory=list)
     """What could not be checked (a zip without checksums)."""
+    container: Path | None = None
+    """The exported zip it came from, if any (its other members are checked by
+    :func:`session_store.verify.check_export_copy`)."""
+    member: str | None = None
+    """Its member name in ``container``."""
 
 
 def _is_session_name(name: str) -> bool:
@@ -90,7 +95,7 @@ def _from_zip(path: Path, workdir: Path, counter: Iterator[int]
             except (ValueError, zipfile.BadZipFile, OSError) as exc:
                 problems.append(SessionProblem(path, None, f"{info.filename}: {exc}"))
                 continue
-            source = SessionSource(dest, origin)
+            source = SessionSource(dest, origin, container=path, member=info.filename)
             if sums is None:
                 source.warnings.append(f"{origin}: no {CHECKSUM_MEMBER} in the zip, so its "
                                        "integrity in transit cannot be checked")

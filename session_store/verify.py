@@ -1,18 +1,33 @@
 """Checking a returned session file: schema, hash chain, plan consistency, completeness, and
 whether the main file holds everything (a ``-wal`` file beside it may hold ratings it lacks).
+
+An exported zip is a copy around the session file: :func:`check_export_copy` checks every
+member against ``SHA256SUMS`` and the ratings CSV against the session it was made from. A
+fault there damages the copy, never the session: the session file stays the authority.
 """
 
 from __future__ import annotations
 
+import hashlib
+import re
 import sqlite3
+import zipfile
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import StudyError
-from .reader import SessionRecord, read_header, record_from
+from .ratings_csv import ratings_csv_difference
+from .reader import SessionRecord, read_header, read_session, record_from
 from .records import SessionInfo, SessionProblem
 from .replica import tables_match_outbox
 from .schema import open_existing, wal_pending_bytes
+from .sources import CHECKSUM_MEMBER, MAX_MEMBER_BYTES, SESSION_SUFFIX
+
+#: the ratings CSV an export writes beside ``<stem>.sqlite`` (older exports: ``ratings.csv``
+#: beside ``session.sqlite``)
+RATINGS_CSV_SUFFIX = "_ratings.csv"
+_SUM_LINE = re.compile(r"^([0-9a-fA-F]{64}) [ *](.+)$")
 
 
 @dataclass
@@ -127,3 +142,118 @@ def verify_session(path: str | Path) -> VerifyReport:
         report.warnings.append(warning)
     return report
 
+
+
+# -- exported zips -------------------------------------------------------------------------
+
+
+def ratings_csv_name(session_member: str) -> str:
+    """The name of the ratings CSV an export puts beside ``session_member``."""
+    stem = session_member.removesuffix(SESSION_SUFFIX)
+    return "ratings.csv" if stem == "session" else f"{stem}{RATINGS_CSV_SUFFIX}"
+
+
+def _member_sha256(zf: zipfile.ZipFile, info: zipfile.ZipInfo) -> str:
+    digest = hashlib.sha256()
+    read = 0
+    with zf.open(info) as src:
+        while chunk := src.read(1 << 20):
+            read += len(chunk)
+            if read > MAX_MEMBER_BYTES:
+                raise ValueError(f"larger than {MAX_MEMBER_BYTES >> 20} MiB")
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def export_member_problems(zf: zipfile.ZipFile) -> list[str]:
+    """Every member of an exported zip against ``SHA256SUMS``: the sums file missing or
+    malformed, a member whose sha256 differs, a member not listed, a listed member missing,
+    a name given twice. Session members (``*.sqlite``) are left out: their checksum is
+    checked where they are read (:mod:`.sources`), as a fault of the session itself."""
+    infos = [i for i in zf.infolist() if not i.is_dir()]
+    names = Counter(i.filename for i in infos)
+    problems = [f"{name} appears {n} times in the zip" for name, n in names.items() if n > 1]
+    if CHECKSUM_MEMBER not in names:
+        return [*problems, f"no {CHECKSUM_MEMBER} in the zip, so none of its members can be "
+                           "checked against the export"]
+    sums: dict[str, str] = {}
+    text = zf.read(CHECKSUM_MEMBER).decode("utf-8", "replace")
+    for n, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        m = _SUM_LINE.match(line)
+        if m is None:
+            problems.append(f"{CHECKSUM_MEMBER} line {n} is not '<sha256>  <name>': "
+                            f"{line[:60]!r}")
+            continue
+        sums[m.group(2)] = m.group(1).lower()
+    for info in infos:
+        name = info.filename
+        if name == CHECKSUM_MEMBER or name.endswith(SESSION_SUFFIX):
+            continue
+        if name not in sums:
+            problems.append(f"{name} is in the zip but not listed in {CHECKSUM_MEMBER} "
+                            "(added after the export)")
+            continue
+        try:
+            actual = _member_sha256(zf, info)
+        except (ValueError, zipfile.BadZipFile, OSError) as exc:
+            problems.append(f"{name}: unreadable ({exc})")
+            continue
+        if actual != sums[name]:
+            problems.append(f"{name}: sha256 {actual[:12]}... differs from its "
+                            f"{CHECKSUM_MEMBER} entry {sums[name][:12]}... (altered or "
+                            "damaged after the export)")
+    problems += [f"{name} is listed in {CHECKSUM_MEMBER} but missing from the zip"
+                 for name in sums if name not in names]
+    return problems
+
+
+def ratings_csv_problem(zf: zipfile.ZipFile, member: str, session_copy: Path) -> str | None:
+    """The zip's ratings CSV against rows regenerated from the session copy (what the
+    export wrote), so an edited CSV is caught even with its checksum recomputed."""
+    name = ratings_csv_name(member)
+    try:
+        info = zf.getinfo(name)
+    except KeyError:
+        return f"holds no ratings CSV {name} (every export has one)"
+    if info.file_size > MAX_MEMBER_BYTES:
+        return f"{name} is larger than {MAX_MEMBER_BYTES >> 20} MiB"
+    try:
+        text = zf.read(info).decode("utf-8")
+    except UnicodeDecodeError:
+        return f"{name} is not UTF-8 text"
+    except (zipfile.BadZipFile, OSError) as exc:
+        return f"{name}: unreadable ({exc})"
+    try:
+        rows = read_session(session_copy).ratings
+    except StudyError as exc:
+        return f"{name} cannot be compared with the session ({exc})"
+    difference = ratings_csv_difference(rows, text)
+    if difference is None:
+        return None
+    return f"{name} does not match the session inside the zip ({difference})"
+
+
+def check_export_copy(report: VerifyReport, zip_path: Path, member: str,
+                      session_copy: Path) -> None:
+    """Add to ``report`` (of the session ``member``, copied out to ``session_copy``) what is
+    wrong with the rest of the exported zip ``zip_path``: members against ``SHA256SUMS``,
+    the ratings CSV against the session. Each is damage to the copy (state damaged, exit 2);
+    when the session itself verified intact, the message says it stays authoritative."""
+    try:
+        with zipfile.ZipFile(zip_path) as zf:
+            found = export_member_problems(zf)
+            csv_problem = ratings_csv_problem(zf, member, session_copy)
+    except (zipfile.BadZipFile, OSError) as exc:
+        found, csv_problem = [f"not a readable zip ({exc})"], None
+    missing_csv = f"{ratings_csv_name(member)} is listed in {CHECKSUM_MEMBER} but missing"
+    if csv_problem is not None and not (csv_problem.startswith("holds no ratings CSV")
+                                        and any(p.startswith(missing_csv) for p in found)):
+        found.append(csv_problem)
+    if not found:
+        return
+    verdict = ("the copy is damaged; the session file is intact and authoritative"
+               if report.intact else "the copy is damaged")
+    report.problems += [SessionProblem(report.path, None, f"{p}: {verdict}") for p in found]
+    report.intact = report.complete = False

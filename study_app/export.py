@@ -29,6 +29,7 @@ from session_store import (
 )
 from session_store.errors import StudyError
 from session_store.sources import CHECKSUM_MEMBER
+from session_store.verify import check_export_copy
 
 CSV_SUFFIX = "_ratings.csv"
 
@@ -102,7 +103,11 @@ def verify_file(path: str | Path) -> VerifyReport:
 
 def verify_many(paths: list[str | Path]) -> list[VerifyReport]:
     """Verify every session file in ``paths`` (files, folders, zips); one report each, the
-    problems of unusable inputs as damaged reports of their own."""
+    problems of unusable inputs as damaged reports of their own.
+
+    A session from an exported zip is also checked as a copy: every member against
+    ``SHA256SUMS`` and the ratings CSV against the session (a fault there is damage, exit 2;
+    the session file stays the authority)."""
     reports: list[VerifyReport] = []
     with session_sources(paths) as (sources, problems):
         for problem in problems:
@@ -122,10 +127,14 @@ def verify_many(paths: list[str | Path]) -> list[VerifyReport]:
                 report.warnings = [w.replace(str(source.path), source.origin)
                                    for w in report.warnings]
                 report.path = origin
-            report.warnings[:0] = source.warnings
+            # a zip member's warning (no SHA256SUMS) is a problem of the copy, checked below
+            if source.container is None:
+                report.warnings[:0] = source.warnings
             if source.problems:
                 report.problems[:0] = source.problems
                 report.intact = report.complete = False
+            if source.container is not None and source.member is not None:
+                check_export_copy(report, source.container, source.member, source.path)
             reports.append(report)
     return reports
 

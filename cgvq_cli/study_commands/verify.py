@@ -1,4 +1,5 @@
-"""``cgvq-study verify FILE...``: schema, hash chain and completeness of returned files."""
+"""``cgvq-study verify FILE...``: schema, hash chain and completeness of returned files; for an
+exported zip also every member against SHA256SUMS and the ratings CSV against the session."""
 
 from __future__ import annotations
 
@@ -7,7 +8,9 @@ from pathlib import Path
 
 NAME = "verify"
 HELP = ("check returned session files, exported zips or folders of them (exit 0 all intact "
-        "and complete, 1 some incomplete or withdrawn, 2 some damaged)")
+        "and complete, 1 some incomplete or withdrawn, 2 some damaged: a zip is damaged when "
+        "a member differs from SHA256SUMS, is missing or unlisted, or its ratings CSV does not "
+        "match the session file, which stays the authority)")
 
 
 def register(parser: argparse.ArgumentParser) -> None:

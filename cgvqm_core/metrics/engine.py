@@ -19,7 +19,15 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ..errors import CGVQMError
-from ..stream import FrameSource, Geometry, _counted, aligned_frames, check_fps, open_input
+from ..stream import (
+    FrameSource,
+    Geometry,
+    _counted,
+    aligned_frames,
+    check_fps,
+    check_frame_count,
+    open_input,
+)
 from .registry import FrameScorer, MetricScore, Scorer, VideoScorer
 
 log = logging.getLogger(__name__)
@@ -28,9 +36,11 @@ CHUNK_PIXELS = 1 << 21
 
 
 def open_pair_sources(ref: Any, tests: Sequence[Any], *, fps: float | None = None,
-                      allow_resample: bool = False, on_conversion: str = "warn"
+                      allow_resample: bool = False, on_conversion: str = "warn",
+                      strict: bool = False
                       ) -> tuple[FrameSource, list[FrameSource], Geometry]:
-    """Open the reference and tests as streams and check their frame rates."""
+    """Open the reference and tests as streams and check their frame rates (and, with
+    ``strict``, that their frame counts are equal)."""
     rsrc = open_input(ref, fps=fps, name="reference", on_conversion=on_conversion)
     info = rsrc.info
     geom = Geometry(int(info.frame_count), int(info.height), int(info.width), float(info.fps), 1)
@@ -38,6 +48,7 @@ def open_pair_sources(ref: Any, tests: Sequence[Any], *, fps: float | None = Non
                         array_fps=geom.fps) for i, t in enumerate(tests)]
     for t in tsrcs:
         check_fps(rsrc, t, allow_resample)
+        check_frame_count(rsrc, t, strict)
     return rsrc, tsrcs, geom
 
 
@@ -123,11 +134,12 @@ def score_frames_pass(ref: FrameSource, tests: Sequence[FrameSource], geom: Geom
 def score_reference(ref: Any, tests: Sequence[Any], scorers: Sequence[Scorer], *,
                     device: str = "cpu", fps: float | None = None,
                     allow_resample: bool = False, on_conversion: str = "warn",
-                    progress: bool = False) -> list[list[MetricScore]]:
+                    progress: bool = False, strict: bool = False) -> list[list[MetricScore]]:
     """Score each test against ``ref`` with every scorer; per test, a list of results in
-    scorer order (a metric with several poolings gives several results)."""
+    scorer order (a metric with several poolings gives several results). ``strict`` refuses
+    a test whose frame count differs from the reference's instead of resampling it."""
     rsrc, tsrcs, geom = open_pair_sources(ref, tests, fps=fps, allow_resample=allow_resample,
-                                          on_conversion=on_conversion)
+                                          on_conversion=on_conversion, strict=strict)
     frame = [s for s in scorers if isinstance(s, FrameScorer)]
     by_scorer: dict[int, list[list[MetricScore]]] = {}
     if frame:

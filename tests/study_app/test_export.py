@@ -64,8 +64,10 @@ def test_hostile_zip_members_stay_in_their_folder(tmp_path):
     with zipfile.ZipFile(evil, "w") as zf:
         zf.write(path, "../../escaped.sqlite")
     reports = verify_many([evil])
-    assert len(reports) == 1 and reports[0].intact
-    assert "no SHA256SUMS" in reports[0].warnings[0]
+    assert len(reports) == 1 and reports[0].state == "damaged"  # no SHA256SUMS, no CSV
+    messages = [p.message for p in reports[0].problems]
+    assert any(m.startswith("no SHA256SUMS") for m in messages)
+    assert all(m.endswith("the session file is intact and authoritative") for m in messages)
     assert not (tmp_path.parent / "escaped.sqlite").exists()
 
 

@@ -3,8 +3,12 @@ source would: plain SQL edits, and a forger who re-hashes the chains so they loo
 
 from __future__ import annotations
 
+import csv
+import hashlib
+import io
 import json
 import sqlite3
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -57,3 +61,30 @@ def rewrite_change_log(path: Path, edit: Callable[[str, dict], None]) -> None:
         prev = digest
     con.commit()
     con.close()
+
+
+def rewrite_zip(path: Path, edit: Callable[[dict[str, bytes]], None], *,
+                resum: bool = False) -> None:
+    """Let ``edit(members)`` change an exported zip's ``{name: bytes}`` (edit, add or delete
+    members), then write the zip again; ``resum=True`` also recomputes SHA256SUMS over every
+    other member, as a forger who read the export code would."""
+    with zipfile.ZipFile(path) as zf:
+        members = {name: zf.read(name) for name in zf.namelist()}
+    edit(members)
+    if resum:
+        members["SHA256SUMS"] = "".join(
+            f"{hashlib.sha256(data).hexdigest()}  {name}\n"
+            for name, data in members.items() if name != "SHA256SUMS").encode()
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+
+
+def edit_csv_cell(data: bytes, row: int, column: str, value: str) -> bytes:
+    """The CSV ``data`` with data row ``row`` (1 = the first after the header) of ``column``
+    set to ``value``."""
+    rows = list(csv.reader(io.StringIO(data.decode("utf-8"))))
+    rows[row][rows[0].index(column)] = value
+    out = io.StringIO()
+    csv.writer(out).writerows(rows)
+    return out.getvalue().encode("utf-8")

@@ -12,6 +12,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from session_store import PlannedTrial, TrialResult
 from stimuli_manifests import Manifest
@@ -98,6 +99,9 @@ class TrialScreen:
     """Called when the rating screen opens (the app prefetches the next trial then)."""
     min_view_seconds: Callable[[], float]
     """The minimum viewing time the rating screen names (the manifest's, else one loop)."""
+    overlay: Callable[[Any, ViewingLayout, TrialMachine], None] | None = None
+    """Draws over the viewing screen after each frame (the preview's timing overlay); it
+    must keep off the video and the screen's texts."""
 
     def run(self, trial: PlannedTrial, gpu: OnGpu, k: int, total: int, *,
             practice: bool = False) -> TrialResult | str:
@@ -182,6 +186,8 @@ class TrialScreen:
                 r.clear()
                 draw_viewing(r, vlay, gpu.tex.get(content_now), content_now, idx,
                              notice=notice)
+                if self.overlay is not None:
+                    self.overlay(r, vlay, m)
                 name = content_now if not practice_mode else "practice-trial"
                 shot = self.shot(name)
             else:

@@ -5,5 +5,5 @@ Every module here defines ``NAME``, ``HELP``, ``register(parser)`` (adds its arg
 in the order of ``COMMANDS``; a module that is not present yet is simply not offered.
 """
 
-COMMANDS = ("init", "panel", "run", "check", "export", "verify", "synth", "simulate", "serve",
-            "invite", "pull", "backup", "withdraw")
+COMMANDS = ("init", "panel", "preview", "run", "check", "export", "verify", "synth",
+            "simulate", "serve", "invite", "pull", "backup", "withdraw")

@@ -90,7 +90,7 @@ class AppDriver:
     """Runs ``cgvq-study run`` in a subprocess and follows its ``state:`` log lines."""
 
     def __init__(self, env: dict[str, str], args: list[str], *,
-                 command: list[str] | None = None) -> None:
+                 command: list[str] | None = None, subcommand: str = "run") -> None:
         """``command`` runs the app (default: this Python, in a process where the research
         stack cannot be imported, as in the participant's base install)."""
         self.env = env
@@ -99,7 +99,7 @@ class AppDriver:
             # the research stack unimportable: every GUI run proves the app needs none of it
             env = {**env, "PYTHONPATH": lean_pythonpath()}
         self.proc = subprocess.Popen(
-            [*command, "-v", "run", *args], env=env, stdout=subprocess.PIPE,
+            [*command, "-v", subcommand, *args], env=env, stdout=subprocess.PIPE,
             stderr=subprocess.PIPE, text=True)
         self.lines: list[str] = []
         self._pos = 0

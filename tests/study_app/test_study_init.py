@@ -162,6 +162,7 @@ def test_init_from_a_csv_mapping(tmp_path, capsys):
     assert conds["bistro_ours_L1"].setting == "4 spp"
     assert conds["bistro_ours_L1"].metadata["source"]["path"] == "bistro_ours_4spp.mkv"
     assert [r.id for r in m.references] == ["bistro"]
+    assert check_study(load_study(study)).ok
 
     # a CSV with problems: every row's problem is listed, the study is left as it was
     with open(mapping, "a", newline="") as fh:

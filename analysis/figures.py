@@ -216,7 +216,13 @@ def split_half_hist(a: Analysis, path: Path) -> Path | None:
     fig = Figure(figsize=(8, 2.8))
     for k, key in enumerate(("plcc", "srcc", "krcc", "rmse")):
         ax = fig.add_subplot(1, 4, k + 1)
-        ax.hist(a.ceiling.values[key], bins=30, color="tab:gray")
+        v = np.asarray(a.ceiling.values[key], dtype=float)
+        v = v[np.isfinite(v)]
+        if v.size:
+            # a tiny panel can give (nearly) the same value in every split: one bin then
+            span = float(v.max() - v.min())
+            ax.hist(v, bins=30 if span > 1e-9 * max(1.0, float(np.abs(v).max())) else 1,
+                    color="tab:gray")
         ax.set_title(f"split-half {key.upper()}", fontsize=9)
     return _save(fig, path)
 

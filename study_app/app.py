@@ -36,7 +36,9 @@ from . import __version__, realtime
 from .decode import DecodedPair, Prefetcher, decode_pair, pair_bytes
 from .display import MIN_WINDOW, PACED_PILOT, Display
 from .duration import describe_duration
+from .form_screen import FormScreen
 from .keys import RATING, VIEWING, Keymap
+from .panel_progress import QUESTIONNAIRE_EVENT, VISION_NOT_SHOWN, panel_progress
 from .preflight import (
     Check,
     PixelGeometry,
@@ -317,6 +319,7 @@ class App:
             self.store.log_event("preflight_skipped", failed=[c.name for c in failed])
         self.store.mark_started(display=d.info(geom))
         try:
+            self._panel("before")
             if not resume and self.opts.practice > 0:
                 self._practice()
             return self._main_loop()
@@ -401,6 +404,32 @@ class App:
         answered, total = self.store.progress()
         if self._screen(content.confirm_quit(answered, total, self._name_keys)) == "yes":
             raise _QuitRequestedError
+
+    # -- the panel: questionnaires (and vision checks) ----------------------------------
+    def _panel(self, when: str) -> None:
+        """The questionnaires shown ``when`` (before the first trial or after the last),
+        resumed on the page a killed run was on; every answer is stored as it is given."""
+        panel = self.m.panel
+        if panel is None:
+            return
+        rec = self.store.snapshot()
+        progress = panel_progress(panel, rec.answers, rec.screenings, rec.events)
+        if when == "before" and progress.vision_todo and not any(
+                e.get("kind") == VISION_NOT_SHOWN for e in rec.events):
+            # The plates and optotypes are not part of this player version: say so in the
+            # session (the analysis and the docs report it) rather than skip silently.
+            self.store.log_event(VISION_NOT_SHOWN, tests=progress.vision_todo,
+                                 reason="this player version shows no vision checks")
+        screen = FormScreen(self.display, self._state, self._shot, self._on_close)
+        for item in progress.before if when == "before" else progress.after:
+            qn = item.questionnaire
+
+            def store_answer(page: int, question: str, value: Any, qid: str = qn.id) -> None:
+                self.store.record_answer(qid, question, value, page=page)
+
+            outcome = screen.run(qn, answered=item.answered, start_page=item.start_page,
+                                 on_answer=store_answer)
+            self.store.log_event(QUESTIONNAIRE_EVENT, questionnaire=qn.id, outcome=outcome)
 
     # -- text screens -----------------------------------------------------------------
     def _screen(self, spec: content.ScreenSpec) -> str:
@@ -499,6 +528,7 @@ class App:
                 answered, total = store.progress()
                 store.log_event("break", answered=answered)
                 self._pause_menu(content.break_screen(answered, total, self._name_keys))
+        self._panel("after")
         store.finish()
         answered, total = store.progress()
         self._state("end", answered=answered)

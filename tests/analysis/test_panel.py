@@ -128,3 +128,15 @@ def test_report_panel_from_simulated_sessions(panel_study, tmp_path):
                for x in excluded.exclusions)
     assert excluded.panel.sentence.startswith("7 participants")
     assert excluded.quality.loc[failed[0], "status"] == "excluded (vision check)"
+
+
+def test_split_half_histogram_of_a_tiny_panel(tmp_path):
+    """Nearly constant split-half values (a tiny panel) used to crash the report."""
+    from types import SimpleNamespace
+
+    from analysis.figures import split_half_hist
+
+    values = {k: [1.0, 1.0 - 1e-16, 1.0] for k in ("plcc", "srcc", "krcc")}
+    values["rmse"] = [float("nan"), 0.5, 0.5 + 1e-17]
+    a = SimpleNamespace(ceiling=SimpleNamespace(values=values))
+    assert split_half_hist(a, tmp_path / "s.png").is_file()

@@ -1,0 +1,287 @@
+"""A questionnaire of the manifest's panel on the display, page by page, until it is done or
+(when voluntary) skipped.
+
+Mouse and keyboard both work: Tab / Shift+Tab (or Down / Up) move between questions, Left /
+Right or the number keys choose an option, typing fills a number or text field, Backspace
+deletes, Enter goes to the next page, Page Up / Page Down (or the wheel) scroll a long page.
+Every valid answer is handed to ``on_answer`` as soon as it is given (a choice at once, typed
+text when the participant moves on), and the app stores it in the session file at once: a
+crash loses at most what is being typed, and the run resumes on the same page. What was typed
+is never logged. The state machine is :mod:`.screens.form_state`, the geometry
+:mod:`.screens.form_layout`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from stimuli_manifests.panel import Questionnaire
+
+from .display import Display
+from .layout import Button
+from .screens.draw import ACCENT, BODY, DARK, MARKER, MUTED, SCREEN_BG, TITLE, draw_box, draw_button
+from .screens.form_layout import FormLayout, form_layout
+from .screens.form_state import FormState
+
+KEY_HINT = "Tab: next question   1-9 or arrows: choose   Enter: next page"
+OPTION_FILL = (0.26, 0.28, 0.31, 1.0)
+FIELD_FILL = (0.08, 0.09, 0.10, 1.0)
+OnAnswer = Callable[[int, str, Any], None]
+
+
+@dataclass
+class FormScreen:
+    """Shows questionnaires on ``display`` for the session around them (the app)."""
+
+    display: Display
+    state: Callable[..., None]
+    """Logs a screen change (``state(name, **details)``; never an answer)."""
+    shot: Callable[[str], bool]
+    on_close: Callable[[], None]
+    """The window's close button: the app confirms (and stops the run by raising) or
+    returns, and the page goes on."""
+
+    def run(self, qn: Questionnaire, *, answered: dict[str, Any], start_page: int,
+            on_answer: OnAnswer) -> str:
+        """Show ``qn`` from ``start_page``; returns ``done`` or ``skipped``."""
+        pg = self.display.pg
+        answered = dict(answered)
+        page = max(0, min(start_page, len(qn.pages) - 1))
+        pg.key.start_text_input()
+        try:
+            while True:
+                outcome = self._page(qn, page, answered, on_answer)
+                if outcome == "skip":
+                    self.state("questionnaire-skipped", id=qn.id)
+                    return "skipped"
+                page += -1 if outcome == "back" else 1
+                if page >= len(qn.pages):
+                    self.state("questionnaire-done", id=qn.id)
+                    return "done"
+        finally:
+            pg.key.stop_text_input()
+
+    def _buttons(self, qn: Questionnaire, page: int) -> list[tuple[str, str]]:
+        items = []
+        if page > 0:
+            items.append(("back", "Back"))
+        if qn.voluntary:
+            items.append(("skip", "Skip these questions"))
+        items.append(("next", "Next" if page < len(qn.pages) - 1 else "Done"))
+        return items
+
+    def _page(self, qn: Questionnaire, page: int, answered: dict[str, Any],
+              on_answer: OnAnswer) -> str:
+        d = self.display
+        pg = d.pg
+        p = qn.pages[page]
+        fs = FormState.for_page(list(p.questions), answered)
+        title = f"{qn.title} ({page + 1} of {len(qn.pages)})" if len(qn.pages) > 1 \
+            else qn.title
+        intro = qn.intro if page == 0 else None
+        offset = 0
+        name = f"questionnaire-{qn.id}-{page + 1}"
+        self.state("questionnaire", id=qn.id, page=page + 1, questions=len(fs.fields))
+        if d.pacer is not None:
+            d.pacer.reset()
+
+        def commit(qi: int) -> None:
+            value = fs.confirmed(qi)
+            if value is not None:
+                qid = fs.fields[qi].question.id
+                answered[qid] = value
+                on_answer(page, qid, value)
+                self.state("answered", id=qn.id, question=qid)
+
+        while True:
+            lay = form_layout(d.size, d.fonts, title=title, intro=intro, state=fs,
+                              buttons=self._buttons(qn, page))
+            for event in pg.event.get():
+                if event.type == pg.QUIT:
+                    self.on_close()
+                    self.state("questionnaire", id=qn.id, page=page + 1)
+                    continue
+                action = self._event(event, fs, lay, offset)
+                if action is None:
+                    continue
+                if action.startswith("commit:"):
+                    commit(int(action.split(":")[1]))
+                    continue
+                if action == "scroll-up":
+                    offset = max(0, offset - lay.column.h // 2)
+                    continue
+                if action == "scroll-down":
+                    offset = min(lay.max_offset(), offset + lay.column.h // 2)
+                    continue
+                if action == "wheel":
+                    offset = min(lay.max_offset(), max(0, offset - 40 * int(event.y)))
+                    continue
+                for qi in range(len(fs.fields)):
+                    commit(qi)
+                if action == "skip":
+                    return "skip"
+                if action == "back":
+                    return "back"
+                if action == "next":
+                    if fs.validate_page():
+                        return "next"
+                    self.state("questionnaire-refused", id=qn.id, page=page + 1,
+                               question=fs.fields[fs.focus].question.id)
+                    offset = lay.offset_showing(fs.focus, offset)
+            lay = form_layout(d.size, d.fonts, title=title, intro=intro, state=fs,
+                              buttons=self._buttons(qn, page))
+            offset = min(lay.offset_showing(fs.focus, offset), lay.max_offset())
+            draw_form(d.renderer, lay, fs, offset)
+            self.shot(name)
+            d.flip()
+
+    def _event(self, event: Any, fs: FormState, lay: FormLayout, offset: int) -> str | None:
+        """One input event applied to the page; returns what the loop must do next
+        (``commit:<qi>``, a scroll, or a button's action), or None."""
+        pg = self.display.pg
+        focus = fs.focus
+        kind = fs.fields[focus].kind
+        if event.type == pg.MOUSEWHEEL:
+            return "wheel"
+        if event.type == pg.TEXTINPUT:
+            if kind in ("number", "text"):
+                fs.type(focus, event.text)
+            elif event.text.isdigit() and kind in ("single", "likert", "multiple"):
+                options = fs.fields[focus].options()
+                k = int(event.text) - 1
+                if 0 <= k < len(options):
+                    fs.choose(focus, options[k][0])
+                    return f"commit:{focus}"
+            return None
+        if event.type == pg.MOUSEBUTTONDOWN and event.button == 1:
+            x, y = self.display.to_pixels(event.pos)
+            button = _button_at(lay.buttons, x, y)
+            if button is not None:
+                return button
+            hit = lay.hit_at(x, y, offset)
+            if hit is None:
+                return None
+            before = fs.focus
+            if hit.kind == "option":
+                fs.choose(hit.qi, hit.value)
+            elif hit.kind == "prefer":
+                fs.toggle_prefer_not(hit.qi)
+            else:
+                fs.focus = hit.qi
+            return f"commit:{before}" if hit.kind == "field" else f"commit:{hit.qi}"
+        if event.type != pg.KEYDOWN:
+            return None
+        key, shift = event.key, bool(event.mod & pg.KMOD_SHIFT)
+        if key == pg.K_TAB:
+            fs.move_focus(-1 if shift else 1)
+            return f"commit:{focus}"
+        if key in (pg.K_DOWN, pg.K_UP) and kind != "text":
+            fs.move_focus(1 if key == pg.K_DOWN else -1)
+            return f"commit:{focus}"
+        if key in (pg.K_LEFT, pg.K_RIGHT) and kind in ("single", "likert"):
+            fs.step(focus, 1 if key == pg.K_RIGHT else -1)
+            return f"commit:{focus}"
+        if key == pg.K_BACKSPACE:
+            fs.backspace(focus)
+            return None
+        if key in (pg.K_RETURN, pg.K_KP_ENTER):
+            return "next"
+        if key == pg.K_PAGEUP:
+            return "scroll-up"
+        if key == pg.K_PAGEDOWN:
+            return "scroll-down"
+        return None
+
+
+def _button_at(buttons: tuple[Button, ...], x: float, y: float) -> str | None:
+    for b in buttons:
+        if b.rect.contains_point(x, y):
+            return b.action
+    return None
+
+
+def draw_form(r: Any, lay: FormLayout, fs: FormState, offset: int) -> None:
+    """Paint a page: only parts wholly inside the visible column are drawn."""
+    r.clear(SCREEN_BG)
+    draw_box(r, lay.title, TITLE, "bold")
+    col = lay.column
+    top, bottom = offset, offset + col.h
+
+    def visible(rect: Any) -> bool:
+        return rect.y >= top and rect.y + rect.h <= bottom
+
+    def at(rect: Any) -> tuple[int, int]:
+        return col.x + rect.x, col.y + rect.y - offset
+
+    if lay.intro is not None:
+        for text, rect in lay.intro.lines:
+            if visible(rect):
+                r.text(text, *at(rect), px=lay.intro.px, color=MUTED)
+    for q in lay.questions:
+        f = fs.fields[q.qi]
+        focused = q.qi == fs.focus
+        if focused and q.top >= top:
+            x, y = at(q.text.rects[0])
+            r.rect(x - 14, y, 5, min(q.bottom, bottom) - q.text.rects[0].y, ACCENT)
+        for text, rect in q.text.lines:
+            if visible(rect):
+                r.text(text, *at(rect), px=q.text.px, color=TITLE if focused else BODY,
+                       style="bold")
+        for h in q.hits:
+            if not visible(h.rect):
+                continue
+            x, y = at(h.rect)
+            px = lay.px - 2
+            if h.kind == "field":
+                r.rect(x, y, h.rect.w, h.rect.h, FIELD_FILL)
+                r.frame(x, y, h.rect.w, h.rect.h, 2, ACCENT if focused else MUTED)
+                _field_text(r, f.text + ("|" if focused else ""), x, y, h.rect, px)
+                continue
+            chosen = (f.prefer_not if h.kind == "prefer" else not f.prefer_not and (
+                h.value in (f.choice or []) if f.kind == "multiple" else h.value == f.choice))
+            r.rect(x, y, h.rect.w, h.rect.h, ACCENT if chosen else OPTION_FILL)
+            lines = _wrap(r, h.label, h.rect.w - lay.px // 2, px)
+            ty = y + (h.rect.h - len(lines) * r.text_size("Ag", px)[1]) / 2
+            for line in lines:
+                tw, th = r.text_size(line, px)
+                r.text(line, x + (h.rect.w - tw) / 2, ty, px=px,
+                       color=DARK if chosen else (1.0, 1.0, 1.0, 1.0))
+                ty += th
+        if f.error and top <= q.error_y <= bottom - lay.px:
+            r.text(f.error, col.x, col.y + q.error_y - offset, px=lay.px - 2, color=MARKER,
+                   style="bold")
+    hint_y = col.y + col.h + 4
+    hint = KEY_HINT if offset == 0 and offset >= lay.max_offset() else (
+        "more below (Page Down)" if offset < lay.max_offset() else "more above (Page Up)")
+    tw, _ = r.text_size(hint, lay.px - 4)
+    r.text(hint, lay.window[0] / 2 - tw / 2, hint_y, px=lay.px - 4,
+           color=MUTED if hint == KEY_HINT else ACCENT)
+    for b in lay.buttons:
+        draw_button(r, b, primary=b.action == "next")
+
+
+def _wrap(r: Any, text: str, width: int, px: int) -> list[str]:
+    lines: list[str] = []
+    for word in text.split():
+        if lines and r.text_size(f"{lines[-1]} {word}", px)[0] <= width:
+            lines[-1] += f" {word}"
+        else:
+            lines.append(word)
+    return lines or [text]
+
+
+def _field_text(r: Any, text: str, x: int, y: int, rect: Any, px: int) -> None:
+    """Typed text inside its field: wrapped into the field's rows, the end kept visible."""
+    pad = 8
+    width = rect.w - 2 * pad
+    lh = r.text_size("Ag", px)[1]
+    rows = max(1, (rect.h - pad) // lh)
+    lines: list[str] = [""]
+    for ch in text:
+        if r.text_size(lines[-1] + ch, px)[0] > width:
+            lines.append("")
+        lines[-1] += ch
+    for k, line in enumerate(lines[-rows:]):
+        r.text(line, x + pad, y + pad // 2 + k * lh, px=px, color=BODY)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from session_store import PlannedTrial, TrialResult
@@ -102,6 +102,9 @@ class TrialScreen:
     overlay: Callable[[Any, ViewingLayout, TrialMachine], None] | None = None
     """Draws over the viewing screen after each frame (the preview's timing overlay); it
     must keep off the video and the screen's texts."""
+    machine: TrialMachine | None = field(default=None, init=False, repr=False)
+    """The state of the trial on screen (or of the last one): its flip timing stays readable
+    after a pause (the preview sums it up)."""
 
     def run(self, trial: PlannedTrial, gpu: OnGpu, k: int, total: int, *,
             practice: bool = False) -> TrialResult | str:
@@ -139,6 +142,7 @@ class TrialScreen:
                          min_view_s=min_view, vsync=d.vsync,
                          details={"decode_seconds": gpu.decode_seconds,
                                   "timing_mode": d.timing_mode})
+        self.machine = m
         warm_up_viewing(r, vlay, gpu.tex)
         if d.pacer is not None:
             d.pacer.reset()

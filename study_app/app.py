@@ -33,6 +33,7 @@ from session_store.study_folder import BRIEFING_NAME, CONSENT_NAME, Study
 from stimuli_manifests import StimuliError, probe_video
 
 from . import __version__, realtime
+from .colour_check_screen import ColourCheckScreen, plate_size
 from .decode import DecodedPair, Prefetcher, decode_pair, pair_bytes
 from .display import MIN_WINDOW, PACED_PILOT, Display
 from .duration import describe_duration
@@ -56,6 +57,8 @@ from .schedule import make_schedule, participant_seed, pick_practice, schedule_i
 from .screens import content
 from .text_screen import TextScreen
 from .trial_screen import OnGpu, TrialScreen, upload_pair, viewing_layout_for
+from .vision.isochromatic import plate_series
+from .vision.scoring import score_colour
 from .waiting_screen import draw_checking_display, wait_for
 
 __all__ = ["RunOptions", "RunOutcome", "needs_requeue", "run_study"]
@@ -136,6 +139,10 @@ class _WithdrawnError(Exception):
 
 class _ClosedError(Exception):
     """The window was closed before a session existed (nothing recorded)."""
+
+
+class _ScreenedOutError(Exception):
+    """A failed vision check ends the session (the manifest's ``on_fail: end``)."""
 
 
 def needs_requeue(dropped_frames: int, limit: int, trial: PlannedTrial) -> bool:
@@ -329,6 +336,13 @@ class App:
             self._state("end", withdrawn=1)
             self._end_screen(total, withdrawn=True)
             return RunOutcome("withdrawn", self.session_path, answered, total)
+        except _ScreenedOutError:
+            self.store.log_event("ended_by_vision_check", test="colour")
+            self.store.finish(allow_incomplete=True)
+            answered, total = self.store.progress()
+            self._state("end", screened_out=1)
+            self._end_screen(total, withdrawn=False, screened_out=True)
+            return RunOutcome("screened-out", self.session_path, answered, total)
 
     def _seed(self) -> int:
         if self.opts.seed is not None:
@@ -414,12 +428,17 @@ class App:
             return
         rec = self.store.snapshot()
         progress = panel_progress(panel, rec.answers, rec.screenings, rec.events)
-        if when == "before" and progress.vision_todo and not any(
+        if when == "before" and "colour" in progress.vision_todo:
+            outcome = self._colour_check()
+            if outcome == "failed" and panel.vision_screening.on_fail == "end":
+                raise _ScreenedOutError
+        missing = [t for t in progress.vision_todo if t != "colour"]
+        if when == "before" and missing and not any(
                 e.get("kind") == VISION_NOT_SHOWN for e in rec.events):
-            # The plates and optotypes are not part of this player version: say so in the
-            # session (the analysis and the docs report it) rather than skip silently.
-            self.store.log_event(VISION_NOT_SHOWN, tests=progress.vision_todo,
-                                 reason="this player version shows no vision checks")
+            # The acuity check is not part of this player version: say so in the session
+            # (the analysis and the docs report it) rather than skip silently.
+            self.store.log_event(VISION_NOT_SHOWN, tests=missing,
+                                 reason="this player version shows no acuity check")
         screen = FormScreen(self.display, self._state, self._shot, self._on_close)
         for item in progress.before if when == "before" else progress.after:
             qn = item.questionnaire
@@ -430,6 +449,21 @@ class App:
             outcome = screen.run(qn, answered=item.answered, start_page=item.start_page,
                                  on_answer=store_answer)
             self.store.log_event(QUESTIONNAIRE_EVENT, questionnaire=qn.id, outcome=outcome)
+
+    def _colour_check(self) -> str:
+        """The generated plates (seeded by the session), scored and stored; the outcome."""
+        plates = plate_series(self.store.info.seed, size=plate_size(self.display.size))
+        self._screen(content.colour_check_intro(len(plates), self._name_keys))
+        self.display.pg.key.start_text_input()
+        try:
+            answers = ColourCheckScreen(self.display, self._state, self._shot,
+                                        self._on_close).run(plates)
+        finally:
+            self.display.pg.key.stop_text_input()
+        outcome, result = score_colour(answers)
+        self.store.record_screening("colour", outcome, result)
+        self._state("colour-check-done")
+        return outcome
 
     # -- text screens -----------------------------------------------------------------
     def _screen(self, spec: content.ScreenSpec) -> str:
@@ -535,13 +569,14 @@ class App:
         self._end_screen(total, withdrawn=False)
         return RunOutcome("finished", self.session_path, answered, total)
 
-    def _end_screen(self, total: int, *, withdrawn: bool) -> None:
+    def _end_screen(self, total: int, *, withdrawn: bool, screened_out: bool = False) -> None:
         upload = None
         if self.opts.upload_report is not None:
             upload = self._background(self.opts.upload_report,
                                       "Sending your last answers to the study server...")
             self._state("uploaded", arrived=int(upload[0]))
-        spec = content.end(self.session_path, total, withdrawn, self._name_keys, upload=upload)
+        spec = content.end(self.session_path, total, withdrawn, self._name_keys, upload=upload,
+                           screened_out=screened_out)
         while self._screen(spec) == "show":
             reveal_in_file_manager(self.session_path)
 

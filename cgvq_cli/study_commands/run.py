@@ -161,6 +161,10 @@ def _report(outcome, upload=None) -> int:
         print(f"Session saved ({outcome.answered} of {outcome.total} trials answered) in "
               f"{outcome.session_path}; run the same command again to continue.")
         return 0
+    if outcome.status == "screened-out":
+        print("The session ended after the colour-vision check (the study's on_fail: end); "
+              f"send this file back: {outcome.session_path}")
+        return 0
     if outcome.status == "withdrawn":
         print(f"The participant withdrew after {outcome.answered} of {outcome.total} trials; "
               f"the session is marked withdrawn. Send this file back: {outcome.session_path}")

@@ -178,15 +178,32 @@ def confirm_withdraw(name_keys: NameKeys) -> ScreenSpec:
                  close_action="no", primary="no")
 
 
+def colour_check_intro(n: int, name_keys: NameKeys) -> ScreenSpec:
+    body = (f"Before the videos, a short check of colour vision: {n} circles of coloured dots, "
+            "one after the other. In most of them there is a number made of dots of another "
+            "colour.\n\n"
+            "- Type the number you see (or click it), as soon as you see it.\n"
+            "- If you see no number, press **N** (or click *No number*).\n\n"
+            "There are no trick questions, and a result only tells the experimenter how well "
+            "this screen and your eyes show these colours. It is not a medical test.")
+    return _spec("colour-check", "Colour vision check", body, CONTINUE, [("go", "Start")],
+                 name_keys, primary="go")
+
+
 def end(session_path: Path, total: int, withdrawn: bool, name_keys: NameKeys,
-        upload: tuple[bool, str] | None = None) -> ScreenSpec:
+        upload: tuple[bool, str] | None = None, *, screened_out: bool = False) -> ScreenSpec:
     """The last screen. ``upload`` (with a study server): whether everything arrived and the
-    sentence saying so; when it all arrived there is nothing to send."""
+    sentence saying so; when it all arrived there is nothing to send. ``screened_out``: the
+    study ended after the vision check (the manifest's ``on_fail: end``)."""
     keys = keymap(close=["enter", "esc"], show=["o"])
     path = session_path.resolve()
     title = "You have withdrawn" if withdrawn else "Thank you!"
     first = ("You withdrew from the study. Thank you for your time." if withdrawn else
              f"All {total} trials are done.")
+    if screened_out:
+        first = ("Thank you for your time. This study needs colour differences that your "
+                 "screen and eyes did not show clearly in the check, so it ends here. This "
+                 "is not a medical result: screens differ a lot.")
     where = (f"**{_md_escape(str(path))}**\n\n"
              f"(the file *{_md_escape(path.name)}* in the folder "
              f"*{_md_escape(str(path.parent))}*)")

@@ -30,7 +30,7 @@ MID = np.array([0.22, 0.22, 0.22])  # linear RGB the two colours are centred on
 STEP = {"protan": 0.30, "deutan": 0.30, "tritan": 0.095}
 BRIGHTNESS = (0.75, 1.15)
 CONTROL_FIGURE = 0.30  # the control digit's brightness relative to its background
-BACKDROP = (24, 24, 26)
+BACKDROP = (36, 38, 43)  # the screens' background (study_app.screens.draw.SCREEN_BG)
 
 
 @dataclass(frozen=True)

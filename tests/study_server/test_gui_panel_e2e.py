@@ -22,6 +22,7 @@ from stimuli_manifests import fill_checksums, load_manifest, parse_manifest, sav
 from stimuli_manifests.panel_templates import default_panel
 from study_app.remote.admin import pull
 from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
+from study_app.vision.isochromatic import plate_series
 
 from .conftest import ADMIN, REPO, cli_env
 
@@ -34,7 +35,7 @@ def _panel_study(folder):
     study = make_study(folder, min_display=(640, 480))  # 3 stimuli, 64x64, 1 s
     path = study / "manifest.json"
     data = json.loads(path.read_text())
-    data["panel"] = default_panel(colour_check=False)
+    data["panel"] = default_panel()  # with the colour-vision check
     save_manifest(parse_manifest(data), path)
     save_manifest(fill_checksums(load_manifest(path)), path)
     return study
@@ -60,6 +61,17 @@ def test_questionnaires_in_the_real_app_through_the_server(tmp_path, xdisplay, i
     app.key("space")
     app.wait("consent")
     app.key("a")
+    app.wait("colour-check")
+    app.key("space")
+    plates = plate_series(5)  # the session's seed (--seed 5) draws the plates
+    for k, plate in enumerate(plates, start=1):
+        app.wait(f"colour-plate index={k} of={len(plates)} kind={plate.kind}")
+        # every plate read right but one deuteranopia plate: one slip is no failure
+        slip = plate.kind == "deutan" and k == next(
+            i for i, p in enumerate(plates, start=1) if p.kind == "deutan")
+        app.key("n" if slip else plate.answer)
+        app.wait(f"colour-plate-answered index={k}")
+    app.wait("colour-check-done")
     app.wait("questionnaire id=demographics page=1")
     subprocess_type(env, "34")  # the age field has the focus
     app.key("Tab", "2")  # leaving the age field stores it; gender: the second option (Male)
@@ -115,8 +127,13 @@ def test_questionnaires_in_the_real_app_through_the_server(tmp_path, xdisplay, i
                     "notice_artifacts": 4, "artifacts_annoying": 5, "familiar_methods": 3,
                     "task_clear": 5, "confident_ratings": 4, "comments": COMMENT}
 
-    run_simulation(study / "manifest.json", tmp_path / "sim", SimulationOptions(raters=4,
-                                                                                seed=9),
+    record = read_session(local)
+    [check] = record.screenings
+    assert check["outcome"] == "passed" and check["result"]["errors"]["deutan"] == 1
+    assert [p["given"] == p["answer"] for p in check["result"]["plates"]].count(False) == 1
+
+    run_simulation(study / "manifest.json", tmp_path / "sim", SimulationOptions(
+                       raters=4, seed=9, colour_failures=1),
                    progress=False, upload=UploadOptions(
                        srv.url, {i.participant: i.token for i in inv[1:]}, timeout_s=120))
     pulled = tmp_path / "pulled"
@@ -144,11 +161,14 @@ def test_questionnaires_in_the_real_app_through_the_server(tmp_path, xdisplay, i
     survey = sum(any(k in a for k in ("notice_artifacts", "task_clear", "comments"))
                  for a in answers)
     assert f"{survey} of 5 answered the post-study survey" in panel["sentence"]
+    assert "5 took the remote vision screening and 1 failed it" in panel["sentence"]
+    assert me.participant not in panel["failed_vision"] and len(panel["failed_vision"]) == 1
     html = (report / "report.html").read_text()
     assert "&lt;b&gt;Nice&lt;/b&gt; &amp; clear" in html and COMMENT not in html
     assert (report / "figures" / "panel_survey.png").is_file()
     for page in ("questionnaire-demographics-1", "questionnaire-demographics-3",
-                 "questionnaire-post_study-2"):
+                 "questionnaire-post_study-2", "colour-check", "colour-plate-protan",
+                 "colour-plate-control"):
         assert (ARTIFACTS / f"{page}.png").is_file(), sorted(p.name for p in
                                                             ARTIFACTS.iterdir())
 

@@ -101,3 +101,20 @@ def test_contact_sheets_for_the_eye():
         seen = np.round(linear_to_srgb(simulate(linear, d)) * 255).astype(np.uint8)
         Image.fromarray(seen).save(ARTIFACTS / f"plates_as_{d}.png")
     assert (ARTIFACTS / "plates_as_tritan.png").is_file()
+
+
+def test_scoring_rule():
+    from study_app.vision.scoring import PlateAnswer, score_colour
+
+    def answers(wrong: set[int]):
+        kinds = ["control", "control", "protan", "protan", "deutan", "deutan", "tritan",
+                 "tritan"]
+        return [PlateAnswer(k, "5", "3" if i in wrong else "5", 900.0)
+                for i, k in enumerate(kinds)]
+
+    assert score_colour(answers(set()))[0] == "passed"
+    assert score_colour(answers({2}))[0] == "passed"  # one slip
+    outcome, result = score_colour(answers({2, 3}))
+    assert outcome == "failed" and result["failed_types"] == ["protan"]
+    assert result["errors"] == {"deutan": 0, "protan": 2, "tritan": 0}
+    assert score_colour(answers({0, 2, 3}))[0] == "inconclusive"  # a control misread

@@ -155,7 +155,12 @@ def raw_request(url: str, method: str, path: str, body: bytes | None = None,
             with contextlib.suppress(BrokenPipeError, ConnectionResetError):
                 conn.send(body)
         resp = conn.getresponse()
-        return resp.status, {k.lower(): v for k, v in resp.getheaders()}, resp.read()
+        headers_out = {k.lower(): v for k, v in resp.getheaders()}
+        try:
+            data = resp.read()
+        except ConnectionResetError:  # answered (e.g. 400 for a bad Content-Length), then
+            data = b""  # closed before the client read the body: the status is the answer
+        return resp.status, headers_out, data
     finally:
         conn.close()
 

@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from PIL import Image, ImageDraw, ImageFont
 
 from .dichromacy import DEFICIENCIES, confusion_direction, linear_to_srgb
 
@@ -55,6 +54,11 @@ def plate_colours(kind: PlateKind) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _digit_mask(digit: str, size: int) -> np.ndarray:
+    # Pillow's font module is imported only when plates are drawn: imported with the app at
+    # start-up, it made the preview with its timing overlay stop taking keys under Xvfb
+    # (seen in the tests; the cause, two FreeType copies in one process, is a guess).
+    from PIL import Image, ImageDraw, ImageFont
+
     img = Image.new("L", (size, size), 0)
     font = ImageFont.truetype(str(FONT), round(size * 0.72))
     draw = ImageDraw.Draw(img)
@@ -109,6 +113,8 @@ def make_plate(kind: PlateKind, digit: str, *, size: int = 360, seed: int = 0) -
     bright = rng.uniform(*BRIGHTNESS, size=len(centres))
     linear = np.where(figure[:, None], fg, bg) * bright[:, None]
     colours = np.round(linear_to_srgb(linear) * 255).astype(np.uint8)
+    from PIL import Image, ImageDraw
+
     img = Image.new("RGB", (size, size), BACKDROP)
     draw = ImageDraw.Draw(img)
     for (x, y), r, col in zip(centres, radii, colours, strict=True):

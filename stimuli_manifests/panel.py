@@ -154,12 +154,23 @@ class Questionnaire(_Strict):
         return [q for page in self.pages for q in page.questions]
 
 
+ACUITY_CRITERION_LOGMAR = 0.3  # 20/40 (6/12), a common screening cut-off
+CONTRAST_CRITERION_WEBER = 0.063  # log contrast sensitivity 1.2
+
+
 class VisionScreening(_Strict):
     """Optional remote vision checks and what a failed check does."""
 
     colour: bool = True
-    acuity: bool = False
+    acuity: bool = Field(default=False, description="the contrast/acuity check")
     viewing_distance_cm: float = Field(default=60.0, ge=30.0, le=200.0)
+    optotype: Literal["landolt_c", "tumbling_e"] = "landolt_c"
+    acuity_logmar: float = Field(
+        default=ACUITY_CRITERION_LOGMAR, ge=0.0, le=0.8,
+        description="pass when optotypes this small (logMAR) are read")
+    contrast_weber: float = Field(
+        default=CONTRAST_CRITERION_WEBER, ge=0.03, le=0.5,
+        description="pass when optotypes this faint (Weber contrast) are read")
     on_fail: Literal["end", "flag", "record"] = Field(
         default="flag", description="end the session politely, flag the rater, or only record")
 

@@ -33,13 +33,14 @@ from session_store.study_folder import BRIEFING_NAME, CONSENT_NAME, Study
 from stimuli_manifests import StimuliError, probe_video
 
 from . import __version__, realtime
+from .acuity_check_screen import AcuityCheckScreen, optotype_room
 from .colour_check_screen import ColourCheckScreen, plate_size
 from .decode import DecodedPair, Prefetcher, decode_pair, pair_bytes
 from .display import MIN_WINDOW, PACED_PILOT, Display
 from .duration import describe_duration
 from .form_screen import FormScreen
 from .keys import RATING, VIEWING, Keymap
-from .panel_progress import QUESTIONNAIRE_EVENT, VISION_NOT_SHOWN, panel_progress
+from .panel_progress import QUESTIONNAIRE_EVENT, panel_progress
 from .preflight import (
     Check,
     PixelGeometry,
@@ -57,6 +58,8 @@ from .schedule import make_schedule, participant_seed, pick_practice, schedule_i
 from .screens import content
 from .text_screen import TextScreen
 from .trial_screen import OnGpu, TrialScreen, upload_pair, viewing_layout_for
+from .vision.acuity_plan import acuity_plan
+from .vision.acuity_scoring import score_acuity
 from .vision.isochromatic import plate_series
 from .vision.scoring import score_colour
 from .waiting_screen import draw_checking_display, wait_for
@@ -120,13 +123,15 @@ class RunOptions:
 
 @dataclass
 class RunOutcome:
-    """How a run ended: ``finished``, ``quit`` (resumable), ``withdrawn``, ``declined`` (no
-    consent) or ``closed`` (the window closed before the session started)."""
+    """How a run ended: ``finished``, ``quit`` (resumable), ``withdrawn``, ``screened-out``
+    (a failed vision check with ``on_fail: end``; ``screened_by`` says which), ``declined``
+    (no consent) or ``closed`` (the window closed before the session started)."""
 
     status: str
     session_path: Path | None
     answered: int = 0
     total: int = 0
+    screened_by: str = ""
 
 
 class _QuitRequestedError(Exception):
@@ -336,13 +341,15 @@ class App:
             self._state("end", withdrawn=1)
             self._end_screen(total, withdrawn=True)
             return RunOutcome("withdrawn", self.session_path, answered, total)
-        except _ScreenedOutError:
-            self.store.log_event("ended_by_vision_check", test="colour")
+        except _ScreenedOutError as e:
+            test = str(e)
+            self.store.log_event("ended_by_vision_check", test=test)
             self.store.finish(allow_incomplete=True)
             answered, total = self.store.progress()
             self._state("end", screened_out=1)
-            self._end_screen(total, withdrawn=False, screened_out=True)
-            return RunOutcome("screened-out", self.session_path, answered, total)
+            self._end_screen(total, withdrawn=False, screened_out=test)
+            return RunOutcome("screened-out", self.session_path, answered, total,
+                              screened_by=test)
 
     def _seed(self) -> int:
         if self.opts.seed is not None:
@@ -428,17 +435,11 @@ class App:
             return
         rec = self.store.snapshot()
         progress = panel_progress(panel, rec.answers, rec.screenings, rec.events)
-        if when == "before" and "colour" in progress.vision_todo:
-            outcome = self._colour_check()
-            if outcome == "failed" and panel.vision_screening.on_fail == "end":
-                raise _ScreenedOutError
-        missing = [t for t in progress.vision_todo if t != "colour"]
-        if when == "before" and missing and not any(
-                e.get("kind") == VISION_NOT_SHOWN for e in rec.events):
-            # The acuity check is not part of this player version: say so in the session
-            # (the analysis and the docs report it) rather than skip silently.
-            self.store.log_event(VISION_NOT_SHOWN, tests=missing,
-                                 reason="this player version shows no acuity check")
+        if when == "before":
+            checks = {"colour": self._colour_check, "acuity": self._acuity_check}
+            for test in progress.vision_todo:
+                if checks[test]() == "failed" and panel.vision_screening.on_fail == "end":
+                    raise _ScreenedOutError(test)
         screen = FormScreen(self.display, self._state, self._shot, self._on_close)
         for item in progress.before if when == "before" else progress.after:
             qn = item.questionnaire
@@ -463,6 +464,33 @@ class App:
         outcome, result = score_colour(answers)
         self.store.record_screening("colour", outcome, result)
         self._state("colour-check-done")
+        return outcome
+
+    def _acuity_check(self) -> str:
+        """The card calibration and the optotypes (orientations seeded by the session),
+        scored and stored; the outcome."""
+        vs = self.m.panel.vision_screening
+        distance = vs.viewing_distance_cm
+        screen = AcuityCheckScreen(self.display, self._state, self._shot, self._on_close)
+        self._screen(content.acuity_check_intro(distance, self._name_keys))
+        geometry, card_px = screen.calibrate(distance)
+        try:
+            plan = acuity_plan(geometry, self.store.info.seed, kind=vs.optotype,
+                               max_size_px=optotype_room(self.display.size))
+        except ValueError as e:  # nothing this display can draw at this distance
+            result = {"test": "acuity", "outcome": "inconclusive", "passed": False,
+                      "reason": str(e), "geometry": geometry.to_dict(), "card_px": card_px}
+            self.store.record_screening("acuity", "inconclusive", result)
+            return "inconclusive"
+        self._screen(content.acuity_trials_intro(distance, self._name_keys))
+        answers = screen.run(plan, geometry)
+        outcome, result = score_acuity(plan, answers, geometry,
+                                       criterion_logmar=vs.acuity_logmar,
+                                       criterion_contrast=vs.contrast_weber)
+        result["card_px"] = card_px
+        result["window"] = list(self.display.size)
+        self.store.record_screening("acuity", outcome, result)
+        self._state("acuity-check-done")
         return outcome
 
     # -- text screens -----------------------------------------------------------------
@@ -569,7 +597,7 @@ class App:
         self._end_screen(total, withdrawn=False)
         return RunOutcome("finished", self.session_path, answered, total)
 
-    def _end_screen(self, total: int, *, withdrawn: bool, screened_out: bool = False) -> None:
+    def _end_screen(self, total: int, *, withdrawn: bool, screened_out: str = "") -> None:
         upload = None
         if self.opts.upload_report is not None:
             upload = self._background(self.opts.upload_report,

@@ -16,8 +16,6 @@ from stimuli_manifests.panel import Panel, Questionnaire
 
 QUESTIONNAIRE_EVENT = "questionnaire"
 """Event kind logged when a questionnaire is finished (``outcome`` done) or skipped."""
-VISION_NOT_SHOWN = "vision_check_not_shown"
-"""Event kind logged when the manifest asks for vision checks this player cannot show."""
 
 
 @dataclass

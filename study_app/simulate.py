@@ -46,7 +46,12 @@ from . import __version__
 from .panel_progress import QUESTIONNAIRE_EVENT
 from .remote import ServerClient, ServerUnavailable, Uploader, UploadStatus
 from .schedule import ScheduleItem, make_schedule
-from .simulate_panel import likert_centres, simulated_answers, simulated_colour_check
+from .simulate_panel import (
+    likert_centres,
+    simulated_acuity_check,
+    simulated_answers,
+    simulated_colour_check,
+)
 
 log = logging.getLogger(__name__)
 
@@ -341,10 +346,13 @@ def _answer_panel(store: SessionStore, panel: _Panel, k: int, when: str,
     definition = panel.loaded.manifest.panel
     if definition is None:
         return
-    if when == "before" and definition.vision_screening is not None \
-            and definition.vision_screening.colour:
+    vs = definition.vision_screening
+    if when == "before" and vs is not None and vs.colour:
         outcome, result = simulated_colour_check(k in panel.colour_failures)
         store.record_screening("colour", outcome, result)
+    if when == "before" and vs is not None and vs.acuity:
+        outcome, result = simulated_acuity_check()
+        store.record_screening("acuity", outcome, result)
     for questionnaire in definition.questionnaires_at(when):
         answers = simulated_answers(questionnaire, rng, panel.likert_centres)
         for page, question, value in answers:

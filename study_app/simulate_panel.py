@@ -104,3 +104,12 @@ def simulated_colour_check(failed: bool) -> tuple[str, dict[str, Any]]:
     return ("failed" if failed else "passed",
             {"test": "colour", "simulated": True, "passed": not failed,
              "details": {"simulated_deficiency": "deutan" if failed else None}})
+
+
+def simulated_acuity_check() -> tuple[str, dict[str, Any]]:
+    """(outcome, result) of a simulated contrast/acuity check: every simulated rater sees
+    20/20 and Weber 0.063 (the simulation's raters differ in bias and consistency, not in
+    eyesight)."""
+    return ("passed", {"test": "acuity", "simulated": True, "passed": True,
+                       "acuity": {"threshold_logmar": 0.0},
+                       "contrast": {"threshold_weber": 0.063}})

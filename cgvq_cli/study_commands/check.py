@@ -31,9 +31,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"panel: {len(m.panel.questionnaires)} questionnaire(s), {len(questions)} "
               f"question(s); vision checks: {', '.join(checks) or 'none'} "
               "(see: cgvq-study panel STUDY)")
-        if vs is not None and vs.acuity:
-            print("  warning: this player version does not show the acuity check; each "
-                  "session records it as not shown (docs: Describing the panel)")
     for w in result.warnings:
         print(f"  warning: {w}")
     for e in result.errors:

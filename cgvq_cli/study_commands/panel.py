@@ -67,6 +67,9 @@ def run(args: argparse.Namespace) -> int:
         checks = [n for n, on in (("colour", vs.colour), ("acuity", vs.acuity)) if on]
         print(f"vision checks: {', '.join(checks) or 'none'} at {vs.viewing_distance_cm:g} cm; "
               f"a failed check: {vs.on_fail}")
+        if vs.acuity:
+            print(f"  acuity: {vs.optotype}, pass at logMAR {vs.acuity_logmar:g} and Weber "
+                  f"contrast {vs.contrast_weber:g}")
     return 0
 
 

@@ -162,7 +162,8 @@ def _report(outcome, upload=None) -> int:
               f"{outcome.session_path}; run the same command again to continue.")
         return 0
     if outcome.status == "screened-out":
-        print("The session ended after the colour-vision check (the study's on_fail: end); "
+        check = {"acuity": "sharpness and contrast"}.get(outcome.screened_by, "colour-vision")
+        print(f"The session ended after the {check} check (the study's on_fail: end); "
               f"send this file back: {outcome.session_path}")
         return 0
     if outcome.status == "withdrawn":

@@ -190,20 +190,51 @@ def colour_check_intro(n: int, name_keys: NameKeys) -> ScreenSpec:
                  name_keys, primary="go")
 
 
+def acuity_check_intro(distance_cm: float, name_keys: NameKeys) -> ScreenSpec:
+    cards = distance_cm / 8.56
+    body = ("Next, a short check of how sharp and how faint a shape you can see on this screen."
+            "\n\n"
+            "**First, the size of your screen.** Have a bank card at hand (or any card of that "
+            "size: an ID card, a driving licence). Hold it against the screen and make the "
+            "rectangle on the next screen exactly as wide as the card.\n\n"
+            f"**Then sit with your eyes about {distance_cm:g} cm from the screen** (about "
+            f"{cards:.0f} card widths; roughly an arm's length) and stay there during the check. "
+            "Wear your glasses or contact lenses if you wear them to watch videos.\n\n"
+            "A result only tells the experimenter what you could see on this screen. It is not "
+            "a medical test.")
+    return _spec("acuity-check", "Sharpness and contrast check", body, CONTINUE,
+                 [("go", "Start")], name_keys, primary="go")
+
+
+def acuity_trials_intro(distance_cm: float, name_keys: NameKeys) -> ScreenSpec:
+    body = (f"Sit about {distance_cm:g} cm from the screen now.\n\n"
+            "You will see a ring with a gap, one after the other, getting smaller and then "
+            "fainter. For each one, say where the gap is:\n\n"
+            "- press the **arrow key** pointing to the gap (left, up, right or down), or click "
+            "the button;\n"
+            "- if you are not sure, guess: that is expected for the smallest and faintest "
+            "ones.\n\n"
+            "It takes about a minute.")
+    return _spec("acuity-trials", "Where is the gap?", body, CONTINUE, [("go", "Start")],
+                 name_keys, primary="go")
+
+
 def end(session_path: Path, total: int, withdrawn: bool, name_keys: NameKeys,
-        upload: tuple[bool, str] | None = None, *, screened_out: bool = False) -> ScreenSpec:
+        upload: tuple[bool, str] | None = None, *, screened_out: str = "") -> ScreenSpec:
     """The last screen. ``upload`` (with a study server): whether everything arrived and the
     sentence saying so; when it all arrived there is nothing to send. ``screened_out``: the
-    study ended after the vision check (the manifest's ``on_fail: end``)."""
+    vision check (colour or acuity) that ended the study (the manifest's ``on_fail: end``)."""
     keys = keymap(close=["enter", "esc"], show=["o"])
     path = session_path.resolve()
     title = "You have withdrawn" if withdrawn else "Thank you!"
     first = ("You withdrew from the study. Thank you for your time." if withdrawn else
              f"All {total} trials are done.")
     if screened_out:
-        first = ("Thank you for your time. This study needs colour differences that your "
-                 "screen and eyes did not show clearly in the check, so it ends here. This "
-                 "is not a medical result: screens differ a lot.")
+        what = {"colour": "colour differences",
+                "acuity": "fine details and faint contrasts"}.get(screened_out, "details")
+        first = (f"Thank you for your time. This study needs {what} that your screen and "
+                 "eyes did not show clearly in the check, so it ends here. This is not a "
+                 "medical result: screens differ a lot.")
     where = (f"**{_md_escape(str(path))}**\n\n"
              f"(the file *{_md_escape(path.name)}* in the folder "
              f"*{_md_escape(str(path.parent))}*)")

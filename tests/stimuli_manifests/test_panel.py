@@ -69,6 +69,9 @@ def _broken(path: list, value) -> dict:
      "should match pattern"),
     (_broken(["vision_screening", "on_fail"], "explode"), "'end', 'flag' or 'record'"),
     (_broken(["vision_screening", "viewing_distance_cm"], 5), "greater than or equal to 30"),
+    (_broken(["vision_screening", "optotype"], "snellen_letters"), "'landolt_c' or 'tumbling_e'"),
+    (_broken(["vision_screening", "acuity_logmar"], 1.2), "less than or equal to 0.8"),
+    (_broken(["vision_screening", "contrast_weber"], 0.001), "greater than or equal to 0.03"),
     (_broken(["questionnaires", 1, "pages", 0, "questions", 0, "points"], ["a", "b"]),
      "at least 3 items"),
 ])

@@ -164,7 +164,9 @@ def collect(study: Path, out: Path, *, raters: int, outliers: int, seed: int, lo
                 "error": None if code == 0 else "not every upload arrived"})
     try:
         truth = json.loads((local / "ground_truth.json").read_text())
-        n = sum(1 for _ in truth["raters"]) * truth["repetitions"] * len(truth["stimuli"])
+        per = truth.get("trials_per_participant",
+                        truth["repetitions"] * len(truth["stimuli"]))
+        n = sum(1 for _ in truth["raters"]) * per
         if _wait_for_statistics(server.url, token, n, timeout=300):
             why = screenshot(server.url, token, out / "dashboard.png")
             facts["dashboard_png"] = None if why else str(out / "dashboard.png")

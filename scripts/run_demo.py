@@ -186,6 +186,59 @@ def _notes(args, truth: dict, cgvqm_notes: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
+ADAPTIVE = {"blocks": 2, "warmup_participants": 3, "refit_seconds": 5}
+"""The demo's adaptive design: block 1 (every stimulus once) and one planned block."""
+
+
+def _make_adaptive(manifest: Path) -> None:
+    """Switch the demo study to adaptive allocation (before anyone is invited)."""
+    from stimuli_manifests import fill_checksums, load_manifest, parse_manifest, save_manifest
+
+    data = json.loads(manifest.read_text())
+    data["protocol"].update({"allocation": "adaptive", "adaptive": ADAPTIVE})
+    save_manifest(parse_manifest(data), manifest)
+    save_manifest(fill_checksums(load_manifest(manifest)), manifest)
+
+
+def _widths(dmos_csv: Path) -> dict:
+    d = pd.read_csv(dmos_csv)
+    ratings = int(d["n_ratings"].sum())  # the ratings behind the DMOS (after screening)
+    d = d[~d["is_hidden_reference"].astype(bool)]
+    w = d["ci95_high"] - d["ci95_low"]
+    return {"mean_width": float(w.mean()), "max_width": float(w.max()), "ratings": ratings}
+
+
+def _compare_with_full(args, manifest: Path, report: Path, out: Path,
+                       log: list[dict]) -> dict:
+    """The same simulated panel (same seed, same truth) rating the full design (every
+    stimulus three times, no server): its DMOS interval widths against the adaptive ones."""
+    from stimuli_manifests import parse_manifest, save_manifest
+
+    full = out / "full_design"
+    full.mkdir(parents=True, exist_ok=True)
+    data = json.loads(manifest.read_text())
+    data["protocol"]["allocation"] = "full"
+    data["protocol"].pop("adaptive", None)
+    data["root"] = str((manifest.parent / data.get("root", ".")).resolve())
+    save_manifest(parse_manifest(data), full / "manifest.json")
+    res = _run("simulate the full design", [
+        *_cli("cgvq_cli.study_cli"), "simulate", "--manifest", str(full / "manifest.json"),
+        "--raters", str(args.raters), "--outliers", str(args.outliers), "--seed",
+        str(args.seed), "--repetitions", "3", "--out", str(full / "sessions"), "--overwrite",
+        "--no-progress"], log)
+    if res.returncode:
+        raise SystemExit(1)
+    res = _run("DMOS of the full design", [
+        *_cli("analysis.cli"), "dmos", "--manifest", str(full / "manifest.json"),
+        "--sessions", str(full / "sessions"), "--out", str(full / "dmos.csv"), "--seed",
+        str(args.seed), "--bootstrap", str(args.bootstrap)], log)
+    if res.returncode:
+        raise SystemExit(1)
+    adaptive, complete = _widths(report / "dmos.csv"), _widths(full / "dmos.csv")
+    return {"adaptive": adaptive, "full": complete,
+            "ratings_share": adaptive["ratings"] / complete["ratings"]}
+
+
 def _check(truth: dict, report_dir: Path) -> dict:
     """How well the analysis recovered the simulated truth."""
     dmos = pd.read_csv(report_dir / "dmos.csv")
@@ -234,6 +287,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--metrics", default="all",
                    help="registry metrics to score (comma-separated; default all available)")
     p.add_argument("--no-cgvqm", action="store_true", help="leave CGVQM out of the scores")
+    p.add_argument("--allocation", choices=("full", "adaptive"), default="full",
+                   help="full: every rater rates every stimulus 3 times (default); adaptive: "
+                        "block 1 every stimulus once, then one block planned by the study "
+                        "server (2/3 of the ratings), compared with a full design")
     p.add_argument("--cgvqm-arg", action="append", metavar="ARG",
                    help="extra argument for 'cgvqm batch' (repeatable), e.g. --weights")
     args = p.parse_args(argv)
@@ -255,6 +312,8 @@ def main(argv: list[str] | None = None) -> int:
                log)
     if res.returncode:
         return _fail(log)
+    if args.allocation == "adaptive":
+        _make_adaptive(manifest)
     try:
         sessions, truth_path, server_facts = demo_server.collect(
             study, out, raters=args.raters, outliers=args.outliers, seed=args.seed, log=log,
@@ -277,6 +336,8 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(log)
     check = _check(truth, report)
     check["server"] = server_facts
+    if args.allocation == "adaptive":
+        check["allocation"] = _compare_with_full(args, manifest, report, out, log)
     check["steps"] = log
     check["total_seconds"] = round(time.monotonic() - t_start, 1)
     (out / "demo_summary.json").write_text(json.dumps(check, indent=2) + "\n")
@@ -287,6 +348,13 @@ def main(argv: list[str] | None = None) -> int:
           f"{server_facts['offline_participant']}; flags: {server_facts['flags'] or 'none'}"
           + (f"; dashboard screenshot: {server_facts['dashboard_png']}"
              if server_facts.get("dashboard_png") else ""))
+    if "allocation" in check:
+        a = check["allocation"]
+        print(f"  adaptive allocation: {a['adaptive']['ratings']} ratings, DMOS 95% CI width "
+              f"mean {a['adaptive']['mean_width']:.2f}, widest {a['adaptive']['max_width']:.2f}"
+              f"; the full design with the same simulated panel: {a['full']['ratings']} "
+              f"ratings, mean {a['full']['mean_width']:.2f}, widest "
+              f"{a['full']['max_width']:.2f} ({100 * a['ratings_share']:.0f} % of its ratings)")
     for line in cgvqm_notes:
         print(f"  NOTE: {line}")
     print(f"  injected outlier(s): {', '.join(check['injected_outliers']) or 'none'}; "

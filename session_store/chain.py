@@ -61,13 +61,16 @@ def normalise_row(row: dict[str, Any]) -> dict[str, Any]:
 
 
 def follow_chain(path: Path, header: dict[str, Any], plan: Sequence[PlannedTrial],
-                 raw: Sequence[dict[str, Any]]
+                 raw: Sequence[dict[str, Any]], *, first_block_end: int | None = None
                  ) -> tuple[list[dict[str, Any]], list[SessionProblem]]:
     """Check the raw rating rows (in ``seq`` order) against the chain; returns the tidy rows
-    up to the first break and the problems found."""
+    up to the first break and the problems found. ``first_block_end``: in an adaptive study,
+    the plan index where the blocks appended later begin (they are not in the genesis; each
+    rating row still names its stimulus and repetition in the chain)."""
     problems: list[SessionProblem] = []
     by_idx = {p.index: p for p in plan}
-    original = [p for p in plan if p.requeue_of is None]
+    end = len(plan) if first_block_end is None else first_block_end
+    original = [p for p in plan if p.requeue_of is None and p.index < end]
     try:
         prev = genesis(header, original)
     except (KeyError, TypeError) as exc:

@@ -167,7 +167,40 @@ def _screening(con: sqlite3.Connection, body: Body) -> None:
                 (str(body["test"]), outcome, canonical(body["result"]), str(body["at"])))
 
 
+BLOCK_EVENT = "block"
+"""Event kind of a block of trials appended to the plan (adaptive allocation)."""
+
+
+def _block(con: sqlite3.Connection, body: Body) -> None:
+    """A further block of trials (adaptive allocation), appended to the plan once every
+    trial planned before it is answered; the block's number, id and issuer go into the
+    events, so the study server can check it against the blocks it issued."""
+    _not_withdrawn(con, "new trials")
+    if con.execute("SELECT finished_at FROM session").fetchone()[0] is not None:
+        raise StudyError("the session is finished; it takes no further block")
+    if next_pending(con) is not None:
+        raise StudyError("a block is added only when every planned trial is answered")
+    number = int(body["block"])
+    if body["issued_by"] not in ("server", "session"):
+        raise ValueError(f"issued_by must be server or session, got {body['issued_by']!r}")
+    done = con.execute("SELECT count(*) FROM events WHERE kind=?", (BLOCK_EVENT,)).fetchone()[0]
+    if number != done + 2:
+        raise StudyError(f"block {number} does not follow block {done + 1}")
+    trials = [(str(st), str(ref), int(rep), bool(hidden))
+              for st, ref, rep, hidden in body["trials"]]
+    if not trials:
+        raise ValueError("a block needs at least one trial")
+    start = con.execute("SELECT max(idx) + 1 FROM plan").fetchone()[0]
+    con.executemany("INSERT INTO plan VALUES (?,?,?,?,?,NULL)",
+                    [(start + k, st, ref, rep, int(hidden))
+                     for k, (st, ref, rep, hidden) in enumerate(trials)])
+    _event_row(con, str(body["at"]), BLOCK_EVENT, {
+        "block": number, "id": str(body["id"]), "issued_by": str(body["issued_by"]),
+        "first": start, "trials": len(trials)})
+
+
 APPLY: dict[str, Callable[[sqlite3.Connection, Body], None]] = {
+    "block": _block,
     "session": _session,
     "event": _event,
     "preflight": _preflight,

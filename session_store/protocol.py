@@ -12,7 +12,13 @@ participant's token as ``Authorization: Bearer <token>``; admin endpoints under
   client's log with what it acknowledged and notes the clock offset;
 - ``POST entries``: ``{protocol, session_id, client_time, entries: [outbox entries]}`` ->
   ``{acked_seq}``. Entries go in sequence order with their chain hashes; a re-send is
-  idempotent; a contradiction is refused (409) and flagged.
+  idempotent; a contradiction is refused (409) and flagged;
+- ``POST block`` (adaptive allocation): ``{protocol, session_id, block, last}`` ->
+  ``{block, id, stimuli, issued_by}``: the stimuli of block ``block`` (2, 3, ...) of the
+  session in order, planned from the ratings that arrived (``last``: the stimulus shown
+  last, so the block does not start with it); asking again returns the same block. The app
+  stores it as a ``block`` change; an upload with a block the server did not issue is
+  refused (409) and flagged.
 """
 
 from __future__ import annotations

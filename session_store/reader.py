@@ -161,7 +161,10 @@ def record_from(con: sqlite3.Connection, path: Path) -> SessionRecord:
     kinds = {str(e["kind"]) for e in snap.events}
     info = session_info(path, snap.header, kinds)
     try:
-        rows, problems = follow_chain(path, snap.header, snap.plan, snap.ratings)
+        firsts = [json.loads(e["details"] or "{}").get("first") for e in snap.events
+                  if e["kind"] == "block"]
+        rows, problems = follow_chain(path, snap.header, snap.plan, snap.ratings,
+                                      first_block_end=min(firsts) if firsts else None)
     except (KeyError, TypeError, ValueError) as exc:
         rows, problems = [], [SessionProblem(path, None, f"session tables unreadable ({exc})")]
     presentations = [{"trial": r["trial"], "outcome": r["outcome"], "logged_at": r["logged_at"],

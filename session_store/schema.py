@@ -14,7 +14,9 @@ Tables
 ``plan(idx INTEGER PRIMARY KEY, stimulus, reference, repetition, is_hidden_reference, requeue_of)``
     The trial order, stored before the first trial. ``requeue_of`` is NULL for planned trials
     and names the superseded trial for a trial re-queued (at the end) after too many dropped
-    frames.
+    frames. In an adaptive study the later blocks are appended when the plan so far is
+    answered (a ``block`` event records each: number, id, issuer, first index, size); the
+    chain's genesis covers the first block, each rating row names its stimulus.
 ``ratings`` (one row per answered trial, ``trial`` unique)
     ``seq`` (1, 2, ... in answer order), ``trial`` (the plan index), the stimulus and what was
     measured (see :data:`CHAINED`), ``prev_hash``, ``row_hash`` (see :mod:`.chain`).

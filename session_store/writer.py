@@ -248,6 +248,23 @@ class SessionStore:
             if self._outbox:
                 append_to_outbox(self._con, kind, body, self._session_id)
 
+    def add_block(self, block: int, block_id: str, trials: Sequence[tuple[str, str, int, bool]],
+                  *, issued_by: str) -> list[PlannedTrial]:
+        """Append block ``block`` (2, 3, ...) of an adaptive study to the plan: its trials as
+        (stimulus, reference, repetition, is_hidden_reference), as issued by the study server
+        (``issued_by`` "server") or planned by the app without one ("session"); one committed
+        transaction, in the hash-chained change log."""
+        self._require_open()
+        self._change("block", {"at": utc_now(), "block": int(block), "id": str(block_id),
+                               "issued_by": issued_by,
+                               "trials": [[s, r, int(k), bool(h)] for s, r, k, h in trials]})
+        return self.plan()[-len(trials):]
+
+    def blocks_done(self) -> int:
+        """Blocks in the plan so far (1 for the session's first plan)."""
+        return 1 + int(self._con.execute(
+            "SELECT count(*) FROM events WHERE kind='block'").fetchone()[0])
+
     def log_event(self, kind: str, **details: Any) -> None:
         """Append a session event (one committed transaction)."""
         self._change("event", {"at": utc_now(), "kind": kind, "details": details})

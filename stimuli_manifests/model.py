@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from .allocation import AdaptiveAllocation, AllocationPolicy
 from .formats import VersionedFormat
 from .ids import assign_missing_ids
 from .panel import Panel
@@ -87,6 +88,24 @@ class Protocol(_Strict):
     min_view_seconds: float | None = Field(
         default=None, ge=0.0, description="minimum viewing time before submit; None = one loop"
     )
+    allocation: AllocationPolicy = Field(
+        default="full", description="full: every stimulus `repetitions` times; adaptive: "
+        "blocks planned by the study server")
+    adaptive: AdaptiveAllocation | None = Field(
+        default=None, description="settings of adaptive allocation (defaults when omitted)")
+
+    @model_validator(mode="after")
+    def _adaptive_settings(self) -> Protocol:
+        if self.adaptive is not None and self.allocation != "adaptive":
+            raise ValueError("protocol.adaptive is set but protocol.allocation is "
+                             f"{self.allocation!r}: set allocation to 'adaptive' or remove it")
+        return self
+
+    def adaptive_settings(self) -> AdaptiveAllocation | None:
+        """The adaptive settings (defaults filled in), None for the full design."""
+        if self.allocation != "adaptive":
+            return None
+        return self.adaptive or AdaptiveAllocation()
 
 
 class DisplayRequirements(_Strict):
@@ -210,6 +229,18 @@ class Manifest(_Strict):
                     f"conditions[{i}] ({cond.id}): reference {cond.reference!r} is not one of "
                     f"the manifest's references"
                 )
+        return self
+
+    @model_validator(mode="after")
+    def _check_blocks(self) -> Manifest:
+        adaptive = self.protocol.adaptive_settings()
+        if adaptive is not None and adaptive.block_trials is not None:
+            n = len(self.stimuli())
+            if adaptive.block_trials > n * adaptive.max_per_block:
+                raise ValueError(
+                    f"protocol.adaptive.block_trials {adaptive.block_trials} cannot be filled: "
+                    f"{n} stimuli at most {adaptive.max_per_block} times each hold "
+                    f"{n * adaptive.max_per_block}")
         return self
 
     # -- convenient views -------------------------------------------------------------

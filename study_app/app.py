@@ -29,6 +29,14 @@ from typing import Any
 
 from session_store import PlannedTrial, SessionStore, TrialResult
 from session_store.errors import StudyError
+from session_store.schedule import (
+    block_trials,
+    make_schedule,
+    participant_seed,
+    pick_practice,
+    schedule_items,
+    uniform_block,
+)
 from session_store.study_folder import BRIEFING_NAME, CONSENT_NAME, Study
 from stimuli_manifests import StimuliError, probe_video
 
@@ -54,7 +62,6 @@ from .preflight import (
 )
 from .reveal import reveal_in_file_manager
 from .run_lock import RunLock
-from .schedule import make_schedule, participant_seed, pick_practice, schedule_items
 from .screens import content
 from .text_screen import TextScreen
 from .trial_screen import OnGpu, TrialScreen, upload_pair, viewing_layout_for
@@ -89,6 +96,10 @@ class RunOptions:
     upload_report: Callable[[], tuple[bool, str]] | None = None
     """With a study server: waits for the last uploads and says (everything arrived, the
     sentence for the end screen); the end screen then shows it."""
+    next_block: Callable[[str, int, str | None], dict[str, Any]] | None = None
+    """With a study server, in an adaptive study: asks for block ``k`` of session ``id``
+    (after the last stimulus shown); the server's answer. Without one the app plans uniform
+    blocks itself."""
 
     @property
     def pilot_allowed(self) -> bool:
@@ -287,8 +298,9 @@ class App:
         plan: list[PlannedTrial] | None = None
         if resume:
             with SessionStore.open(self.session_path) as store:
-                first = store.next_trial()
+                first = store.next_trial() or store.plan()[0]  # between two blocks: any pair
                 answered, total = store.progress()
+                total += self._later_blocks(store.blocks_done())
                 settings = store.info.settings
             started = settings.get("timing_mode")
             if started == "vsync" and timing == PACED_PILOT:
@@ -298,9 +310,12 @@ class App:
             n_left = total - answered
         else:
             seed = self._seed()
-            plan = make_schedule(schedule_items(self.m), self.m.protocol.repetitions, seed)
+            reps = 1 if self.m.protocol.allocation == "adaptive" else \
+                self.m.protocol.repetitions  # adaptive: block 1 holds every stimulus once
+            plan = make_schedule(schedule_items(self.m), reps, seed)
             first = plan[0]
-            answered, total, n_left = 0, len(plan), len(plan)
+            answered, total = 0, len(plan) + self._later_blocks(1)
+            n_left = total
         checks, geom = self._preflight(first)
         duration = describe_duration(n_left, self._loop_s, self.m.protocol.blank_seconds)
         failed = [c for c in checks if not c.ok]
@@ -556,13 +571,15 @@ class App:
         store = self.store
         pair, self._first_pair = self._first_pair, None
         since_break = 0
-        while (trial := store.next_trial()) is not None:
+        while (trial := store.next_trial()) is not None or self._next_block():
+            if trial is None:
+                continue
             if pair is None or pair.stimulus != trial.stimulus:
                 pair = self.prefetch.take(trial.index)
                 if pair is None or pair.stimulus != trial.stimulus:
                     pair = self._background(
                         lambda t=trial: decode_pair(t.stimulus, *self._paths(t)), "Loading...")
-            answered, total = store.progress()
+            answered, total = self._progress()
             gpu = upload_pair(self.display, pair)
             pair = None  # the frames live in textures now; free the decoded arrays
             try:
@@ -596,6 +613,69 @@ class App:
         self._state("end", answered=answered)
         self._end_screen(total, withdrawn=False)
         return RunOutcome("finished", self.session_path, answered, total)
+
+    # -- adaptive allocation: the blocks after the first -------------------------------
+    def _later_blocks(self, done: int) -> int:
+        """Trials in the blocks still to come after ``done`` blocks (0 in a full design)."""
+        settings = self.m.protocol.adaptive_settings()
+        if settings is None:
+            return 0
+        per_block = settings.trials_per_block(len(schedule_items(self.m)))
+        return max(settings.blocks - done, 0) * per_block
+
+    def _progress(self) -> tuple[int, int]:
+        """(answered, trials of the whole session, blocks to come included)."""
+        answered, total = self.store.progress()
+        return answered, total + self._later_blocks(self.store.blocks_done())
+
+    def _next_block(self) -> bool:
+        """Add the next block of an adaptive session to the plan: from the study server
+        (retried, or the session finished early, when it cannot be reached), or uniform
+        when the study runs without one. False when the session has all its blocks."""
+        settings = self.m.protocol.adaptive_settings()
+        store = self.store
+        done = store.blocks_done()
+        if settings is None or done >= settings.blocks:
+            return False
+        block = done + 1
+        plan = store.plan()
+        last = plan[-1].stimulus if plan else None
+        items = schedule_items(self.m)
+        if self.opts.next_block is None:
+            stimuli = uniform_block(items, settings.trials_per_block(len(items)),
+                                    store.info.seed, block, last)
+            block_id, issued_by = f"local-b{block}", "session"
+        else:
+            answer = self._ask_for_block(block, last)
+            if answer is None:
+                store.log_event("blocks_incomplete", blocks=done, of=settings.blocks)
+                return False
+            stimuli, block_id, issued_by = list(answer["stimuli"]), str(answer["id"]), "server"
+        trials = block_trials(items, stimuli, plan)
+        store.add_block(block, block_id, trials, issued_by=issued_by)
+        self._state("block", number=block, trials=len(trials), issued_by=issued_by)
+        return True
+
+    def _ask_for_block(self, block: int, last: str | None) -> dict[str, Any] | None:
+        """The server's next block; None when the participant chose to finish without it."""
+        assert self.opts.next_block is not None
+        sid = self.store.info.session_id
+        while True:
+            try:
+                answer = self._background(lambda: self.opts.next_block(sid, block, last),
+                                          "Getting the next part of the study...")
+                known = {it.id for it in schedule_items(self.m)}
+                stimuli = answer.get("stimuli") if isinstance(answer, dict) else None
+                if not isinstance(stimuli, list) or answer.get("block") != block or \
+                        not stimuli or not set(stimuli) <= known:
+                    raise StudyError("the study server's block does not fit this study")
+                return answer
+            except StudyError as exc:
+                log.warning("block %d not received: %s", block, exc)
+                answered, _ = self.store.progress()
+                if self._screen(content.block_unavailable(answered, self._name_keys)) \
+                        == "finish":
+                    return None
 
     def _end_screen(self, total: int, *, withdrawn: bool, screened_out: str = "") -> None:
         upload = None

@@ -26,6 +26,7 @@ from typing import Any
 
 from session_store import PlannedTrial, TrialResult
 from session_store.errors import StudyError
+from session_store.schedule import make_schedule, participant_seed, schedule_items
 from session_store.study_folder import Study
 
 from . import realtime
@@ -44,7 +45,6 @@ from .preflight import (
     check_refresh,
     check_screen,
 )
-from .schedule import make_schedule, participant_seed, schedule_items
 from .screens import preview_content
 from .screens.draw import ON_GREY
 from .text_screen import TextScreen

@@ -40,12 +40,13 @@ from tqdm.auto import tqdm
 
 from session_store import SessionStore, TrialResult
 from session_store.errors import StudyError
+from session_store.schedule import ScheduleItem, block_trials, make_schedule, uniform_block
 from stimuli_manifests import LoadedManifest, Stimulus, load_manifest
 
 from . import __version__
 from .panel_progress import QUESTIONNAIRE_EVENT
 from .remote import ServerClient, ServerUnavailable, Uploader, UploadStatus
-from .schedule import ScheduleItem, make_schedule
+from .remote.participant import request_block
 from .simulate_panel import (
     likert_centres,
     simulated_acuity_check,
@@ -228,6 +229,10 @@ class _Panel:
 
     @property
     def n_trials(self) -> int:
+        adaptive = self.loaded.manifest.protocol.adaptive_settings()
+        if adaptive is not None:  # block 1 holds every stimulus once
+            n = len(self.stimuli)
+            return n + (adaptive.blocks - 1) * adaptive.trials_per_block(n)
         return len(self.stimuli) * self.repetitions
 
 
@@ -295,10 +300,17 @@ def _draw_panel(loaded: LoadedManifest, opts: SimulationOptions, repetitions: in
                   kinds, rater_seeds, settings, centres, failures)
 
 
+NextBlock = Callable[[str, int, str | None], dict[str, Any]]
+"""(session id, block, last stimulus) -> the study server's block (``id``, ``stimuli``)."""
+
+
 def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
                     upload: UploadOptions | None,
-                    on_change: Callable[[], None] | None = None) -> RaterTruth:
-    """Rater ``k``'s whole session, written through the session store as the app would."""
+                    on_change: Callable[[], None] | None = None,
+                    next_block: NextBlock | None = None) -> RaterTruth:
+    """Rater ``k``'s whole session, written through the session store as the app would:
+    in an adaptive study block 1, then each later block from ``next_block`` (the study
+    server) or, without one, uniform blocks as the app plans them."""
     participant = panel.participants[k]
     seed = panel.rater_seeds[k]
     rng = np.random.default_rng(seed)
@@ -308,7 +320,8 @@ def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
                        f"{participant}{SESSION_SUFFIX}")
     items = [ScheduleItem(s.id, s.reference, s.is_hidden_reference) for s in panel.stimuli]
     by_id = {s.id: s for s in panel.stimuli}
-    plan = make_schedule(items, panel.repetitions, seed)
+    adaptive = panel.loaded.manifest.protocol.adaptive_settings()
+    plan = make_schedule(items, 1 if adaptive else panel.repetitions, seed)
     clock = None if upload is not None else START_TIME + timedelta(days=k)
     store = SessionStore.create(
         panel.out / f"{participant}{SESSION_SUFFIX}", participant=participant,
@@ -324,16 +337,32 @@ def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
         store.mark_started(display={"simulated": True})
         answer_rng = np.random.default_rng([seed, 1])
         _answer_panel(store, panel, k, "before", answer_rng)
-        for trial in plan:
-            stim = by_id[trial.stimulus]
-            rating = _rate(rng, panel.quality[stim.id], bias, sigma, panel.ambiguity[stim.scene],
-                           panel.kinds[k], panel.scale)
-            result, clock = _trial_result(rng, rating, clock)
-            if upload is not None and upload.pace_s > 0:
-                time.sleep(upload.pace_s)
-            store.record(trial.index, result)
+        block = 1
+        while True:
+            for trial in store.pending():
+                stim = by_id[trial.stimulus]
+                rating = _rate(rng, panel.quality[stim.id], bias, sigma,
+                               panel.ambiguity[stim.scene], panel.kinds[k], panel.scale)
+                result, clock = _trial_result(rng, rating, clock)
+                if upload is not None and upload.pace_s > 0:
+                    time.sleep(upload.pace_s)
+                store.record(trial.index, result)
+                changed()
+                bar.update(1)
+            if adaptive is None or block >= adaptive.blocks:
+                break
+            block += 1
+            last = store.plan()[-1].stimulus
+            if next_block is None:
+                stimuli = uniform_block(items, adaptive.trials_per_block(len(items)), seed,
+                                        block, last)
+                block_id, issued_by = f"local-b{block}", "session"
+            else:
+                answer = next_block(store.info.session_id, block, last)
+                stimuli, block_id, issued_by = answer["stimuli"], answer["id"], "server"
+            store.add_block(block, block_id, block_trials(items, stimuli, store.plan()),
+                            issued_by=issued_by)
             changed()
-            bar.update(1)
         _answer_panel(store, panel, k, "after", answer_rng)  # as the app: before finishing
         store.finish()
         changed()
@@ -380,6 +409,8 @@ def _write_truth(panel: _Panel, opts: SimulationOptions, raters: list[RaterTruth
         },
         "scale": {"min": panel.scale[0], "max": panel.scale[1]},
         "repetitions": panel.repetitions,
+        "trials_per_participant": panel.n_trials,
+        "allocation": m.protocol.allocation,
         "options": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(opts).items()},
         "contents": [{"scene": c, "ambiguity": panel.ambiguity[c]} for c in panel.scenes],
         "raters": [asdict(r) for r in raters],
@@ -423,8 +454,9 @@ def run_simulation(manifest_path: str | Path, out_dir: str | Path, opts: Simulat
                disable=not progress)
     t0 = time.monotonic()
 
-    def rater(k: int, on_change: Callable[[], None] | None = None) -> RaterTruth:
-        return _simulate_rater(panel, opts, k, bar, upload, on_change)
+    def rater(k: int, on_change: Callable[[], None] | None = None,
+              next_block: NextBlock | None = None) -> RaterTruth:
+        return _simulate_rater(panel, opts, k, bar, upload, on_change, next_block)
 
     statuses: dict[str, UploadStatus] = {}
     try:
@@ -480,8 +512,16 @@ def _rate_and_upload(rater: Callable[..., RaterTruth], participants: list[str], 
                 started = True
             up.notify()
 
+        def next_block(session_id: str, block: int, last: str | None) -> dict[str, Any]:
+            """As the app: wait for the uploads, ask; retry while the server is away."""
+            while True:
+                try:
+                    return request_block(client, pid, up, session_id, block, last)
+                except ServerUnavailable:
+                    time.sleep(upload.min_backoff_s)
+
         try:
-            results[k] = rater(k, changed)
+            results[k] = rater(k, changed, next_block)
         except BaseException as exc:
             errors.append(exc)
 

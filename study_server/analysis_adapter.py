@@ -115,3 +115,44 @@ def panel_correlation(frame: pd.DataFrame, loaded: LoadedManifest) -> dict[str, 
     except AnalysisError:
         return {}
     return {str(p): float(r) for p, r in panel_r(rs).items() if np.isfinite(r)}
+
+
+def allocation_fit_of(frame: pd.DataFrame, loaded: LoadedManifest, *, n_boot: int,
+                      seed: int) -> dict[str, Any]:
+    """The analysis' fit of the ratings so far as adaptive allocation needs it
+    (:func:`analysis.allocation.allocation_fit`), as plain JSON data for the log."""
+    from analysis import ratings_from_frame
+    from analysis.allocation import allocation_fit
+
+    rs = ratings_from_frame(frame, loaded, source="server")
+    fit = allocation_fit(rs, n_boot=n_boot, seed=seed)
+    cond = fit.condition_mask()
+    return {"stimuli": fit.stimulus_ids, "halfwidth": fit.halfwidth.tolist(),
+            "own_share": fit.own_share.tolist(), "reference": fit.reference.tolist(),
+            "hidden": fit.hidden.tolist(), "ratings": fit.ratings.tolist(),
+            "raters": rs.n_raters, "n_ratings": rs.n_ratings,
+            "mean_width": float(2 * fit.halfwidth[cond].mean()) if cond.any() else None,
+            "max_width": float(2 * fit.halfwidth[cond].max()) if cond.any() else None}
+
+
+def plan_counts(fit: dict[str, Any], size: int, pending: dict[str, int],
+                max_per_block: int) -> dict[str, int]:
+    """How often each stimulus appears in the next block (:func:`analysis.allocation.plan_block`)
+    from a logged fit and the ratings pending since it."""
+    from analysis.allocation import AllocationFit, plan_block
+
+    ids = list(fit["stimuli"])
+    af = AllocationFit(ids, np.asarray(fit["halfwidth"], dtype=float),
+                       np.asarray(fit["own_share"], dtype=float),
+                       np.asarray(fit["reference"], dtype=int),
+                       np.asarray(fit["hidden"], dtype=bool),
+                       np.asarray(fit["ratings"], dtype=float))
+    counts = plan_block(af, size, pending=np.array([pending.get(s, 0) for s in ids], dtype=float),
+                        max_per_block=max_per_block)
+    return {s: int(c) for s, c in zip(ids, counts, strict=True) if c}
+
+
+def warm_up() -> None:
+    """Import what the allocation uses (SUREAL, SciPy...), so the first request does not."""
+    import analysis.allocation
+    import analysis.scores  # noqa: F401

@@ -34,6 +34,7 @@ def routes() -> list[BaseRoute]:
         Route(f"{api}/files/{{path:path}}", participants.files),
         Route(f"{api}/handshake", participants.handshake, methods=["POST"]),
         Route(f"{api}/entries", participants.entries, methods=["POST"]),
+        Route(f"{api}/block", participants.block, methods=["POST"]),
         Route("/api/v1/admin/sessions", admin.sessions),
         Route("/api/v1/admin/participants/{pid}/entries", admin.participant_entries),
         Route("/dashboard", pages.dashboard),

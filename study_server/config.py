@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from session_store.protocol import CLOCK_SKEW_LIMIT_S, MAX_BODY_BYTES, OFFLINE_GAP_LIMIT_S
+
+from .stopping import StoppingTarget
 
 
 @dataclass
@@ -29,6 +31,8 @@ class ServerConfig:
     stats_in_background: bool = True
     store_addresses: bool = True
     """Keep each participant's last client address (for spotting abuse); off: none is kept."""
+    stopping: StoppingTarget = field(default_factory=StoppingTarget)
+    """The stopping rule's target (see :mod:`.stopping`); unset: none."""
 
     def __post_init__(self) -> None:
         self.study = Path(self.study)

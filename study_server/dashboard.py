@@ -92,9 +92,12 @@ class Pages:
             if s is not None:
                 state = {"finish": "finished", "withdrawn": "withdrew in app"}.get(
                     s["closed_as"] or "", "running")
-            rows.append({"p": p, "s": s, "ps": ps, "state": state,
-                         "progress": (s["n_ratings"] / s["n_planned"]) if s and s["n_planned"]
-                         else 0.0})
+            planned = 0
+            if s is not None:  # an adaptive session plans its later blocks as it goes
+                planned = s["n_planned"] if s["finished_at"] else \
+                    max(s["n_planned"], snap.planned_per_participant)
+            rows.append({"p": p, "s": s, "ps": ps, "state": state, "planned": planned,
+                         "progress": (s["n_ratings"] / planned) if s and planned else 0.0})
         per_stim = sorted(snap.per_stimulus.items(), key=lambda kv: kv[1])
         counts = [n for _, n in per_stim]
         scenes = None
@@ -108,7 +111,7 @@ class Pages:
         arrived = sum(r["s"]["n_ratings"] for r in rows if r["s"] is not None)
         to_go = sum((snap.planned_per_participant if r["s"] is None else
                      0 if r["s"]["finished_at"] else
-                     max(r["s"]["n_planned"] - r["s"]["n_ratings"], 0)) for r in rows)
+                     max(r["planned"] - r["s"]["n_ratings"], 0)) for r in rows)
         finished = sum(1 for r in rows if r["state"] == "finished")
         return {
             "study_id": self.study_id, "listing": listing, "rows": rows, "snap": snap,

@@ -23,6 +23,7 @@ import json
 import logging
 import sqlite3
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Annotated, Any, Literal
@@ -157,6 +158,9 @@ class Ingest:
         self._locks: dict[str, threading.Lock] = collections.defaultdict(threading.Lock)
         self._locks_lock = threading.Lock()
         self._panels: dict[str, Any] = {}
+        self.check_allocation: Callable[[str, str, str | None, list[OutboxEntry]],
+                                        str | None] | None = None
+        """Set by the server for adaptive studies (:meth:`.allocator.Allocator.check_entries`)."""
 
     # -- helpers ----------------------------------------------------------------------
     def _lock(self, pid: str) -> threading.Lock:
@@ -291,6 +295,11 @@ class Ingest:
             sha = sess.manifest_sha256 if sess is not None else (
                 first_header.get("manifest_sha256") if isinstance(first_header, dict) else None)
             self._check_answers(pid, msg.session_id, sha, entries)
+            if self.check_allocation is not None:
+                problem = self.check_allocation(pid, msg.session_id, sha, entries)
+                if problem is not None:
+                    self.flag(pid, msg.session_id, "allocation", problem)
+                    raise Refused(409, f"upload refused: {problem}")
             if sess is None:
                 acked = self._first_upload(pid, msg.session_id, entries, now, offset_ms,
                                            address)

@@ -13,6 +13,7 @@ from session_store.records import utc_now
 from session_store.study_folder import MANIFEST_NAME, load_study
 
 from . import auth
+from .allocator import Allocator
 from .config import ServerConfig
 from .dashboard import Pages
 from .ingest import Ingest, IngestLimits, Refused
@@ -68,6 +69,9 @@ class ServerState:
         self._old_versions: dict[str, StudyVersion] = {}
         self._versions_lock = threading.Lock()
         self.stats = StatsWorker(self.config, self.store, self.current)
+        self.allocator = Allocator.for_version(self.store, self.current)
+        if self.allocator.active:
+            self.ingest.check_allocation = self.allocator.check_entries
         self.pages = Pages(self.study_id, self.stats, self.sessions_listing,
                            self.config.stats_every_s)
 
@@ -86,9 +90,11 @@ class ServerState:
     def start(self) -> None:
         if self.config.stats_in_background:
             self.stats.start()
+            self.allocator.start()
 
     def stop(self) -> None:
         self.stats.stop()
+        self.allocator.stop()
         self.store.close()
 
     # -- participants -----------------------------------------------------------------
@@ -105,6 +111,16 @@ class ServerState:
         if wait > 0:
             raise Refused(429, "too many failed attempts; try again later", wait)
         raise Refused(403, "this token does not belong to this participant")
+
+    def check_open(self, pid: str) -> None:
+        """Refuse (403) a participant who has not started when the study closed at its
+        target (``serve --close-at-target``); those who started finish."""
+        if not self.config.stopping.close_at_target:
+            return
+        status = self.stats.snapshot().stopping
+        if status is not None and status.reached and self.store.session_of(pid) is None:
+            raise Refused(403, "this study has reached its target and takes no new "
+                               "participants; thank you for your interest")
 
     def version_for(self, pid: str) -> StudyVersion:
         """The version the participant's session is pinned to, else the current one."""

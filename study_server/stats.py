@@ -20,6 +20,7 @@ from session_store.ratings_csv import RATINGS_COLUMNS, tidy_row
 from session_store.records import utc_now
 
 from .ingest import parse_time
+from .stopping import StoppingStatus, WidthPoint, evaluate
 
 if TYPE_CHECKING:
     from .analysis_adapter import StudyFigures
@@ -78,6 +79,11 @@ class StatsSnapshot:
     """Participants who answered at least one questionnaire question."""
     panel_screened: int = 0
     panel_failed: int = 0
+    allocation: str = "full"
+    """The manifest's allocation policy; ``adaptive`` holds its settings."""
+    adaptive: dict[str, Any] | None = None
+    stopping: StoppingStatus | None = None
+    """Where the study stands against the stopping rule's target (None: no target)."""
 
     def age_s(self) -> float | None:
         t = parse_time(self.computed_at)
@@ -240,11 +246,18 @@ class StatsWorker:
         m = parse_manifest(manifest, source="manifest")
         stimuli = [s.id for s in m.stimuli()]
         snap.has_panel = m.panel is not None
+        snap.allocation = m.protocol.allocation
+        adaptive = m.protocol.adaptive_settings()
+        snap.adaptive = None if adaptive is None else adaptive.model_dump()
         reps = m.protocol.repetitions
         snap.planned_per_participant = len(stimuli) * reps
+        if adaptive is not None:  # block 1 (every stimulus once) and the later blocks
+            snap.planned_per_participant = len(stimuli) + (adaptive.blocks - 1) * \
+                adaptive.trials_per_block(len(stimuli))
+            reps = snap.planned_per_participant / max(len(stimuli), 1)
         invited = store.participants()
         target_raters = self.config.target_raters or max(len(invited), 1)
-        snap.target_per_stimulus = target_raters * reps
+        snap.target_per_stimulus = round(target_raters * reps)
         counts = frame.groupby("stimulus").size().to_dict() if len(frame) else {}
         snap.per_stimulus = {s: int(counts.get(s, 0)) for s in stimuli}
         self._progress(snap, rows, invited)
@@ -260,11 +273,27 @@ class StatsWorker:
             for pid, reason in snap.study.removed_reasons.items():
                 if pid in snap.participants:
                     snap.participants[pid].removed_by_screening = reason
+            self._record_widths(snap)
+        if self.config.stopping.is_set:
+            points = [WidthPoint(*row) for row in store.width_history()]
+            snap.stopping = evaluate(self.config.stopping, points, snap.n_ratings)
         snap.seconds = time.perf_counter() - t0
         snap.computed_at = utc_now()
         with self._lock:
             self._snapshot = snap
         return snap
+
+    def _record_widths(self, snap: StatsSnapshot) -> None:
+        """Keep the conditions' DMOS interval widths with the number of raters behind them."""
+        d = snap.study.dmos if snap.study is not None else None
+        if d is None or not len(d):
+            return
+        cond = d[~d["is_hidden_reference"].astype(bool)]
+        width = (cond["ci95_high"] - cond["ci95_low"]).astype(float)
+        width = width[width.abs() < float("inf")]  # NaN and inf left out
+        if len(width) and snap.study.n_raters >= 2:
+            self.store.record_widths(snap.study.n_raters, snap.n_ratings, float(width.mean()),
+                                     float(width.max()), utc_now())
 
     def _progress(self, snap: StatsSnapshot, rows: list[tuple[str, str, str, str]],
                   invited: list[Any]) -> None:
@@ -275,7 +304,7 @@ class StatsWorker:
             if s is None:
                 remaining += snap.planned_per_participant
             elif s.finished_at is None:
-                remaining += max(s.n_planned - s.n_ratings, 0)
+                remaining += max(max(s.n_planned, snap.planned_per_participant) - s.n_ratings, 0)
         snap.remaining = remaining
         recent = self.store.ratings_received_since(
             (datetime.now(UTC) - RATE_WINDOW).isoformat(timespec="milliseconds")

@@ -89,7 +89,26 @@ def _v2(con: sqlite3.Connection) -> None:
     """)
 
 
-MIGRATIONS: tuple[Callable[[sqlite3.Connection], None], ...] = (_v1, _v2)
+def _v3(con: sqlite3.Connection) -> None:
+    """The log of adaptive allocation: every refit (which ratings it used) and every block
+    issued (with the fit and the pending counts it was planned from), for audit and replay;
+    and the DMOS interval widths per number of raters, for the stopping rule."""
+    _script(con, """
+        CREATE TABLE allocation_fits (
+            fit_id INTEGER PRIMARY KEY, at TEXT NOT NULL, used TEXT NOT NULL,
+            fit TEXT NOT NULL, seconds REAL NOT NULL);
+        CREATE TABLE allocation_blocks (
+            session_id TEXT NOT NULL, block INTEGER NOT NULL, block_id TEXT NOT NULL,
+            participant TEXT NOT NULL, issued_at TEXT NOT NULL, fit_id INTEGER,
+            inputs TEXT NOT NULL, stimuli TEXT NOT NULL, seconds REAL NOT NULL,
+            PRIMARY KEY (session_id, block)) WITHOUT ROWID;
+        CREATE TABLE stopping_history (
+            raters INTEGER PRIMARY KEY, ratings INTEGER NOT NULL, mean_width REAL NOT NULL,
+            max_width REAL NOT NULL, at TEXT NOT NULL);
+    """)
+
+
+MIGRATIONS: tuple[Callable[[sqlite3.Connection], None], ...] = (_v1, _v2, _v3)
 """``MIGRATIONS[i]`` takes the database from version ``i`` to ``i + 1``."""
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -288,6 +307,14 @@ class ServerStore:
         finally:
             con.execute("COMMIT")
 
+    def writing(self) -> contextlib.AbstractContextManager[sqlite3.Connection]:
+        """One write transaction (for the tables other modules own: the allocation log)."""
+        return self._write()
+
+    def reading(self) -> contextlib.AbstractContextManager[sqlite3.Connection]:
+        """One consistent read."""
+        return self._read()
+
     @property
     def schema_version(self) -> int:
         with self._read() as con:
@@ -477,6 +504,7 @@ class ServerStore:
                         "sessions WHERE participant=?)", (pid,))
             con.execute("DELETE FROM sessions WHERE participant=?", (pid,))
             con.execute("DELETE FROM flags WHERE participant=?", (pid,))
+            con.execute("DELETE FROM allocation_blocks WHERE participant=?", (pid,))
             con.execute("DELETE FROM participants WHERE participant=?", (pid,))
             con.execute("INSERT INTO tombstones VALUES (?,?,?,?)", (pid, at, n, reason))
         return Tombstone(pid, at, n, reason)
@@ -499,6 +527,19 @@ class ServerStore:
             out.close()
         tmp.replace(dest)
         return dest
+
+    def record_widths(self, raters: int, ratings: int, mean_width: float, max_width: float,
+                      at: str) -> None:
+        """The DMOS interval widths with ``raters`` raters in (the latest per count)."""
+        with self._write() as con:
+            con.execute("INSERT OR REPLACE INTO stopping_history VALUES (?,?,?,?,?)",
+                        (raters, ratings, mean_width, max_width, at))
+
+    def width_history(self) -> list[tuple[int, int, float, float]]:
+        with self._read() as con:
+            return [tuple(r) for r in con.execute(
+                "SELECT raters, ratings, mean_width, max_width FROM stopping_history "
+                "ORDER BY raters")]
 
     def ratings_received_since(self, since: str) -> int:
         with self._read() as con:

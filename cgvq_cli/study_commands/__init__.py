@@ -6,4 +6,4 @@ in the order of ``COMMANDS``; a module that is not present yet is simply not off
 """
 
 COMMANDS = ("init", "panel", "preview", "run", "check", "export", "verify", "synth",
-            "simulate", "serve", "invite", "pull", "backup", "withdraw")
+            "simulate", "serve", "invite", "pull", "backup", "withdraw", "allocation")

@@ -112,9 +112,11 @@ def _run_served(invite, args: argparse.Namespace, opts) -> int:
     from session_store import read_session
     from session_store.study_folder import load_study
     from study_app.app import run_study
+    from study_app.remote.http import ServerClient
     from study_app.remote.participant import (
         FLUSH_AT_END_S,
         fetch_study,
+        request_block,
         start_uploader,
         upload_report,
     )
@@ -133,6 +135,9 @@ def _run_served(invite, args: argparse.Namespace, opts) -> int:
                 print(f"Your session is finished ({path}). {status.describe()}")
                 return 0 if status.all_arrived else 1
         opts.upload_report = lambda: upload_report(uploader)
+        client = ServerClient(invite.server, invite.token)
+        opts.next_block = lambda sid, k, last: request_block(client, invite.participant,
+                                                             uploader, sid, k, last)
         outcome = run_study(study, opts)
         status = uploader.flush(FLUSH_AT_END_S if path.exists() else 0.0)
     finally:

@@ -41,12 +41,24 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "participant, for spotting abuse)")
     parser.add_argument("--max-body", type=int, default=None, metavar="BYTES",
                         help="largest request body (default 1 MiB)")
+    stop = parser.add_argument_group("stopping rule (shown on the dashboard)")
+    stop.add_argument("--target-mean-ci", type=float, default=None, metavar="W",
+                      help="target: mean DMOS 95%% CI width over the conditions at most W "
+                           "(on the rating scale)")
+    stop.add_argument("--target-max-ci", type=float, default=None, metavar="W",
+                      help="target: widest DMOS 95%% CI at most W")
+    stop.add_argument("--target-ratings", type=int, default=None, metavar="N",
+                      help="target: a budget of N ratings")
+    stop.add_argument("--close-at-target", action="store_true",
+                      help="take no new participants once the target is reached (those who "
+                           "started finish)")
 
 
 def run(args: argparse.Namespace) -> int:
     from session_store.errors import StudyError
     from study_server.config import ServerConfig
     from study_server.serve import Listen, serve
+    from study_server.stopping import StoppingTarget
 
     if args.stats_every <= 0 or args.rate <= 0 or args.burst < 1:
         raise StudyError("--stats-every and --rate must be positive and --burst at least 1")
@@ -55,6 +67,17 @@ def run(args: argparse.Namespace) -> int:
                           rate_per_s=args.rate, burst=args.burst,
                           secure_cookies=args.behind_proxy is not None,
                           store_addresses=not args.no_addresses)
+    for flag, value in (("--target-mean-ci", args.target_mean_ci),
+                        ("--target-max-ci", args.target_max_ci)):
+        if value is not None and not (0 < value < float("inf")):
+            raise StudyError(f"{flag} must be a positive width, got {value:g}")
+    if args.target_ratings is not None and args.target_ratings < 1:
+        raise StudyError(f"--target-ratings must be at least 1, got {args.target_ratings}")
+    config.stopping = StoppingTarget(args.target_mean_ci, args.target_max_ci,
+                                     args.target_ratings, args.close_at_target)
+    if args.close_at_target and not config.stopping.is_set:
+        raise StudyError("--close-at-target needs a target (--target-mean-ci, --target-max-ci "
+                         "or --target-ratings)")
     if args.max_body is not None:
         if args.max_body < 64 * 1024:
             raise StudyError("--max-body below 64 KiB would refuse ordinary uploads")

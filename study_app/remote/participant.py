@@ -128,3 +128,22 @@ def check_invite_args(server: str | None, participant: str | None, token: str | 
         raise StudyError("with --server also give --participant and --token (or use the "
                          "invite file: --invite FILE)")
     return Invite(server, participant, token)
+
+
+BLOCK_FLUSH_S = 15.0
+"""How long the app waits for its uploads before it asks for the next block."""
+
+
+def request_block(client: ServerClient, participant: str, uploader: Uploader,
+                  session_id: str, block: int, last: str | None) -> dict:
+    """The next block of an adaptive session from the study server, once the uploads so far
+    arrived (the server plans from them); ``ServerUnavailable``/``ServerRefused`` otherwise."""
+    from session_store.protocol import PROTOCOL
+
+    status = uploader.flush(BLOCK_FLUSH_S)
+    if not status.all_arrived:
+        raise ServerUnavailable(f"the answers so far have not all reached the study server "
+                                f"({status.describe()})")
+    return client.json("POST", f"/api/v1/participants/{participant}/block",
+                       {"protocol": PROTOCOL, "session_id": session_id, "block": block,
+                        "last": last})

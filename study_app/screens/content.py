@@ -190,6 +190,18 @@ def colour_check_intro(n: int, name_keys: NameKeys) -> ScreenSpec:
                  name_keys, primary="go")
 
 
+def block_unavailable(answered: int, name_keys: NameKeys) -> ScreenSpec:
+    body = (f"Your {answered} answers so far are saved. The next part of the study comes from "
+            "the study server, which cannot be reached just now (is the computer online?).\n\n"
+            "- **Try again** once the connection is back;\n"
+            "- or **finish here**: your answers count, and they are sent when the server can "
+            "be reached again.")
+    return _spec("block-unavailable", "The next part could not be fetched", body,
+                 keymap(retry=["enter", "space"], finish=["f"]),
+                 [("retry", "Try again"), ("finish", "Finish here")], name_keys,
+                 close_action="finish", primary="retry")
+
+
 def acuity_check_intro(distance_cm: float, name_keys: NameKeys) -> ScreenSpec:
     cards = distance_cm / 8.56
     body = ("Next, a short check of how sharp and how faint a shape you can see on this screen."

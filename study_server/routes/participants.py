@@ -10,15 +10,19 @@ so nothing is written for a request refused before that point.
 
 from __future__ import annotations
 
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictStr
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response
 
 from session_store.errors import StudyError
 from session_store.ids import check_participant_id
+from session_store.protocol import PROTOCOL
 
 from .. import auth
-from ..ingest import Refused
+from ..ingest import Refused, SessionId, parse
 from .common import SECURITY_HEADERS, guarded, read_json, server_of
 
 PREFIX = "/api/v1/participants/{pid}"
@@ -46,6 +50,7 @@ def participant_of(request: Request) -> str:
     wait = st.limiter.acquire(pid)
     if wait > 0:
         raise Refused(429, f"too many requests; try again in {wait:.1f} s", wait)
+    st.check_open(pid)
     return pid
 
 
@@ -85,6 +90,29 @@ async def handshake(request: Request) -> Response:
     return await guarded(work)
 
 
+class BlockIn(BaseModel):
+    """A request for the next block of an adaptive study (:mod:`study_server.allocator`)."""
+
+    model_config = ConfigDict(extra="forbid")
+    protocol: Literal[PROTOCOL]  # type: ignore[valid-type]
+    session_id: SessionId
+    block: Annotated[StrictInt, Field(ge=2, le=1000)]
+    last: Annotated[StrictStr, Field(max_length=200)] | None = None
+
+
+async def block(request: Request) -> Response:
+    """The next block of trials of the participant's session (adaptive allocation); the
+    same block again when it was issued before."""
+    async def work() -> Response:
+        st = server_of(request)
+        pid = await run_in_threadpool(participant_of, request)
+        msg: BlockIn = parse(BlockIn, await read_json(request, st.config.max_body_bytes))
+        issued = await run_in_threadpool(st.allocator.issue, pid, msg.session_id, msg.block,
+                                         msg.last)
+        return JSONResponse(issued.answer(), headers=SECURITY_HEADERS)
+    return await guarded(work)
+
+
 async def entries(request: Request) -> Response:
     """New outbox entries; the statistics worker is woken after each accepted upload."""
     async def work() -> Response:
@@ -93,5 +121,6 @@ async def entries(request: Request) -> Response:
         data = await read_json(request, st.config.max_body_bytes)
         answer = await run_in_threadpool(st.ingest.upload, pid, data, client_address(request))
         st.stats.poke()
+        st.allocator.poke()
         return JSONResponse(answer, headers=SECURITY_HEADERS)
     return await guarded(work)

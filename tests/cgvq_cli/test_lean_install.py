@@ -44,8 +44,8 @@ def test_participant_commands_work_without_the_research_stack(tiny_study, tmp_pa
     check = study("check", str(tiny_study))
     assert check.returncode == 0, check.stderr
     assert "OK" in check.stdout
+    from session_store.schedule import make_schedule, schedule_items
     from session_store.study_folder import load_study
-    from study_app.schedule import make_schedule, schedule_items
 
     s = load_study(tiny_study)
     path = tiny_study / "sessions" / "P01.sqlite"

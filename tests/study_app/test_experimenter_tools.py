@@ -11,10 +11,10 @@ from support.tamper import edit_database
 from cgvq_cli.study_cli import main
 from session_store import RATINGS_COLUMNS, SessionStore, TrialResult
 from session_store.errors import StudyError
+from session_store.schedule import make_schedule, schedule_items
 from session_store.study_folder import load_study
 from study_app.export import export_name, export_session, verify_file
 from study_app.preflight import check_checksums
-from study_app.schedule import make_schedule, schedule_items
 from study_app.study_check import check_study
 
 

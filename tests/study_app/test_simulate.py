@@ -11,8 +11,8 @@ import pytest
 
 from session_store import read_info, read_ratings, verify_session
 from session_store.errors import StudyError
+from session_store.schedule import ScheduleItem, make_schedule
 from stimuli_manifests import parse_manifest, save_manifest
-from study_app.schedule import ScheduleItem, make_schedule
 from study_app.simulate import SimulationOptions, simulate_panel
 
 METHODS = ("path_tracing", "vrs")

@@ -109,8 +109,8 @@ def write_session(study: Path, path: Path, participant: str, *, ratings: int,
                   finish: bool = False, seed: int = 1):
     """A session file of ``study`` (as the app writes it) with ``ratings`` answered trials."""
     from session_store import SessionStore, TrialResult, utc_now
+    from session_store.schedule import ScheduleItem, make_schedule
     from stimuli_manifests import load_manifest as _load
-    from study_app.schedule import ScheduleItem, make_schedule
 
     loaded = _load(study / "manifest.json")
     m = loaded.manifest

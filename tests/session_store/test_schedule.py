@@ -9,7 +9,7 @@ from collections import Counter
 import pytest
 
 from session_store.errors import StudyError
-from study_app.schedule import ScheduleItem, make_schedule, participant_seed, pick_practice
+from session_store.schedule import ScheduleItem, make_schedule, participant_seed, pick_practice
 
 
 def items(n):
@@ -60,3 +60,36 @@ def test_requeue_policy():
     assert not needs_requeue(500, 10, again)  # re-queued once at most
     assert not needs_requeue(500, -1, first)  # disabled
     assert needs_requeue(1, 0, first)
+
+
+def test_blocks_of_an_adaptive_session_follow_their_counts():
+    from session_store.schedule import (
+        block_seed,
+        block_trials,
+        order_trials,
+        uniform_block,
+        uniform_counts,
+    )
+
+    items = [ScheduleItem(f"S{k}", "R" if k else "R", k == 0) for k in range(5)]
+    first = make_schedule(items, 1, 7)
+    counts = {"S0": 3, "S1": 2, "S3": 1}
+    order = order_trials(items, counts, block_seed(7, 2), start_index=5,
+                         last=first[-1].stimulus)
+    assert [t.index for t in order] == list(range(5, 11))
+    assert {s: sum(t.stimulus == s for t in order) for s in counts} == counts
+    assert order[0].stimulus != first[-1].stimulus
+    assert all(a.stimulus != b.stimulus for a, b in zip(order, order[1:], strict=False))
+    assert order == order_trials(items, counts, block_seed(7, 2), start_index=5,
+                                 last=first[-1].stimulus)
+    assert block_seed(7, 2) != block_seed(7, 3) != block_seed(8, 2)
+    # one stimulus holding most of a block: its extra trials come last, none is lost
+    crowded = order_trials(items, {"S0": 4, "S1": 1}, 3)
+    assert sorted(t.stimulus for t in crowded) == ["S0"] * 4 + ["S1"]
+    assert uniform_counts(["a", "b", "c"], 7) == {"a": 3, "b": 2, "c": 2}
+    stimuli = uniform_block(items, 5, 7, 2, first[-1].stimulus)
+    assert sorted(stimuli) == [f"S{k}" for k in range(5)]
+    trials = block_trials(items, ["S0", "S2", "S0"], first)
+    assert trials == [("S0", "R", 2, True), ("S2", "R", 2, False), ("S0", "R", 3, True)]
+    with pytest.raises(StudyError, match="does not have"):
+        block_trials(items, ["S9"], first)

@@ -1,0 +1,72 @@
+"""The stopping rule: the decay of the DMOS interval widths with raters recovered from
+points on a known power law, targets met or not, the participants still needed; and a
+served study that closes to new participants once its target is reached."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from session_store.protocol import PROTOCOL
+from study_app.remote import ServerClient
+from study_app.remote.http import ServerRefused
+from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
+from study_server.stopping import StoppingTarget, WidthPoint, evaluate, fit_decay
+
+from .conftest import make_served_study
+
+
+def _law(c: float, alpha: float, raters: range) -> list[WidthPoint]:
+    return [WidthPoint(n, 100 * n, c * n ** -alpha, 1.5 * c * n ** -alpha) for n in raters]
+
+
+def test_the_decay_of_a_power_law_is_recovered():
+    decay = fit_decay(_law(40.0, 0.5, range(2, 9)), "mean_width")
+    assert decay.c == pytest.approx(40.0) and decay.alpha == pytest.approx(0.5)
+    assert decay.raters_for(10.0) == pytest.approx(16.0)  # 40 / sqrt(16) = 10
+    assert fit_decay(_law(40.0, 0.5, range(2, 4)), "mean_width") is None  # one point >= 3
+
+
+def test_targets_met_and_participants_still_needed():
+    points = _law(40.0, 0.5, range(3, 9))  # now: 8 raters, mean 14.14, widest 21.2
+    status = evaluate(StoppingTarget(mean_ci_width=10.0, max_ci_width=30.0), points, 800)
+    assert status.met == {"mean CI width": False, "widest CI": True} and not status.reached
+    assert status.projected_raters["mean CI width"] == pytest.approx(16.0)
+    assert status.more_raters == 8
+    done = evaluate(StoppingTarget(mean_ci_width=15.0, ratings=800), points, 800)
+    assert done.reached and done.more_raters == 0
+    assert not evaluate(StoppingTarget(ratings=801), points, 800).reached
+    assert not evaluate(StoppingTarget(), points, 800).reached  # no target: never reached
+    assert StoppingTarget(mean_ci_width=8, ratings=10).describe() == \
+        "mean DMOS 95 % CI width <= 8 and 10 ratings"
+
+
+def test_a_study_closes_to_new_participants_at_its_target(tmp_path, invites, server_factory):
+    study = make_served_study(tmp_path / "study", refs=3, conds=2, repetitions=2,
+                              file_bytes=256)  # 9 stimuli x 2 = 18 trials
+    inv = invites(5, study=study)
+    srv = server_factory(study, "--stats-every", "1", "--target-ratings", "50",
+                         "--close-at-target")
+    run = run_simulation(study / "manifest.json", tmp_path / "local",
+                         SimulationOptions(raters=3, seed=4), progress=False,
+                         upload=UploadOptions(srv.url, {i.participant: i.token
+                                                        for i in inv[:3]}))
+    assert all(s.all_arrived for s in run.upload.values())
+    hello = {"protocol": PROTOCOL, "session_id": None, "app_version": "t", "log_hashes": [],
+             "client_time": "2026-01-01T00:00:00Z", "local_problems": []}
+    deadline = time.monotonic() + 60
+    while True:  # the statistics notice the target in the background
+        try:
+            ServerClient(srv.url, inv[3].token).json(
+                "POST", f"/api/v1/participants/{inv[3].participant}/handshake", hello)
+        except ServerRefused as exc:
+            assert exc.status == 403 and "reached its target" in str(exc)
+            break
+        assert time.monotonic() < deadline, "the study never closed"
+        time.sleep(0.5)
+    # a participant who started goes on
+    answer = ServerClient(srv.url, inv[0].token).json(
+        "POST", f"/api/v1/participants/{inv[0].participant}/handshake",
+        hello)
+    assert answer["acked_seq"] > 0

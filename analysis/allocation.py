@@ -7,9 +7,9 @@ report will show.
 
 **Forecast.** A condition's DMOS is ``Q(v) - Q(ref) + 100``; its variance has a part from
 its own ratings and a part from its reference's, each shrinking like one over the number of
-ratings (:func:`forecast_halfwidth`). The split between the two parts comes from the residual
-variance of each stimulus's ratings under the fitted model (clipping at the scale's ends
-makes it smaller there), with ``n`` counting the ratings already in and those planned in
+ratings (:func:`forecast_halfwidth`). The variance of one rating comes from the fitted model
+(quality, rater bias and inconsistency, content ambiguity, clipping at the scale's ends:
+:func:`rating_variance`), with ``n`` counting the ratings already in and those planned in
 blocks issued but not yet returned.
 
 **Plan.** Greedily, one trial at a time, the block takes the stimulus whose extra rating
@@ -32,7 +32,7 @@ from .scores import ScoreResult, fit_scores
 
 POWER = 16.0
 MAX_PER_BLOCK = 3
-SHRINK_RATINGS = 5.0  # pull a stimulus's residual variance towards the pooled one
+GAUSS_HERMITE_NODES = 40
 
 
 @dataclass(frozen=True)
@@ -50,34 +50,75 @@ class AllocationFit:
         return ~self.hidden & (self.reference >= 0)
 
 
-def residual_variance(rs: RatingSet, res: ScoreResult) -> np.ndarray:
-    """Per stimulus: the mean squared residual of its ratings under the fitted quality and
-    rater bias, shrunk towards the pooled value by ``SHRINK_RATINGS`` pseudo-ratings."""
+def rating_variance(rs: RatingSet, res: ScoreResult) -> np.ndarray:
+    """Per stimulus: the variance of one bias-corrected rating that the fitted model
+    predicts, ``Var[clip(Q + b_s + sqrt(v_s^2 + a_c^2) e, scale)]`` averaged over the panel's
+    raters (Gauss-Hermite quadrature). It comes from the fitted quality, rater and content
+    parameters, not from each stimulus's own scatter, so the plan does not chase the noise
+    of the intervals it is trying to narrow (which would leave intervals that came out too
+    narrow by chance under-sampled, and under-covering)."""
+    z, w = np.polynomial.hermite_e.hermegauss(GAUSS_HERMITE_NODES)
+    w = w / w.sum()
+    q = np.asarray(res.quality, dtype=float)
     bias = np.nan_to_num(np.asarray(res.rater_bias if res.rater_bias is not None
                                     else np.zeros(rs.n_raters), dtype=float))
-    resid = rs.scores - res.quality[:, None, None] - bias[None, :, None]
+    incons = np.nan_to_num(np.asarray(res.rater_inconsistency if res.rater_inconsistency
+                                      is not None else np.zeros(rs.n_raters), dtype=float))
+    if res.content_ambiguity is not None and len(res.content):
+        by_content = dict(zip(res.content, np.nan_to_num(res.content_ambiguity), strict=True))
+        amb = np.array([by_content.get(r, 0.0) for r in rs.stimuli["reference"]])
+    else:
+        amb = content_ambiguity_from_residuals(rs, q, bias, incons)
+    sd = np.sqrt(incons[None, :, None] ** 2 + amb[:, None, None] ** 2)
+    y = np.clip(q[:, None, None] + bias[None, :, None] + sd * z[None, None, :],
+                rs.scale_min, rs.scale_max)
+    m1 = (y * w).sum(axis=2)
+    var = ((y * y * w).sum(axis=2) - m1 * m1).mean(axis=1)
+    floor = (0.01 * (rs.scale_max - rs.scale_min)) ** 2  # a stimulus pinned at an end
+    return np.maximum(var, floor)
+
+
+def content_ambiguity_from_residuals(rs: RatingSet, quality: np.ndarray, bias: np.ndarray,
+                                     inconsistency: np.ndarray) -> np.ndarray:
+    """Per stimulus, its content's ambiguity when the fitted model has none (SUREAL's P.910
+    fallback is content-oblivious): the residual variance of all the content's ratings
+    beyond the raters' inconsistency, pooled over the content so that one stimulus's
+    scatter hardly moves it."""
+    resid = rs.scores - quality[:, None, None] - bias[None, :, None]
     finite = np.isfinite(resid)
-    ss = np.where(finite, resid * resid, 0.0).sum(axis=(1, 2))
-    n = finite.sum(axis=(1, 2))
-    pooled = ss.sum() / max(n.sum(), 1)
-    return (ss + SHRINK_RATINGS * pooled) / (n + SHRINK_RATINGS)
+    expected = np.broadcast_to((inconsistency ** 2)[None, :, None], resid.shape)
+    extra = np.where(finite, resid * resid - expected, 0.0).sum(axis=(1, 2))
+    count = finite.sum(axis=(1, 2))
+    refs = rs.stimuli["reference"].to_numpy()
+    out = np.zeros(rs.n_stimuli)
+    for r in np.unique(refs):
+        rows = refs == r
+        out[rows] = np.sqrt(max(extra[rows].sum() / max(count[rows].sum(), 1), 0.0))
+    return out
 
 
 def allocation_fit(rs: RatingSet, *, n_boot: int = 200, seed: int = 0) -> AllocationFit:
-    """Fit the analysis' model to the ratings so far and keep what a plan needs."""
+    """Fit the analysis' model to the ratings so far and keep what a plan needs: each
+    condition's DMOS half-width as the model predicts it from the ratings' variances and
+    counts (:func:`rating_variance`), put on the scale of the analysis' bootstrap intervals
+    (their median ratio), and the share of it from the condition's own ratings."""
     res = fit_scores(rs, "mle", n_boot=n_boot, seed=seed)
     ref = rs.reference_index()
     hidden = rs.hidden_reference_mask
     n = np.isfinite(rs.scores).sum(axis=(1, 2)).astype(float)
-    s2 = residual_variance(rs, res)
+    s2 = rating_variance(rs, res)
     own = s2 / np.maximum(n, 1)
     has = (ref >= 0) & ~hidden
-    refpart = np.where(has, s2[np.maximum(ref, 0)] / np.maximum(n[np.maximum(ref, 0)], 1), 0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        share = np.where(has, own / (own + refpart), 1.0)
-    half = np.nan_to_num(np.asarray(res.dmos_halfwidth, dtype=float), nan=0.0)
-    return AllocationFit(rs.stimulus_ids, np.where(hidden, 0.0, half),
-                         np.nan_to_num(share, nan=1.0), ref, hidden.copy(), n)
+    r = np.maximum(ref, 0)
+    refpart = np.where(has, s2[r] / np.maximum(n[r], 1), 0.0)
+    share = np.where(has, own / (own + refpart), 1.0)
+    model = np.sqrt(own + refpart)
+    boot = np.asarray(res.dmos_halfwidth, dtype=float)
+    ratio = boot[has] / model[has]
+    ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
+    scale = float(np.median(ratio)) if ratio.size else 1.0
+    half = np.where(has, scale * model, 0.0)
+    return AllocationFit(rs.stimulus_ids, half, share, ref, hidden.copy(), n)
 
 
 def forecast_halfwidth(fit: AllocationFit, counts: np.ndarray,

@@ -15,6 +15,12 @@ import pandas as pd
 
 STIMULUS_COLUMNS = ("reference", "scene", "method", "level", "is_hidden_reference")
 
+ALLOCATIONS = ("full", "adaptive", "unbalanced")
+"""How the ratings were allocated: ``full`` (every rater rates every stimulus the same number
+of times), ``adaptive`` (the manifest's ``protocol.allocation``: block 1 holds every stimulus
+once, later blocks give some stimuli more ratings), ``unbalanced`` (no such policy declared,
+but the raters who finished gave some stimuli more ratings than others)."""
+
 
 @dataclass(frozen=True)
 class Exclusion:
@@ -85,6 +91,13 @@ class RatingSet:
     rater_info: pd.DataFrame | None = None
     # Questionnaire answers and vision checks from the session files (None from a CSV).
     panel: PanelAnswers | None = None
+    # The allocation policy (ALLOCATIONS): from the manifest, or "unbalanced" when inferred
+    # from the counts; the adaptive settings when the manifest gives them.
+    allocation: str = "full"
+    allocation_settings: dict[str, Any] | None = None
+    # What part of the study's ratings this set holds (empty: all of them); see
+    # :func:`balanced_subset`.
+    subset: str = ""
 
     def __post_init__(self) -> None:
         self.scores = np.asarray(self.scores, dtype=float)
@@ -92,6 +105,11 @@ class RatingSet:
             raise ValueError("scores must have shape (stimuli, raters, repetitions)")
         if self.scores.shape[0] != len(self.stimuli) or self.scores.shape[1] != len(self.raters):
             raise ValueError("scores shape does not match the stimuli and raters")
+        if self.allocation not in ALLOCATIONS:
+            raise ValueError(f"allocation must be one of {ALLOCATIONS}, got {self.allocation!r}")
+        if self.allocation == "full" and not self.subset and \
+                uneven_counts(self.scores, self.completeness()):
+            self.allocation = "unbalanced"
 
     # -- shape ------------------------------------------------------------------------
     @property
@@ -113,6 +131,16 @@ class RatingSet:
     @property
     def stimulus_ids(self) -> list[str]:
         return [str(s) for s in self.stimuli.index]
+
+    @property
+    def balanced(self) -> bool:
+        """False when stimuli get different numbers of ratings by design (adaptive or
+        inferred): then statistics that need a balanced matrix use :func:`balanced_subset`."""
+        return self.allocation == "full"
+
+    def ratings_per_stimulus(self) -> np.ndarray:
+        """Per stimulus, the number of ratings (over raters and repetitions)."""
+        return np.isfinite(self.scores).sum(axis=(1, 2))
 
     @property
     def hidden_reference_mask(self) -> np.ndarray:
@@ -160,3 +188,48 @@ class RatingSet:
             info = self.rater_info["completeness"]
             return np.array([float(info.get(r, np.nan)) for r in self.raters])
         return np.isfinite(self.scores).any(axis=2).sum(axis=0) / max(self.n_stimuli, 1)
+
+
+def uneven_counts(scores: np.ndarray, completeness: np.ndarray) -> bool:
+    """True when the raters who finished gave some stimuli more ratings than others.
+
+    Finished: every planned trial answered (``completeness`` 1), so that a partial session of
+    a full design, which leaves some stimuli with fewer ratings, does not make the design
+    unbalanced (the completeness rule handles it). When nobody finished the plan (a manifest
+    whose plan the ratings do not follow), the raters who rated every stimulus decide.
+    """
+    done = np.isfinite(completeness) & (completeness >= 1.0 - 1e-9)
+    if not done.any():
+        done = np.isfinite(scores).any(axis=2).all(axis=0)
+    if not done.any():
+        return False
+    counts = np.isfinite(scores[:, done]).sum(axis=(1, 2))
+    counts = counts[counts > 0]
+    return bool(counts.size and counts.min() != counts.max())
+
+
+def subset_text(rs: RatingSet) -> str:
+    """The words the report uses for the first-rating subset of an unbalanced set."""
+    why = "block 1 of an adaptive design" if rs.allocation == "adaptive" else \
+        "repetitions per stimulus differ"
+    n_stim = int(np.isfinite(rs.scores[:, :, 0]).any(axis=1).sum())
+    return (f"first rating of each stimulus per rater ({why}): {n_stim} stimuli x "
+            f"{rs.n_raters} raters")
+
+
+def balanced_subset(rs: RatingSet) -> tuple[RatingSet, str]:
+    """The ratings that ICC and rater screening may use, and their description.
+
+    A balanced set is used whole (description empty). In an unbalanced one the stimuli that
+    got more ratings would weigh more in averages over repetitions and the cells' means would
+    differ in precision, so the first rating of each stimulus by each rater (repetition 0:
+    block 1 of an adaptive study, a complete matrix) is used instead. Rater positions are kept,
+    so indices into the subset's raters are indices into ``rs``'s.
+    """
+    if rs.subset:
+        return rs, rs.subset
+    if rs.balanced:
+        return rs, ""
+    text = subset_text(rs)
+    return replace(rs, scores=rs.scores[:, :, :1].copy(), problems=list(rs.problems),
+                   exclusions=list(rs.exclusions), subset=text), text

@@ -9,7 +9,9 @@ import numpy as np
 import pandas as pd
 from matplotlib import colormaps
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
+from .data import RatingSet
 from .panel_figure import draw_survey
 from .pipeline import Analysis
 from .quality import THRESHOLDS
@@ -338,6 +340,65 @@ def rater_agreement(a: Analysis, path: Path) -> Path | None:
     return _save(fig, path)
 
 
+def _scene_order(rs: RatingSet) -> tuple[np.ndarray, list[tuple[str, float]], np.ndarray]:
+    """Stimulus rows grouped by scene (hidden reference first, then by method and level),
+    each scene's label position, and the rows' x positions with a gap between scenes."""
+    st = rs.stimuli.reset_index(drop=True)
+    scenes = list(dict.fromkeys(st["scene"].astype(str)))
+    rows, xs, labels = [], [], []
+    x = 0.0
+    for scene in scenes:
+        group = st[st["scene"].astype(str) == scene]
+        group = group.assign(_ref=~group["is_hidden_reference"].astype(bool)).sort_values(
+            ["_ref", "method", "level"], na_position="first", kind="stable")
+        start = x
+        for k in group.index:
+            rows.append(int(k))
+            xs.append(x)
+            x += 1.0
+        labels.append((scene, (start + x - 1.0) / 2.0))
+        x += 1.0  # the gap between scenes
+    return np.array(rows, dtype=int), labels, np.array(xs)
+
+
+def ratings_per_stimulus(a: Analysis, path: Path) -> Path | None:
+    """Ratings each stimulus got, grouped by scene, hidden references marked (only when the
+    design gives stimuli different numbers of ratings: a full design's bars are all equal)."""
+    rs = a.screened
+    counts = rs.ratings_per_stimulus()
+    if counts.size == 0 or counts.min() == counts.max():
+        return None
+    rows, labels, x = _scene_order(rs)
+    hidden = rs.hidden_reference_mask[rows]
+    y = counts[rows]
+    fig = Figure(figsize=(min(18.0, max(7.0, 0.12 * x.size + 2.5)), 4.0))
+    ax = fig.add_subplot()
+    ax.bar(x[~hidden], y[~hidden], 0.85, color="tab:blue", label="distorted stimulus")
+    ax.bar(x[hidden], y[hidden], 0.85, color="tab:orange", hatch="//", edgecolor="0.3",
+           lw=0.4, label="hidden reference")
+    if rs.allocation == "adaptive":
+        ax.axhline(rs.n_raters, color="0.3", ls="--", lw=0.8,
+                   label=f"block 1: one per rater ({rs.n_raters})")
+    med = float(np.median(counts))
+    ax.axhline(med, color="tab:green", ls=":", lw=1.0, label=f"median ({med:g})")
+    ax.set_ylim(0, float(y.max()) * 1.22)
+    for name, pos in labels:  # scene names above their group
+        ax.text(pos, float(y.max()) * 1.04, name, ha="center", va="bottom", fontsize=7,
+                rotation=90 if len(labels) > 12 else 0)
+    st = rs.stimuli.iloc[rows]
+    ax.set_xticks(x, ["ref" if h else f"{str(m)[:6]}{'' if pd.isna(lv) else int(lv)}"
+                      for m, lv, h in zip(st["method"], st["level"], hidden, strict=True)],
+                  rotation=90, fontsize=6 if x.size <= 150 else 4)
+    ax.set_xlim(-1.0, float(x.max()) + 1.0)
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_ylabel("ratings")
+    ax.set_title(f"ratings per stimulus, {rs.allocation} design (min {counts.min()}, "
+                 f"median {med:g}, max {counts.max()})", fontsize=10)
+    ax.legend(fontsize=7, loc="lower center", bbox_to_anchor=(0.5, 1.08), ncol=4,
+              frameon=False)
+    return _save(fig, path)
+
+
 def panel_survey(a: Analysis, path: Path) -> Path | None:
     if a.panel is None or a.ratings.panel is None or a.ratings.panel.definition is None:
         return None
@@ -352,6 +413,10 @@ FIGURES = {
                           "method"),
     "rater_agreement": (rater_agreement, "each rater's correlation with the leave-one-out "
                         "panel and between their own repetitions, with the flag thresholds"),
+    "ratings_per_stimulus": (ratings_per_stimulus, "ratings per stimulus after screening, "
+                             "grouped by scene (hatched: hidden references); in an adaptive "
+                             "design block 1 gives every stimulus one rating per rater and "
+                             "later blocks go to the stimuli with the widest DMOS intervals"),
     "dmos_per_scene": (dmos_per_scene, "DMOS per scene with 95% CIs by method and level "
                        "(metric predictions after the logistic mapping as black markers)"),
     "metric_scatter": (metric_scatter, "each metric against DMOS with its fitted mapping"),

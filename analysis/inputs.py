@@ -10,12 +10,13 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from stimuli_manifests import LoadedManifest, StimuliError, load_manifest
+from stimuli_manifests import LoadedManifest, Manifest, StimuliError, load_manifest
 from stimuli_manifests.errors import TableError
 from stimuli_manifests.tables import FORMAT_COLUMN, RATINGS
 
@@ -217,10 +218,12 @@ def ratings_from_frame(
     scores = np.full((len(order), len(raters), int(slot.max()) + 1), np.nan)
     scores[e_idx, s_idx, slot] = ratings
 
+    policy, settings = allocation_of(manifest)
+    n_planned_stimuli = len(manifest.stimuli(include_hidden_references=manifest.protocol
+                                             .hidden_reference))
     info = _rater_info(good, raters, frame, facts,
-                       planned=len(manifest.stimuli(include_hidden_references=manifest.protocol
-                                                    .hidden_reference))
-                       * manifest.protocol.repetitions)
+                       planned=n_planned_stimuli * manifest.protocol.repetitions,
+                       stimuli=n_planned_stimuli if policy == "adaptive" else None)
     table = pd.DataFrame(
         {
             "reference": [s.reference for s in order],
@@ -235,23 +238,44 @@ def ratings_from_frame(
         stimuli=table, raters=raters, scores=scores, scale_min=float(scale.min),
         scale_max=float(scale.max), ref_score=float(scale.max), study=manifest.study_id,
         source=source, problems=problems, exclusions=list(exclusions), rater_info=info,
+        allocation=policy, allocation_settings=settings,
     )
 
 
+def allocation_of(manifest: Manifest) -> tuple[str, dict[str, Any] | None]:
+    """The manifest's allocation policy and, for ``adaptive``, its settings (defaults filled
+    in), so the report can say how the ratings were allocated."""
+    settings = manifest.protocol.adaptive_settings()
+    return manifest.protocol.allocation, (settings.model_dump() if settings else None)
+
+
 def _rater_info(good: pd.DataFrame, raters: list[str], frame: pd.DataFrame,
-                facts: pd.DataFrame | None, planned: int) -> pd.DataFrame:
-    """Per participant: valid ratings, planned trials, completeness, and the session facts."""
+                facts: pd.DataFrame | None, planned: int,
+                stimuli: int | None = None) -> pd.DataFrame:
+    """Per participant: valid ratings, planned trials, completeness, and the session facts.
+
+    ``stimuli`` (adaptive designs): without session files the plan of each participant is
+    unknown (the server chose their later blocks), so completeness is the share of the
+    ``stimuli`` they rated at least once, and ``n_planned`` stays empty.
+    """
     info = facts.copy() if facts is not None and not facts.empty else \
         facts_from_rows(frame.assign(participant=frame["participant"].astype(str)))
     info = info.reindex(list(dict.fromkeys([*raters, *info.index])))
     n = good.groupby("participant").size()
     info["n_ratings"] = [int(n.get(r, 0)) for r in info.index]
-    if "n_planned" not in info.columns or info["n_planned"].isna().all():
-        info["n_planned"] = planned
-    info["n_planned"] = info["n_planned"].fillna(planned)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        info["completeness"] = np.minimum(
-            1.0, info["n_ratings"] / info["n_planned"].where(info["n_planned"] > 0))
+    known = "n_planned" in info.columns and info["n_planned"].notna().any()
+    if stimuli is not None and not known:
+        seen = good.groupby("participant")["stimulus"].nunique()
+        info["n_planned"] = np.nan
+        info["completeness"] = [min(1.0, int(seen.get(r, 0)) / max(stimuli, 1))
+                                for r in info.index]
+    else:
+        if not known:
+            info["n_planned"] = planned
+        info["n_planned"] = info["n_planned"].fillna(planned)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            info["completeness"] = np.minimum(
+                1.0, info["n_ratings"] / info["n_planned"].where(info["n_planned"] > 0))
     info["status"] = ["used" if r in raters else "no valid ratings" for r in info.index]
     info.index.name = "rater"
     return info

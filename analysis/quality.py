@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .data import Exclusion, InputProblem, RatingSet
+from .data import Exclusion, InputProblem, RatingSet, balanced_subset
 from .errors import AnalysisError
 from .reliability import repetition_correlation
 
@@ -146,8 +146,10 @@ def loo_correlation(means: np.ndarray, min_stimuli: int = MIN_PANEL_STIMULI) -> 
 
 def panel_correlation(rs: RatingSet) -> pd.Series:
     """Per rater, the leave-one-out panel correlation of their per-stimulus mean ratings:
-    the one definition that the report's data-quality table and the live dashboard show."""
-    return pd.Series(loo_correlation(rs.rater_means()), index=rs.raters, dtype=float)
+    the one definition that the report's data-quality table and the live dashboard show.
+    In an unbalanced design, on the first rating per stimulus (as the screening's r1)."""
+    sub, _ = balanced_subset(rs)
+    return pd.Series(loo_correlation(sub.rater_means()), index=rs.raters, dtype=float)
 
 
 def hidden_reference_mean(rs: RatingSet) -> np.ndarray:

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .data import RatingSet
+from .data import RatingSet, balanced_subset
 from .errors import AnalysisError
 from .icc import icc_unbalanced
 
@@ -25,7 +25,9 @@ class Reliability:
     ``method`` says how the ICCs were computed: pingouin's ANOVA on complete data, or REML
     variance components on all cells when some rater skipped some stimuli (then
     ``complete_case`` holds pingouin's values on the stimuli every rater rated, with their
-    count, when there are at least 3).
+    count, when there are at least 3). ``subset`` describes the ratings the ICCs and the
+    inter-rater matrix used when not all of them (an unbalanced design: the first rating of
+    each stimulus per rater); intra-rater repeatability always uses every repetition.
     """
 
     icc: dict[str, float]
@@ -38,6 +40,7 @@ class Reliability:
     n_raters: int = 0
     n_cells: int = 0
     complete_case: dict | None = None
+    subset: str = ""
 
 
 def icc_from_long(data: pd.DataFrame, targets: str, raters: str,
@@ -83,7 +86,17 @@ def repetition_correlation(scores: np.ndarray) -> np.ndarray:
 
 
 def reliability(rs: RatingSet, *, n_boot: int = 200, seed: int = 0) -> Reliability:
-    """All reliability figures of a rating set (ratings averaged over repetitions)."""
+    """All reliability figures of a rating set (ratings averaged over repetitions; in an
+    unbalanced design ICC and inter-rater r on the first rating per stimulus and rater)."""
+    intra = pd.Series(repetition_correlation(rs.scores), index=rs.raters, name="intra_rater_r")
+    sub, text = balanced_subset(rs)
+    out = _agreement(sub, intra, n_boot=n_boot, seed=seed)
+    out.subset = text
+    return out
+
+
+def _agreement(rs: RatingSet, intra: pd.Series, *, n_boot: int, seed: int) -> Reliability:
+    """ICCs and the inter-rater matrix of ``rs`` (pingouin when complete, REML otherwise)."""
     means = rs.rater_means()
     rated = np.isfinite(means)
     n_stim = int(rated.any(axis=1).sum())
@@ -93,7 +106,6 @@ def reliability(rs: RatingSet, *, n_boot: int = 200, seed: int = 0) -> Reliabili
     complete_rows = rated.all(axis=1)
     complete = int(complete_rows.sum())
     inter = pd.DataFrame(means, columns=rs.raters).corr(method="pearson", min_periods=3)
-    intra = pd.Series(repetition_correlation(rs.scores), index=rs.raters, name="intra_rater_r")
     cells = int(rated.sum())
     if complete == n_stim:
         long = pd.DataFrame(means, index=rs.stimulus_ids, columns=rs.raters).stack().rename(

@@ -22,6 +22,7 @@ from .figures import draw_all
 from .panel import panel_json
 from .pipeline import Analysis
 from .quality import THRESHOLDS
+from .reliability import Reliability
 from .report_html import write_html
 from .sureal_io import write_sureal_json
 
@@ -55,6 +56,71 @@ def _records(frame: pd.DataFrame | None, *, index: str | None = None) -> list[di
     return [{k: _num(v) for k, v in row.items()} for row in f.to_dict("records")]
 
 
+def ratings_per_stimulus(a: Analysis) -> dict[str, float]:
+    """Min, median and max of the ratings each stimulus got, over the ratings the scores used."""
+    counts = a.screened.ratings_per_stimulus()
+    if counts.size == 0:
+        return {"min": 0, "median": 0.0, "max": 0}
+    return {"min": int(counts.min()), "median": float(np.median(counts)),
+            "max": int(counts.max())}
+
+
+def _adaptive_words(settings: dict[str, Any] | None) -> str:
+    """The adaptive settings in a few words (empty when unknown)."""
+    if not settings:
+        return ""
+    n = settings.get("block_trials")
+    size = f"of {n} trials" if n else "as long as block 1"
+    return (f"{settings.get('blocks')} blocks per session; block 1 holds every stimulus once, "
+            f"later blocks {size} planned by the study server, at most "
+            f"{settings.get('max_per_block')} of one stimulus per block")
+
+
+def allocation_sentence(a: Analysis, counts: dict[str, float]) -> str:
+    """How the ratings were allocated, in one sentence (the full design kept short)."""
+    rs = a.screened
+    per_cell = np.isfinite(rs.scores).sum(axis=2)
+    spread = (f"ratings per stimulus min {counts['min']}, median {counts['median']:g}, "
+              f"max {counts['max']}")
+    if rs.allocation == "full":
+        if per_cell.size and per_cell.min() == per_cell.max():
+            r = int(per_cell.max())
+            return (f"full design: every stimulus rated {'once' if r == 1 else f'{r} times'} "
+                    "by every rater")
+        return f"full design ({rs.n_repetitions} repetitions planned, partial sessions kept): " \
+            + spread
+    if rs.allocation == "adaptive":
+        words = _adaptive_words(rs.allocation_settings)
+        return "adaptive design" + (f" ({words})" if words else "") + ": " + spread
+    return ("unbalanced design (no allocation policy declared, but stimuli got different "
+            "numbers of ratings): " + spread)
+
+
+def allocation_summary(a: Analysis) -> dict[str, Any]:
+    """The ``allocation`` block of summary.json: policy, settings, ratings per stimulus."""
+    counts = ratings_per_stimulus(a)
+    return {"policy": a.screened.allocation, "settings": a.screened.allocation_settings,
+            "ratings_per_stimulus": counts, "sentence": allocation_sentence(a, counts)}
+
+
+def _reliability_summary(rel: Reliability) -> dict[str, Any]:
+    """The ICC keys of summary.json (with the subset they were computed on, if not all)."""
+    out: dict[str, Any] = {
+        "icc": {k: _num(v) for k, v in rel.icc.items()},
+        "icc_ci95": {k: [_num(v[0]), _num(v[1])] for k, v in rel.icc_ci.items()},
+        "icc_method": rel.method,
+        "icc_subset": rel.subset or None,
+        "icc_counts": {"stimuli": rel.n_stimuli, "raters": rel.n_raters,
+                       "cells": rel.n_cells, "complete_stimuli": rel.n_targets},
+    }
+    if rel.complete_case:
+        out["icc_complete_case"] = {
+            "n_stimuli": rel.complete_case["n_stimuli"],
+            "icc": {k: _num(v) for k, v in rel.complete_case["icc"].items()}}
+    out["intra_rater_mean_r"] = _num(rel.intra_rater.mean())
+    return out
+
+
 def summary(a: Analysis) -> dict[str, Any]:
     """Machine-readable results (the demo and scripts read ``summary.json``)."""
     rs, sc = a.screened, a.scores
@@ -67,6 +133,8 @@ def summary(a: Analysis) -> dict[str, Any]:
         "model_name": sc.model_name,
         "model_fallback": sc.fallback,
         "outlier_method": a.outliers.method,
+        "screening_subset": a.outliers.subset or None,
+        "allocation": allocation_summary(a),
         "min_completeness": a.config.min_completeness,
         "alpha": a.config.alpha,
         "seed": a.config.seed,
@@ -93,17 +161,7 @@ def summary(a: Analysis) -> dict[str, Any]:
         "timings_s": {k: round(v, 3) for k, v in a.timings.items()},
     }
     if a.reliability is not None:
-        rel = a.reliability
-        out["icc"] = {k: _num(v) for k, v in rel.icc.items()}
-        out["icc_ci95"] = {k: [_num(v[0]), _num(v[1])] for k, v in rel.icc_ci.items()}
-        out["icc_method"] = rel.method
-        out["icc_counts"] = {"stimuli": rel.n_stimuli, "raters": rel.n_raters,
-                             "cells": rel.n_cells, "complete_stimuli": rel.n_targets}
-        if rel.complete_case:
-            out["icc_complete_case"] = {
-                "n_stimuli": rel.complete_case["n_stimuli"],
-                "icc": {k: _num(v) for k, v in rel.complete_case["icc"].items()}}
-        out["intra_rater_mean_r"] = _num(rel.intra_rater.mean())
+        out.update(_reliability_summary(a.reliability))
     if a.ceiling is not None:
         out["ceiling"] = {k: {kk: _num(vv) for kk, vv in v.items()}
                           for k, v in a.ceiling.summary().items()}
@@ -142,6 +200,7 @@ def summary_text(a: Analysis) -> str:
     lines = [f"study {s['study']}: {s['n_stimuli']} stimuli, {s['n_raters_used']} of "
              f"{s['n_raters_input']} raters, {s['n_ratings_used']} ratings; model "
              f"{s['model_name']}"]
+    lines.append(s["allocation"]["sentence"])
     if s["model_fallback"]:
         lines.append(f"WARNING: {s['model_fallback']}")
     refused = [x for x in s["exclusions"] if x["kind"] in ("refused session",
@@ -158,10 +217,13 @@ def summary_text(a: Analysis) -> str:
         lines.append("partial raters kept: " + ", ".join(
             f"{p['rater']} ({p['completeness']:.0%})" for p in s["partial_kept"]))
     lines.append(f"removed raters ({s['outlier_method']}): "
-                 + (", ".join(r["rater"] for r in s["removed_raters"]) or "none"))
+                 + (", ".join(r["rater"] for r in s["removed_raters"]) or "none")
+                 + (f"; screened on the {s['screening_subset']}" if s["screening_subset"]
+                    else ""))
     if "icc" in s:
         lines.append(f"ICC(2,k) {s['icc']['ICC(2,k)']:.3f}   ICC(3,k) {s['icc']['ICC(3,k)']:.3f}"
-                     + ("   (REML, unbalanced)" if "REML" in s["icc_method"] else ""))
+                     + ("   (REML, unbalanced)" if "REML" in s["icc_method"] else "")
+                     + (f"   on the {s['icc_subset']}" if s["icc_subset"] else ""))
     if "ceiling" in s:
         c = s["ceiling"]["plcc"]
         lines.append(f"human ceiling (split-half PLCC) {c['median']:.3f} "
@@ -198,7 +260,8 @@ def write_tables(a: Analysis, out: Path) -> dict[str, Path]:
         rel = a.reliability
         rows = [{"type": k, "icc": v, "ci95_low": rel.icc_ci[k][0],
                  "ci95_high": rel.icc_ci[k][1], "method": rel.method,
-                 "n_stimuli": rel.n_stimuli, "n_raters": rel.n_raters}
+                 "n_stimuli": rel.n_stimuli, "n_raters": rel.n_raters,
+                 "subset": rel.subset or "all ratings"}
                 for k, v in rel.icc.items()]
         if rel.complete_case:
             cc = rel.complete_case

@@ -145,6 +145,10 @@ def methods_table(a: Analysis) -> pd.DataFrame:
          "share of errors beyond the CI."),
         ("Human ceiling", f"{c.n_splits} split-halves", "half of the raters predicting the "
          "other half (plain-mean DMOS), Spearman-Brown corrected PLCC alongside."),
+        ("Allocation", f"protocol.allocation {a.screened.allocation}", "full: every rater "
+         "rates every stimulus equally often. adaptive (or unbalanced counts): the score model "
+         "uses every rating; ICC, inter-rater r and the screening use the first rating of each "
+         "stimulus per rater (block 1, a complete matrix)."),
         ("Reliability", "ICC", "pingouin on complete data; REML variance components on all "
          "cells when raters saw different subsets (complete-case values beside)."),
         ("Data-quality flags", "", ", ".join(f"{k} {v:g}" for k, v in t.items())

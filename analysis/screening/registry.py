@@ -10,7 +10,7 @@ import importlib
 import pkgutil
 from functools import cache
 
-from ..data import RatingSet
+from ..data import RatingSet, balanced_subset
 from ..errors import AnalysisError
 from .result import OutlierResult
 from .rule import ScreeningRule
@@ -54,13 +54,20 @@ def check_alpha(alpha: float) -> float:
 
 def screen_raters(rs: RatingSet, method: str = DEFAULT_METHOD, *,
                   alpha: float = 0.05) -> OutlierResult:
-    """Run the chosen screening; ``none`` keeps everyone."""
+    """Run the chosen screening; ``none`` keeps everyone.
+
+    In an unbalanced design the rule sees the first rating of each stimulus per rater (a
+    complete matrix; see :func:`~analysis.data.balanced_subset`): with every rating, raters
+    would be compared on means of different precision. The result says which subset it used.
+    """
     alpha = check_alpha(alpha)
     rule = rules().get(method)
     if rule is None:
         raise AnalysisError(f"unknown outlier method {method!r}; use one of "
                             f"{', '.join(method_names())}")
-    result = rule.run(rs, alpha)
+    sub, text = balanced_subset(rs)
+    result = rule.run(sub, alpha)
+    result.subset = text
     if len(result.kept) < 2:
         raise AnalysisError(f"outlier screening ({method}) left fewer than 2 raters; use "
                             "--outliers none to inspect the data")

@@ -31,6 +31,9 @@ class OutlierResult:
     # near-misses, why.
     table: pd.DataFrame | None = None
     notes: list[str] = field(default_factory=list)
+    # The ratings the rule saw when not all of them (an unbalanced design: the first rating
+    # of each stimulus per rater); empty when it saw every rating.
+    subset: str = ""
 
     @property
     def removed_names(self) -> list[str]:

@@ -228,10 +228,14 @@ class Uploader:
         """Wait (at most ``timeout`` seconds) until everything arrived or the server refused;
         the status either way."""
         deadline = time.monotonic() + timeout
+        # what the file holds now: the thread may not have looked since the last change
+        need = _local_seq(self.path) if self.path.exists() else 0
         self.notify()
         with self._changed:
             while True:
                 st = self._status
+                if st.local_seq < need:
+                    st = replace(st, local_seq=need)
                 if st.all_arrived or st.state in ("refused", "stopped") or \
                         not self.path.exists():
                     return st

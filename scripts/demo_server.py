@@ -113,7 +113,7 @@ def screenshot(url: str, token: str, path: Path) -> str | None:
 
 
 def collect(study: Path, out: Path, *, raters: int, outliers: int, seed: int, log: list[dict],
-            run) -> tuple[Path, Path, dict]:
+            run, stagger: float = 0.0) -> tuple[Path, Path, dict]:
     """Serve ``study``, let the simulated panel upload, pull. Returns (folder of pulled
     session files, the simulation's truth file, facts for the summary)."""
     token = command_line_token(24)
@@ -143,7 +143,8 @@ def collect(study: Path, out: Path, *, raters: int, outliers: int, seed: int, lo
              "--outliers", str(outliers), "--seed", str(seed), "--out", str(local),
              "--colour-failures", "1",
              "--overwrite", "--server", server.url, "--invites", str(invites), "--pace",
-             "0.04", "--offline", offline, "--no-progress"), env=env, cwd=REPO)
+             "0.04", "--offline", offline, "--stagger", str(stagger), "--no-progress"),
+        env=env, cwd=REPO)
     try:
         time.sleep(5.0)
         if sim.poll() is None:  # mid-study: the server dies and comes back

@@ -186,8 +186,12 @@ def _notes(args, truth: dict, cgvqm_notes: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
-ADAPTIVE = {"blocks": 2, "warmup_participants": 3, "refit_seconds": 5}
-"""The demo's adaptive design: block 1 (every stimulus once) and one planned block."""
+ADAPTIVE = {"blocks": 3, "warmup_participants": 3, "refit_seconds": 1}
+STAGGER_S = 2.0
+"""In the adaptive demo the participants arrive one every 2 s (all at once, the server would
+have nothing to adapt to before they all asked for their blocks)."""
+"""The demo's adaptive design: block 1 (every stimulus once) and two planned blocks, as many
+ratings as the full design's three repetitions."""
 
 
 def _make_adaptive(manifest: Path) -> None:
@@ -289,8 +293,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-cgvqm", action="store_true", help="leave CGVQM out of the scores")
     p.add_argument("--allocation", choices=("full", "adaptive"), default="full",
                    help="full: every rater rates every stimulus 3 times (default); adaptive: "
-                        "block 1 every stimulus once, then one block planned by the study "
-                        "server (2/3 of the ratings), compared with a full design")
+                        "block 1 every stimulus once, then two blocks planned by the study "
+                        "server (as many ratings), compared with the full design")
     p.add_argument("--cgvqm-arg", action="append", metavar="ARG",
                    help="extra argument for 'cgvqm batch' (repeatable), e.g. --weights")
     args = p.parse_args(argv)
@@ -317,7 +321,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         sessions, truth_path, server_facts = demo_server.collect(
             study, out, raters=args.raters, outliers=args.outliers, seed=args.seed, log=log,
-            run=_run)
+            run=_run, stagger=STAGGER_S if args.allocation == "adaptive" else 0.0)
     except SystemExit:
         return _fail(log)
     if not server_facts.get("all_arrived"):

@@ -182,6 +182,9 @@ class UploadOptions:
     """participant id -> token (from the invites CSV); the raters take these ids in order."""
     pace_s: float = 0.0
     """Seconds between two ratings of one rater (0: as fast as possible)."""
+    stagger_s: float = 0.0
+    """Rater ``k`` starts ``k * stagger_s`` seconds after the first (participants arriving
+    over time; 0: all at once)."""
     offline: dict[str, tuple[float, float]] = field(default_factory=dict)
     """participant -> (from, until) seconds after the start: their network is down then."""
     timeout_s: float = 600.0
@@ -495,6 +498,7 @@ def _rate_and_upload(rater: Callable[..., RaterTruth], participants: list[str], 
 
     def one(k: int) -> None:
         pid = participants[k]
+        time.sleep(k * upload.stagger_s)
         down = upload.offline.get(pid)
         make = upload.client_factory or ServerClient
         client = (_OfflineClient(upload.server, upload.tokens[pid], down, t0) if down

@@ -20,9 +20,18 @@ def run(args: argparse.Namespace) -> int:
     study = load_study(args.study)
     result = check_study(study, progress=True)
     m = study.manifest
-    print(f"study {m.study_id}: {result.n_stimuli} stimuli x {m.protocol.repetitions} "
-          f"repetitions = {result.n_trials} trials; briefing "
+    design = (f"{result.n_stimuli} stimuli x {m.protocol.repetitions} repetitions = "
+              f"{result.n_trials} trials" if m.protocol.allocation == "full" else
+              f"{result.n_stimuli} stimuli, adaptive allocation")
+    print(f"study {m.study_id}: {design}; briefing "
           f"{'yes' if study.briefing else 'no'}, consent {'yes' if study.consent else 'no'}")
+    adaptive = m.protocol.adaptive_settings()
+    if adaptive is not None:
+        per_block = adaptive.trials_per_block(result.n_stimuli)
+        print(f"allocation: adaptive, {adaptive.blocks} blocks per session (block 1: every "
+              f"stimulus once; then {adaptive.blocks - 1} x {per_block} trials planned by the "
+              f"study server) = {result.n_stimuli + (adaptive.blocks - 1) * per_block} trials; "
+              "without a server the blocks are uniform (see: docs, Adaptive allocation)")
     if m.panel is not None:
         questions = [q for qn in m.panel.questionnaires for q in qn.questions()]
         vs = m.panel.vision_screening

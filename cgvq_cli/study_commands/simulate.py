@@ -45,6 +45,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                     help="the invites CSV of 'cgvq-study invite' (ids and tokens, in order)")
     up.add_argument("--pace", type=float, default=0.0, metavar="S",
                     help="seconds between two ratings of a rater (default 0)")
+    up.add_argument("--stagger", type=float, default=0.0, metavar="S",
+                    help="rater k starts k*S seconds after the first (default 0: all at "
+                         "once), as participants arriving over time")
     up.add_argument("--offline", type=_offline, action="append", default=[],
                     metavar="ID:FROM:UNTIL",
                     help="this rater's network is down from FROM to UNTIL seconds after the "
@@ -70,11 +73,12 @@ def run(args: argparse.Namespace) -> int:
         from session_store.invite import read_invites
 
         invites = read_invites(args.invites)
-        if args.pace < 0:
-            raise StudyError("--pace must not be negative")
+        if args.pace < 0 or args.stagger < 0:
+            raise StudyError("--pace and --stagger must not be negative")
         upload = UploadOptions(server=args.server,
                                tokens={i.participant: i.token for i in invites},
-                               pace_s=args.pace, timeout_s=args.upload_timeout,
+                               pace_s=args.pace, stagger_s=args.stagger,
+                               timeout_s=args.upload_timeout,
                                offline={pid: (a, b) for pid, a, b in args.offline})
     result = run_simulation(args.manifest, args.out, opts, overwrite=args.overwrite,
                             progress=not args.no_progress, upload=upload)

@@ -76,3 +76,28 @@ def test_reduced_demo_finds_the_outlier_and_orders_levels(egl, tmp_path):
     assert server["all_arrived"] and server["restarts"] == 1
     assert server["sessions_pulled"] == 10 == len(list((out / "pulled").glob("*.sqlite")))
     assert "/dashboard" in res.stdout and "killing the study server" in res.stdout
+
+
+def test_the_demo_runs_an_adaptive_study_and_compares_it_with_the_full_design(egl, tmp_path):
+    out = tmp_path / "demo"
+    cmd = [sys.executable, str(REPO / "scripts" / "run_demo.py"), "--out", str(out),
+           "--size", "32", "--seconds", "0.2", "--scenes", "lattice", "--methods",
+           "path_tracing,vrs", "--raters", "8", "--outliers", "0", "--seed", "5",
+           "--bootstrap", "100", "--splits", "100", "--metrics", "psnr", "--no-cgvqm",
+           "--allocation", "adaptive"]
+    env = {**os.environ, "CGVQM_OFFLINE": "1", "CGVQM_CACHE": str(tmp_path / "no-cache")}
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    manifest = json.loads((out / "study" / "manifest.json").read_text())
+    assert manifest["protocol"]["allocation"] == "adaptive"
+    summary = json.loads((out / "demo_summary.json").read_text())["allocation"]
+    # the ratings behind each DMOS, counted here from the pulled ratings table
+    ratings = pd.read_csv(out / "ratings.csv")
+    per_stimulus = ratings.groupby("stimulus").size()
+    assert per_stimulus.max() > per_stimulus.min()  # the server did not plan uniform blocks
+    full = pd.read_csv(out / "full_design" / "dmos.csv")
+    # (screening may leave a rater out of either: the counts are those behind the DMOS)
+    assert summary["full"]["ratings"] == int(full["n_ratings"].sum()) <= 8 * 3 * len(full)
+    assert summary["adaptive"]["ratings"] <= len(ratings) == 8 * 3 * len(full)
+    assert "adaptive allocation:" in res.stdout and "the full design with the same" in \
+        res.stdout

@@ -57,9 +57,12 @@ def _add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = Fal
     p.add_argument("--learned-sha256", action="append", metavar="PART=HEX",
                    help="sha256 a learned-metric weights file must have (repeatable)")
     p.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
-    p.add_argument("--precision", choices=("fp32", "bf16", "fp16", "tf32"), default="fp32",
-                   help="fp32 (default, upstream-identical); bf16 (CPUs with AMX or "
-                        "AVX512-BF16, refused on others with the reason; GPUs), fp16 or tf32 "
+    p.add_argument("--precision", choices=("auto", "fp32", "tf32", "bf16", "fp16"),
+                   default="auto",
+                   help="auto (default): what upstream computes as its users run it: fp32 on "
+                        "a CPU (bit-identical), tf32 on CUDA (PyTorch's defaults); fp32: "
+                        "strict, equal to the CPU also on CUDA; bf16 (CPUs with AMX or "
+                        "AVX512-BF16, refused on others with the reason; GPUs) or fp16 "
                         "(GPUs): faster, scores drift slightly (see the README)")
     p.add_argument("--patch-scale", type=int, default=4,
                    help="patch grid: H/s x W/s pixel patches (default 4, as upstream)")

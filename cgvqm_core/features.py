@@ -25,7 +25,7 @@ from torch.nn.utils.fusion import fuse_conv_bn_eval
 from .backbone import LEVEL_CHANNELS, Conv2Plus1D, VideoResNet, build_backbone
 from .errors import CGVQMError
 from .hub import Backbone
-from .precision import DTYPES, PRECISIONS, check, tf32_mode
+from .precision import DTYPES, PRECISIONS, check, resolve, tf32_mode
 
 #: torchvision's Kinetics-400 normalisation (applied after scaling uint8 to [0, 1])
 MEAN = (0.43216, 0.394666, 0.37645)
@@ -56,7 +56,8 @@ class FeatureNet:
 
     ``fuse_bn`` folds batch norm into the convolutions and ``channels_last`` uses the
     channels-last-3d memory format (both faster on CPU, equal numbers up to float rounding).
-    ``precision`` (:mod:`.precision`): ``fp32`` (default, exact; TF32 off on CUDA),
+    ``precision`` (:mod:`.precision`): ``auto`` (default: ``fp32`` on CPU, exact; ``tf32`` on
+    CUDA, as upstream runs there), ``fp32`` (exact; TF32 off on CUDA),
     ``bf16``/``fp16`` (weights and activations between convolutions in that type,
     convolutions accumulate in fp32; level 0, the unit normalisation and the differences in
     fp32; bf16 on CPU only with AMX/AVX512-BF16) or ``tf32`` (CUDA). Not bit-exact but fp32.
@@ -66,7 +67,7 @@ class FeatureNet:
     """
 
     def __init__(self, backbone: Backbone, n_levels: int, *, device: str | torch.device = "cpu",
-                 precision: str = "fp32", fuse_bn: bool = True,
+                 precision: str = "auto", fuse_bn: bool = True,
                  channels_last: bool | None = None, fp32_stem: bool = True) -> None:
         if not 1 <= n_levels <= 6:
             raise CGVQMError(f"n_levels must be 1..6, got {n_levels}")
@@ -77,7 +78,11 @@ class FeatureNet:
         if self.device.type == "cuda" and not torch.cuda.is_available():
             raise CGVQMError("--device cuda was asked for but this PyTorch has no usable CUDA "
                              "device; use --device cpu")
+        requested = precision
+        precision = resolve(precision, self.device)
         self.precision_info = check(precision, self.device)
+        if requested == "auto":
+            self.precision_info["requested"] = "auto"
         self.n_levels = n_levels
         self.precision = precision
         self.dtype = DTYPES[precision]

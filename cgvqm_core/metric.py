@@ -172,8 +172,10 @@ class CGVQM:
     pickle or project JSON; the variant then follows from the file) or ``"uniform"``.
     ``backbone`` is a state dict file or mapping (default: $CGVQM_BACKBONE, the torch hub
     cache, a download); ``random_backbone=SEED`` uses a seeded random network and marks every
-    result. ``precision`` is ``fp32`` (default, upstream-identical), ``bf16`` (CPUs with
-    AMX/AVX512-BF16 and GPUs), ``fp16`` or ``tf32`` (GPUs): faster, not bit-exact
+    result. ``precision`` is ``auto`` (default: ``fp32`` on CPU, upstream-identical; ``tf32``
+    on CUDA, upstream's numbers as it runs there), ``fp32`` (strict, CPU-equal also on CUDA),
+    ``bf16`` (CPUs with AMX/AVX512-BF16 and GPUs), ``fp16`` or ``tf32`` (GPUs): faster, not
+    bit-exact
     (:mod:`.precision`; the measured drift is in the README); ``fp32_stem`` (default) keeps
     the stem in fp32 under bf16/fp16, which removes most of the drift.
     ``seamless=True`` runs patches with a halo so features do not depend on the patch grid
@@ -188,7 +190,7 @@ class CGVQM:
         backbone: str | Path | Backbone | Mapping[str, torch.Tensor] | None = None,
         random_backbone: int | None = None,
         device: str = "cpu",
-        precision: str = "fp32",
+        precision: str = "auto",
         patch_scale: int = 4,
         batch_size: int = 2,
         fuse_bn: bool = True,

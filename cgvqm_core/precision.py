@@ -1,8 +1,11 @@
 """Which numeric precisions the network may run in on which device, and why.
 
-fp32 is the default everywhere and the only upstream-identical choice. The others trade
-bit-exactness for speed; each changes scores slightly (the drift measured against fp32 is in
-the README, section "Speed, memory, devices"):
+The default, ``auto``, computes what the authors' code computes as its users run it on that
+device: ``fp32`` on a CPU (upstream-identical, bit for bit), ``tf32`` on CUDA (PyTorch's
+defaults there: cuDNN convolutions may use the tensor cores' TF32 mode, matrix products stay
+in fp32). Strict ``fp32`` on CUDA (TF32 off, equal to the CPU's numbers to 1e-4) is an
+explicit choice. The others trade bit-exactness for speed; each changes scores slightly (the
+drift measured against fp32 is in the README, section "Speed, memory, devices"):
 
 - ``bf16``: convolutions in bfloat16 with fp32 accumulation (oneDNN on CPU, cuDNN on CUDA);
   the input normalisation, level 0, the unit normalisation across channels and the
@@ -12,9 +15,9 @@ the README, section "Speed, memory, devices"):
   never reports a precision it did not use).
 - ``fp16``: as bf16 with float16; CUDA only (CPUs with AVX512-FP16/AMX-FP16 are rare and the
   path is not measured there).
-- ``tf32``: CUDA only: fp32 tensors, convolutions on the tensor cores' TF32 mode (PyTorch's
-  default for cuDNN convolutions). ``fp32`` on CUDA turns TF32 off while it runs, so that it
-  agrees with the CPU.
+- ``tf32``: CUDA only: fp32 tensors, cuDNN convolutions allowed on the tensor cores' TF32
+  mode and matrix products in fp32: exactly PyTorch's defaults, which is how upstream runs
+  there. ``fp32`` on CUDA turns TF32 off while it runs, so that it agrees with the CPU.
 
 Detection reads PyTorch's own CPU feature probe (cpuinfo) and falls back to the ``flags`` line
 of /proc/cpuinfo.
@@ -33,7 +36,9 @@ import torch
 
 from .errors import CGVQMError
 
-PRECISIONS = ("fp32", "bf16", "fp16", "tf32")
+PRECISIONS = ("auto", "fp32", "tf32", "bf16", "fp16")
+AUTO = {"cpu": "fp32", "cuda": "tf32"}
+"""What ``auto`` means per device type: what upstream computes as its users run it there."""
 #: what each precision computes the convolutions in
 DTYPES = {"fp32": torch.float32, "tf32": torch.float32, "bf16": torch.bfloat16,
           "fp16": torch.float16}
@@ -119,10 +124,19 @@ def cpu_name() -> str:
     return str(name or _cpuinfo_field("model name") or platform.machine() or "unknown CPU")
 
 
-def check(precision: str, device: torch.device) -> dict[str, object]:
-    """Refuse a precision the device cannot run well; return what provenance should say."""
+def resolve(precision: str, device: torch.device) -> str:
+    """The precision ``precision`` stands for on ``device`` (``auto`` resolved)."""
     if precision not in PRECISIONS:
         raise CGVQMError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    return AUTO.get(device.type, "fp32") if precision == "auto" else precision
+
+
+def check(precision: str, device: torch.device) -> dict[str, object]:
+    """Refuse a precision the device cannot run well; return what provenance should say
+    (``precision`` already resolved, see :func:`resolve`)."""
+    if precision not in PRECISIONS or precision == "auto":
+        raise CGVQMError(f"precision must be one of {', '.join(PRECISIONS[1:])}, got "
+                         f"{precision!r}")
     info: dict[str, object] = {"precision": precision,
                                "compute_dtype": str(DTYPES[precision]).removeprefix("torch."),
                                "bit_exact": precision == "fp32"}
@@ -150,13 +164,15 @@ def check(precision: str, device: torch.device) -> dict[str, object]:
 
 @contextlib.contextmanager
 def tf32_mode(device: torch.device, allow: bool) -> Iterator[None]:
-    """On CUDA, set cuDNN's and cuBLAS's TF32 switches for the duration (restored after)."""
+    """On CUDA, for the duration (restored after): cuDNN convolutions may use TF32 when
+    ``allow`` (PyTorch's default, as upstream runs), never otherwise; matrix products in
+    fp32 either way (also PyTorch's default), whatever the process had set."""
     if device.type != "cuda":
         yield
         return
     saved = torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32
     torch.backends.cudnn.allow_tf32 = allow
-    torch.backends.cuda.matmul.allow_tf32 = allow
+    torch.backends.cuda.matmul.allow_tf32 = False
     try:
         yield
     finally:

@@ -72,7 +72,7 @@ class MetricOptions:
     weights: str | None = None
     backbone: str | None = None
     random_backbone: int | None = None
-    precision: str = "fp32"
+    precision: str = "auto"
     patch_scale: int = 4
     batch_size: int = 2
     seamless: bool = False

@@ -66,13 +66,16 @@ def test_fp32_is_bit_identical_to_the_previous_path(vids, backbone, n_levels):
     assert all(p.dtype == torch.float32 for p in net.model.parameters())
 
 
-def test_fp32_default_and_provenance(vids, backbone):
+def test_the_default_is_fp32_on_a_cpu_and_provenance_says_so(vids, backbone):
     m = CGVQM(weights=shaped_weights("cgvqm-2"), backbone=backbone)
     res = m.score(vids.smooth(1, 4, 16, 16), vids.smooth(2, 4, 16, 16), fps=4)
     p = res.provenance
     assert (p["device"], p["precision"]) == ("cpu", "fp32")
     assert p["precision_detail"] == {"precision": "fp32", "compute_dtype": "float32",
-                                     "bit_exact": True}
+                                     "bit_exact": True, "requested": "auto"}
+    strict = CGVQM(weights=shaped_weights("cgvqm-2"), backbone=backbone, precision="fp32")
+    again = strict.score(vids.smooth(1, 4, 16, 16), vids.smooth(2, 4, 16, 16), fps=4)
+    assert again.q == res.q and "requested" not in again.provenance["precision_detail"]
     assert p["device_name"].endswith(f"{torch.get_num_threads()} threads")
     assert "precision" not in res.to_dict()  # only reduced precisions are flagged
 
@@ -207,3 +210,35 @@ def test_tf32_switches_restored():
     with prec.tf32_mode(torch.device("cpu"), True):
         assert (torch.backends.cudnn.allow_tf32,
                 torch.backends.cuda.matmul.allow_tf32) == before
+
+
+def test_auto_means_what_upstream_computes_on_each_device():
+    from cgvqm_core.errors import CGVQMError
+    from cgvqm_core.precision import resolve
+
+    assert resolve("auto", torch.device("cpu")) == "fp32"
+    assert resolve("auto", torch.device("cuda")) == "tf32"  # PyTorch's defaults on CUDA
+    for p in ("fp32", "tf32", "bf16", "fp16"):
+        assert resolve(p, torch.device("cuda")) == p
+    with pytest.raises(CGVQMError, match="precision must be one of"):
+        resolve("fp64", torch.device("cpu"))
+
+
+@pytest.mark.parametrize(("allow", "conv"), [(True, True), (False, False)])
+def test_tf32_mode_sets_pytorchs_defaults_or_strict_fp32_and_restores(allow, conv):
+    """On CUDA, tf32 is PyTorch's default (convolutions may use TF32, matrix products not);
+    fp32 turns TF32 off. The switches are process-wide flags: no GPU needed to check them."""
+    from cgvqm_core.precision import tf32_mode
+
+    saved = torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32
+    torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = (not conv, True)
+    try:
+        with tf32_mode(torch.device("cuda"), allow):
+            assert torch.backends.cudnn.allow_tf32 is conv
+            assert torch.backends.cuda.matmul.allow_tf32 is False
+        assert (torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32) == \
+            (not conv, True)
+        with tf32_mode(torch.device("cpu"), allow):  # nothing to switch on a CPU
+            assert torch.backends.cudnn.allow_tf32 is (not conv)
+    finally:
+        torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = saved

@@ -39,6 +39,7 @@ from stimuli_manifests import Manifest, parse_manifest
 from .ingest import Refused
 from .storage import ServerStore
 from .study_files import StudyVersion
+from .worker import ThrottledWorker
 
 log = logging.getLogger(__name__)
 
@@ -75,10 +76,9 @@ class Allocator:
         self.items = schedule_items(self.manifest)
         self.ids = [it.id for it in self.items]
         self._lock = threading.Lock()
-        self._wake = threading.Event()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._last_fit = 0.0
+        self._worker = ThrottledWorker(
+            "allocation-refit", self.settings.refit_seconds if self.settings else 30.0,
+            self.refit, before=_warm_up, join_s=120.0)
 
     @classmethod
     def for_version(cls, store: ServerStore, version: StudyVersion) -> Allocator:
@@ -100,39 +100,14 @@ class Allocator:
     # -- the background refit ---------------------------------------------------------
     def start(self) -> None:
         if self.active:
-            self._thread = threading.Thread(target=self._run, name="allocation-refit",
-                                            daemon=True)
-            self._thread.start()
+            self._worker.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join(timeout=120)
+        self._worker.stop()
 
     def poke(self) -> None:
         """New ratings arrived (the worker refits when it is due)."""
-        self._wake.set()
-
-    def _run(self) -> None:
-        assert self.settings is not None
-        from .analysis_adapter import warm_up
-
-        warm_up()  # the research stack is imported here, not in the first block request
-        every = self.settings.refit_seconds
-        while not self._stop.is_set():
-            wait = self._last_fit + every - time.monotonic()
-            if wait > 0 and self._stop.wait(wait):
-                break
-            self._wake.wait(timeout=every)
-            self._wake.clear()
-            if self._stop.is_set():
-                break
-            try:
-                self.refit()
-            except Exception:  # logged; blocks keep coming from the last fit
-                log.exception("allocation refit failed")
-            self._last_fit = time.monotonic()
+        self._worker.poke()
 
     def _rating_rows(self) -> list[tuple[str, str, str, str, str]]:
         """Every stored rating entry of the current version, per session in upload order."""
@@ -359,6 +334,13 @@ class Allocator:
                 problems.append(f"block {b['block']} of {b['participant']}: re-planning it "
                                 "from its inputs gives another block")
         return problems
+
+
+def _warm_up() -> None:
+    """Import the research stack on the worker thread, not in the first block request."""
+    from .analysis_adapter import warm_up
+
+    warm_up()
 
 
 def _fit_row(row: Any) -> dict[str, Any]:

@@ -21,6 +21,7 @@ from session_store.records import utc_now
 
 from .ingest import parse_time
 from .stopping import StoppingStatus, WidthPoint, evaluate
+from .worker import ThrottledWorker
 
 if TYPE_CHECKING:
     from .analysis_adapter import StudyFigures
@@ -180,47 +181,26 @@ class StatsWorker:
         self.current = current
         self._snapshot = StatsSnapshot()
         self._lock = threading.Lock()
-        self._wake = threading.Event()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._last_run = 0.0
+        self._worker = ThrottledWorker("dashboard-stats", config.stats_every_s, self.refresh,
+                                       on_error=self._failed)
 
     def start(self) -> None:
-        self._thread = threading.Thread(target=self._run, name="dashboard-stats", daemon=True)
-        self._thread.start()
+        self._worker.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join(timeout=60)
+        self._worker.stop()
 
     def poke(self) -> None:
-        self._wake.set()
+        self._worker.poke()
 
     def snapshot(self) -> StatsSnapshot:
         with self._lock:
             return self._snapshot
 
-    def _run(self) -> None:
-        every = self.config.stats_every_s
-        while not self._stop.is_set():
-            wait = self._last_run + every - time.monotonic()
-            if wait > 0:
-                self._stop.wait(wait)
-                if self._stop.is_set():
-                    break
-            self._wake.wait(timeout=every)
-            self._wake.clear()
-            if self._stop.is_set():
-                break
-            try:
-                self.refresh()
-            except Exception as exc:  # the dashboard shows it; the server keeps serving
-                log.exception("dashboard statistics failed")
-                with self._lock:
-                    self._snapshot.error = f"{type(exc).__name__}: {exc}"
-            self._last_run = time.monotonic()
+    def _failed(self, exc: Exception) -> None:
+        """The dashboard shows what went wrong; the server keeps serving."""
+        with self._lock:
+            self._snapshot.error = f"{type(exc).__name__}: {exc}"
 
     def refresh(self, *, force: bool = False) -> StatsSnapshot:
         """Recompute now (when the data changed, or ``force``)."""

@@ -38,12 +38,7 @@ def _study(tmp_path: Path, on_fail: str) -> Path:
 
 
 def _start(app) -> None:
-    app.wait("preflight-passed")
-    app.key("space")
-    app.wait("welcome")
-    app.key("space")
-    app.wait("consent")
-    app.key("a")
+    app.through_consent()
     app.wait("acuity-check")
     app.key("space")
     app.wait("acuity-card")

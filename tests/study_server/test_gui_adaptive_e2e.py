@@ -52,12 +52,7 @@ def test_the_app_gets_its_blocks_from_the_server_and_rides_out_an_outage(
             "--screenshots", str(ARTIFACTS), "--pilot-no-vsync"]
     env = {**xdisplay, **{k: v for k, v in cli_env().items() if k == "CGVQ_ADMIN_TOKEN"}}
     app = AppDriver(env, args)
-    app.wait("preflight-passed", timeout=90)
-    app.key("space")
-    app.wait("welcome")
-    app.key("space")
-    app.wait("consent")
-    app.key("a")
+    app.through_consent(timeout=90)  # after the download
     _rate(app, 3)  # block 1: every stimulus once
     app.wait("block number=2 trials=2 issued_by=server", timeout=60)
     _rate(app, 1)

@@ -133,6 +133,15 @@ class AppDriver:
             subprocess.run(["xdotool", "key", k], env=self.env, check=True)
             time.sleep(0.12)
 
+    def through_consent(self, timeout: float = 30.0) -> None:
+        """A new participant: past the display check, the welcome and the consent."""
+        self.wait("preflight-passed", timeout=timeout)
+        self.key("space")
+        self.wait("welcome")
+        self.key("space")
+        self.wait("consent")
+        self.key("a")
+
     def resume(self) -> None:
         """A returning participant: past the display check and the welcome-back screen."""
         self.wait("preflight-passed")

@@ -1,0 +1,63 @@
+"""A background thread that redoes one piece of work when poked, at most every N seconds
+(the dashboard's statistics, the allocation's refit): requests only poke it, never wait."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+log = logging.getLogger(__name__)
+
+
+class ThrottledWorker:
+    """Runs ``work`` after :meth:`poke` (or every ``every_s`` anyway), never more often than
+    every ``every_s`` seconds; an exception is logged and handed to ``on_error``, and the
+    thread goes on. ``before`` runs once on the thread first (imports, warm-up)."""
+
+    def __init__(self, name: str, every_s: float, work: Callable[[], object], *,
+                 on_error: Callable[[Exception], None] | None = None,
+                 before: Callable[[], None] | None = None, join_s: float = 60.0) -> None:
+        self.name = name
+        self.every_s = every_s
+        self.work = work
+        self.on_error = on_error
+        self.before = before
+        self.join_s = join_s
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._last = 0.0
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout=self.join_s)
+
+    def poke(self) -> None:
+        self._wake.set()
+
+    def _run(self) -> None:
+        if self.before is not None:
+            self.before()
+        while not self._stop.is_set():
+            wait = self._last + self.every_s - time.monotonic()
+            if wait > 0 and self._stop.wait(wait):
+                break
+            self._wake.wait(timeout=self.every_s)
+            self._wake.clear()
+            if self._stop.is_set():
+                break
+            try:
+                self.work()
+            except Exception as exc:  # the server keeps serving
+                log.exception("%s failed", self.name)
+                if self.on_error is not None:
+                    self.on_error(exc)
+            self._last = time.monotonic()

@@ -21,6 +21,7 @@ from stimuli_manifests.cli_runner import run_command
 from .errors import CGVQMError
 from .metric import quality_label
 from .ray_options import add_ray_arguments, ray_settings
+from .stage_clock import StageClock
 from .version import __version__
 
 
@@ -69,8 +70,9 @@ def _add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = Fal
     p.add_argument("--seamless", action="store_true",
                    help="patches with a halo so features do not depend on the patch grid "
                         "(NOT upstream-identical; no error maps)")
-    p.add_argument("--batch-size", type=int, default=2,
-                   help="videos per network pass (reference + tests; default 2)")
+    p.add_argument("--batch-size", type=int,
+                   help="videos per network pass (reference + tests; default 2 on a CPU, 16 "
+                        "on CUDA, where several patch positions then share a pass)")
     p.add_argument("--threads", type=int,
                    help="CPU threads for PyTorch (default: PyTorch's choice)")
     p.add_argument("--allow-resample", action="store_true",
@@ -106,6 +108,9 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("--emap", metavar="OUT", help="write the error-map video (.mp4 or .mkv)")
     sc.add_argument("--emap-png", metavar="DIR", help="also write the error map as PNG frames")
     sc.add_argument("--json", action="store_true", help="print one JSON object")
+    sc.add_argument("--timing", action="store_true",
+                    help="say where the time went (decode, copy, backbone, pooling, idle; "
+                         "on stderr, and under 'timing' with --json)")
     sc.add_argument("--csv", metavar="OUT", help="append the score to a scores CSV")
     _add_metric_options(sc)
 
@@ -317,14 +322,22 @@ def _cmd_score(args: argparse.Namespace) -> int:
     if name not in ("cgvqm-2", "cgvqm-5"):
         if args.emap or args.emap_png:
             raise CGVQMError(f"error maps are written for CGVQM only, not {name}")
+        if args.timing:
+            raise CGVQMError(f"--timing is offered for CGVQM only, not {name}")
         return _cmd_score_peer(args, name)
     (metric,) = _metrics(args, [name])
+    clock = StageClock(metric.net.device) if args.timing else None
     res = metric.score(args.ref, args.test, pool=args.pool, fps=args.fps,
                        allow_resample=args.allow_resample, emap=args.emap or False,
                        emap_png_dir=args.emap_png, on_conversion=_on_conversion(args),
-                       progress=sys.stderr.isatty(), strict=args.strict)
+                       progress=sys.stderr.isatty(), strict=args.strict, clock=clock)
+    if clock is not None:
+        print(f"timing: {clock.report()}", file=sys.stderr)
     if args.json:
-        print(json.dumps(res.to_dict(patches=True)))
+        out = res.to_dict(patches=True)
+        if clock is not None:
+            out["timing"] = {k: round(v, 6) for k, v in clock.seconds().items()}
+        print(json.dumps(out))
     else:
         tag = " [RANDOM BACKBONE]" if res.is_random_backbone else ""
         if metric.weights.kind == "uniform":

@@ -26,6 +26,7 @@ from .backbone import LEVEL_CHANNELS, Conv2Plus1D, VideoResNet, build_backbone
 from .errors import CGVQMError
 from .hub import Backbone
 from .precision import DTYPES, PRECISIONS, check, resolve, tf32_mode
+from .stage_clock import StageClock, stage
 
 #: torchvision's Kinetics-400 normalisation (applied after scaling uint8 to [0, 1])
 MEAN = (0.43216, 0.394666, 0.37645)
@@ -56,6 +57,10 @@ class FeatureNet:
 
     ``fuse_bn`` folds batch norm into the convolutions and ``channels_last`` uses the
     channels-last-3d memory format (both faster on CPU, equal numbers up to float rounding).
+    Folding is the default except under ``tf32``: TF32 rounds every convolution's weights to
+    10 mantissa bits, and folded weights round differently from upstream's, which would
+    move q by up to about 5e-3; unfolded, the convolutions see upstream's very operands.
+    ``cudnn_benchmark`` lets cuDNN pick the fastest algorithm per shape (CUDA).
     ``precision`` (:mod:`.precision`): ``auto`` (default: ``fp32`` on CPU, exact; ``tf32`` on
     CUDA, as upstream runs there), ``fp32`` (exact; TF32 off on CUDA),
     ``bf16``/``fp16`` (weights and activations between convolutions in that type,
@@ -67,8 +72,9 @@ class FeatureNet:
     """
 
     def __init__(self, backbone: Backbone, n_levels: int, *, device: str | torch.device = "cpu",
-                 precision: str = "auto", fuse_bn: bool = True,
-                 channels_last: bool | None = None, fp32_stem: bool = True) -> None:
+                 precision: str = "auto", fuse_bn: bool | None = None,
+                 channels_last: bool | None = None, fp32_stem: bool = True,
+                 cudnn_benchmark: bool = True) -> None:
         if not 1 <= n_levels <= 6:
             raise CGVQMError(f"n_levels must be 1..6, got {n_levels}")
         try:
@@ -92,7 +98,13 @@ class FeatureNet:
         if channels_last is None:
             channels_last = self.device.type == "cpu" or self.dtype != torch.float32
         self.channels_last = channels_last
-        self.model = self._build(backbone, max(n_levels - 2, 0), fuse_bn)
+        self.fuse_bn = precision != "tf32" if fuse_bn is None else bool(fuse_bn)
+        self.cudnn_benchmark = bool(cudnn_benchmark)
+        self.model = self._build(backbone, max(n_levels - 2, 0), self.fuse_bn)
+        # made once: a tensor built from a list on CUDA is a blocking copy, which would
+        # make the host wait for the GPU at every pass
+        self._mean = torch.tensor(MEAN, device=self.device).view(1, 3, 1, 1, 1)
+        self._std = torch.tensor(STD, device=self.device).view(1, 3, 1, 1, 1)
 
     def _build(self, backbone: Backbone, depth: int, fuse_bn: bool) -> VideoResNet:
         with torch.device("meta"):
@@ -127,9 +139,7 @@ class FeatureNet:
         if not self.channels_last:
             x = x.contiguous()
         x = x.to(torch.float32).div_(255)
-        mean = torch.tensor(MEAN, dtype=torch.float32, device=self.device).view(1, 3, 1, 1, 1)
-        std = torch.tensor(STD, dtype=torch.float32, device=self.device).view(1, 3, 1, 1, 1)
-        return x.sub_(mean).div_(std)
+        return x.sub_(self._mean).div_(self._std)
 
     def levels(self, x: torch.Tensor) -> Iterator[torch.Tensor]:
         """Level activations in float32, unit-normalised across channels from level 1 on.
@@ -137,7 +147,8 @@ class FeatureNet:
         ``x`` is the fp32 input of :meth:`to_input`; level 0 is ``x`` itself whatever the
         precision, the network sees it cast to the compute type.
         """
-        with torch.inference_mode(), tf32_mode(self.device, self.precision == "tf32"):
+        with torch.inference_mode(), tf32_mode(self.device, self.precision == "tf32",
+                                               benchmark=self.cudnn_benchmark):
             if self.dtype == torch.float32:
                 it = self.model.levels(x, self.n_levels)
                 for _ in range(self.n_levels):
@@ -197,19 +208,33 @@ class PatchDiff:
     emap: torch.Tensor | None  # (k, T, h, w) error map (needs weights, only when asked)
 
 
+#: videos per network pass when none is given: two on a CPU (reference + test: the lowest
+#: memory, and larger batches do not run faster there); on CUDA enough to fill the GPU with
+#: 30x128x128 patches (the patches of a 512x512 video), i.e. several patch positions per pass
+DEFAULT_BATCH = {"cpu": 2, "cuda": 16}
+
+
+def default_batch_size(device: str | torch.device) -> int:
+    return DEFAULT_BATCH.get(torch.device(device).type, 2)
+
+
 class PatchScorer:
-    """Compares one reference patch with k test patches through a :class:`FeatureNet`.
+    """Compares reference patches with their test patches through a :class:`FeatureNet`.
 
     ``level_weights`` (|omega| split per level) and ``alpha`` are needed only for the
     per-frame series and the error map; ``patch_channel_msd`` works without them.
-    ``batch_size`` videos go through the network together; the reference's normalised
-    levels are kept while later chunks of test videos are processed.
+    ``batch_size`` videos go through the network together (default :data:`DEFAULT_BATCH`
+    for the device): several patch positions at once when each position's reference and k
+    tests fit (:meth:`compare`), otherwise one position in chunks, the reference's
+    normalised levels kept while later chunks of test videos are processed.
     """
 
     def __init__(self, net: FeatureNet, level_weights: list[np.ndarray] | None = None,
-                 alpha: float = 1.0, batch_size: int = 2) -> None:
+                 alpha: float = 1.0, batch_size: int | None = None) -> None:
         self.net = net
         self.alpha = float(alpha)
+        if batch_size is None:
+            batch_size = default_batch_size(net.device)
         self.batch_size = max(1, int(batch_size))
         self.w = None
         if level_weights is not None:
@@ -219,47 +244,114 @@ class PatchScorer:
             self.w = [torch.as_tensor(w, dtype=torch.float32, device=net.device)
                       for w in level_weights]
 
+    def positions_per_pass(self, k: int) -> int:
+        """How many patch positions (each a reference and ``k`` tests) one pass takes."""
+        return max(1, self.batch_size // (1 + k))
+
     def __call__(self, ref: torch.Tensor, tests: list[torch.Tensor], *,
                  emap: bool = False,
                  cores: tuple[tuple[slice, slice], ...] | None = None) -> PatchDiff:
-        """``ref`` and each test: (T, h, w, 3) uint8 patches.
+        """One position: ``ref`` and each test are (T, h, w, 3) uint8 patches; results on
+        the host.
 
         ``cores`` (seamless tiling) keeps, per level, only that (rows, columns) part of the
         features: the input was a crop around the patch and the rest is its halo.
+        """
+        out = self.compare([ref], [tests], emap=emap, cores=cores)
+        self.check_finite(out.msd)
+        return PatchDiff(out.msd[0].cpu(),
+                         None if out.series is None else out.series[0].cpu(),
+                         None if out.emap is None else out.emap[0].cpu())
+
+    def check_finite(self, msd: torch.Tensor) -> None:
+        """Refuse features that overflowed (bf16/fp16); a host sync on CUDA, so callers do
+        it once per clip."""
+        if self.net.dtype != torch.float32 and not bool(torch.isfinite(msd).all()):
+            raise CGVQMError(f"the network overflowed in {self.net.precision} (non-finite "
+                             "features); score this video with --precision bf16 or fp32")
+
+    def compare(self, refs: list[torch.Tensor], tests: list[list[torch.Tensor]], *,
+                emap: bool = False, cores: tuple[tuple[slice, slice], ...] | None = None,
+                clock: StageClock | None = None) -> PatchDiff:
+        """G positions at once: ``refs[g]`` and every ``tests[g][j]`` are (T, h, w, 3) uint8
+        patches of position g (on the host or already on the device).
+
+        Returns a :class:`PatchDiff` whose tensors have a leading position axis, (G, k, ...),
+        left on the network's device (no synchronisation). Several positions need all
+        G * (1 + k) videos to fit in one pass (see :meth:`positions_per_pass`).
         """
         if emap and self.w is None:
             raise CGVQMError("an error map needs feature weights")
         if emap and cores is not None:
             raise CGVQMError("error maps are not offered in seamless mode")
-        T, h, w = ref.shape[:3]
-        k = len(tests)
-        chunks: list[list[torch.Tensor]] = []
+        G, k = len(refs), len(tests[0]) if tests else 0
+        T, h, w = refs[0].shape[:3]
+        if k == 0:
+            n = sum(LEVEL_CHANNELS[: self.net.n_levels])
+            return PatchDiff(torch.zeros(G, 0, n, device=self.net.device), None, None)
+        if G * (1 + k) <= self.batch_size:
+            videos = [v for g in range(G) for v in (refs[g], *tests[g])]
+            parts = [self._pass(videos, G, 1 + k, None, (T, h, w), emap, cores, clock)]
+        else:
+            if G > 1:
+                raise CGVQMError(f"{G} positions of {1 + k} videos do not fit a batch of "
+                                 f"{self.batch_size}")
+            parts = self._chunked(refs[0], tests[0], (T, h, w), emap, cores, clock)
+        msd = torch.cat([p[0] for p in parts], dim=1)
+        series = (torch.cat([p[1] for p in parts], dim=1) * self.alpha
+                  if parts[0][1] is not None else None)
+        em = torch.cat([p[2] for p in parts], dim=1) * self.alpha if emap else None
+        return PatchDiff(msd, series, em)
+
+    def _chunked(self, ref: torch.Tensor, tests: list[torch.Tensor], shape: tuple[int, ...],
+                 emap: bool, cores: tuple[tuple[slice, slice], ...] | None,
+                 clock: StageClock | None) -> list[tuple]:
+        """One position whose reference and tests do not fit one pass: the reference goes
+        with the first tests, its levels are kept for the later chunks."""
         first = tests[: self.batch_size - 1] if self.batch_size > 1 else []
-        chunks.append([ref, *first])
         rest = tests[len(first):]
-        chunks += [rest[i: i + self.batch_size] for i in range(0, len(rest), self.batch_size)]
         ref_levels: list[torch.Tensor] = []
-        msd_parts: list[torch.Tensor] = []
-        series_parts: list[torch.Tensor] = []
-        emap_parts: list[torch.Tensor] = []
-        keep_ref = len(chunks) > 1
-        for ci, chunk in enumerate(chunks):
-            x = self.net.to_input(torch.stack(chunk))
-            msd_l, series, em = [], None, None
-            for li, a in enumerate(self.net.levels(x)):
+        parts = [self._pass([ref, *first], 1, 1 + len(first), ref_levels, shape, emap, cores,
+                            clock)]
+        for i in range(0, len(rest), self.batch_size):
+            parts.append(self._pass(rest[i: i + self.batch_size], 1, len(rest[i: i +
+                                    self.batch_size]), ref_levels, shape, emap, cores, clock,
+                                    ref_given=True))
+        return [p for p in parts if p[0].shape[1] > 0]
+
+    def _pass(self, videos: list[torch.Tensor], G: int, per: int,
+              ref_levels: list[torch.Tensor] | None, shape: tuple[int, ...], emap: bool,
+              cores: tuple[tuple[slice, slice], ...] | None, clock: StageClock | None, *,
+              ref_given: bool = False) -> tuple:
+        """One network pass over G groups of ``per`` videos. Each group's first video is its
+        reference, unless ``ref_given`` (G == 1; the reference's levels are
+        ``ref_levels``, filled by an earlier pass that was handed the list)."""
+        T, h, w = shape
+        with stage(clock, "copy"):
+            x = self.net.to_input(torch.stack(videos))
+        n_test = per if ref_given else per - 1
+        msd_l: list[torch.Tensor] = []
+        series = em = None
+        levels = self.net.levels(x)
+        for li in range(self.net.n_levels):
+            with stage(clock, "backbone"):
+                a = next(levels)
+            with stage(clock, "pooling"):
                 if cores is not None:
                     a = a[..., cores[li][0], cores[li][1]]
-                if ci == 0:
-                    r, t = a[:1], a[1:]
-                    if keep_ref:
-                        ref_levels.append(r)
+                a6 = a.unflatten(0, (G, per))
+                if ref_given:
+                    assert ref_levels is not None
+                    r, t = ref_levels[li].unsqueeze(0), a6
                 else:
-                    r, t = ref_levels[li], a
-                if t.shape[0] == 0:
-                    del a, t, r
+                    r, t = a6[:, :1], a6[:, 1:]
+                    if ref_levels is not None:
+                        ref_levels.append(a[:1])
+                if n_test == 0:
+                    del a, a6, r, t
                     continue
-                d = (t - r).pow_(2)
-                mt = _mean_hw(d)  # (b, C, t_l)
+                d = (t - r).pow_(2).flatten(0, 1)  # (G * n_test, C, t, h, w)
+                mt = _mean_hw(d)  # (G * n_test, C, t_l)
                 msd_l.append(mt.mean(dim=2))
                 if self.w is not None:
                     wl = self.w[li]
@@ -273,22 +365,14 @@ class PatchScorer:
                         e = F.interpolate(e, size=(T, h, w), mode="trilinear",
                                           align_corners=False)[:, 0]
                         em = e if em is None else em + e
-                del a, t, r, d  # free this level before the network computes the next
-            if msd_l:
-                msd_parts.append(torch.cat(msd_l, dim=1))
-                if series is not None:
-                    series_parts.append(series * self.alpha)
-                if em is not None:
-                    emap_parts.append(em * self.alpha)
-        if k == 0:
+                del a, a6, r, t, d  # free this level before the network computes the next
+        for _ in levels:  # let the generator finish (restores its precision switches)
+            pass
+        if n_test == 0:
             n = sum(LEVEL_CHANNELS[: self.net.n_levels])
-            return PatchDiff(torch.zeros(0, n), None, None)
-        msd = torch.cat(msd_parts).cpu()
-        if self.net.dtype != torch.float32 and not bool(torch.isfinite(msd).all()):
-            raise CGVQMError(f"the network overflowed in {self.net.precision} (non-finite "
-                             "features); score this video with --precision bf16 or fp32")
-        return PatchDiff(
-            msd,
-            torch.cat(series_parts).cpu() if series_parts else None,
-            torch.cat(emap_parts).cpu() if emap_parts else None,
-        )
+            return (torch.zeros(G, 0, n, device=self.net.device), None, None)
+        with stage(clock, "pooling"):
+            msd = torch.cat(msd_l, dim=1).unflatten(0, (G, n_test))
+            return (msd,
+                    None if series is None else series.unflatten(0, (G, n_test)),
+                    None if em is None else em.unflatten(0, (G, n_test)))

@@ -25,6 +25,7 @@ from .features import FeatureNet, PatchScorer
 from .hub import Backbone, resolve_backbone
 from .precision import cpu_name
 from .scale_anchor import anchoring_for, apply_anchor
+from .stage_clock import StageClock
 from .stream import (
     StreamOutput,
     VideoInput,
@@ -180,6 +181,10 @@ class CGVQM:
     the stem in fp32 under bf16/fp16, which removes most of the drift.
     ``seamless=True`` runs patches with a halo so features do not depend on the patch grid
     (:mod:`.seamless`; not upstream-identical, marked ``mode: seamless``, no error maps).
+    ``batch_size`` is videos per network pass (default 2 on a CPU, 16 on CUDA, where several
+    patch positions then share a pass); ``prefetch`` decodes the next clip in a thread while
+    the current one is scored (default: on CUDA only). Neither changes the numbers beyond
+    float rounding.
     """
 
     def __init__(
@@ -192,8 +197,10 @@ class CGVQM:
         device: str = "cpu",
         precision: str = "auto",
         patch_scale: int = 4,
-        batch_size: int = 2,
-        fuse_bn: bool = True,
+        batch_size: int | None = None,
+        prefetch: bool | None = None,
+        fuse_bn: bool | None = None,
+        cudnn_benchmark: bool = True,
         channels_last: bool | None = None,
         allow_download: bool = True,
         seamless: bool = False,
@@ -203,15 +210,17 @@ class CGVQM:
         self.variant = self.weights.variant
         if patch_scale < 1:
             raise CGVQMError(f"patch scale must be at least 1, got {patch_scale}")
-        if batch_size < 1:
+        if batch_size is not None and batch_size < 1:
             raise CGVQMError(f"batch size (videos per network pass) must be at least 1, "
                              f"got {batch_size}")
         self.backbone = resolve_backbone(backbone, random_seed=random_backbone,
                                          allow_download=allow_download)
         self.patch_scale = int(patch_scale)
         self.seamless = bool(seamless)
+        self.prefetch = prefetch
         self.net = FeatureNet(self.backbone, self.weights.n_levels, device=device,
                               precision=precision, fuse_bn=fuse_bn, channels_last=channels_last,
+                              cudnn_benchmark=cudnn_benchmark,
                               fp32_stem=fp32_stem)
         self.scorer = PatchScorer(self.net, self.weights.level_weights(), self.weights.alpha,
                                   batch_size=batch_size)
@@ -245,7 +254,7 @@ class CGVQM:
               fps: float | None = None, allow_resample: bool = False,
               emap: bool | str | Path = False, emap_png_dir: str | Path | None = None,
               on_conversion: str = "warn", progress: bool = False,
-              strict: bool = False) -> CGVQMResult:
+              strict: bool = False, clock: StageClock | None = None) -> CGVQMResult:
         """Score one test video against its reference.
 
         ``emap=True`` returns the error map as an array in the result (memory: frames x H x W
@@ -257,15 +266,19 @@ class CGVQM:
         return self.score_many(ref, [test], pool=pool, fps=fps, allow_resample=allow_resample,
                                emap=[emap], emap_png_dirs=[emap_png_dir],
                                on_conversion=on_conversion, progress=progress,
-                               strict=strict)[0]
+                               strict=strict, clock=clock)[0]
 
     def score_many(self, ref: VideoInput, tests: Sequence[VideoInput], *, pool: str = "max",
                    fps: float | None = None, allow_resample: bool = False,
                    emap: Sequence[bool | str | Path] | None = None,
                    emap_png_dirs: Sequence[str | Path | None] | None = None,
                    on_conversion: str = "warn", progress: bool = False,
-                   strict: bool = False) -> list[CGVQMResult]:
-        """Score several test videos that share ``ref``; its features are computed once."""
+                   strict: bool = False, clock: StageClock | None = None
+                   ) -> list[CGVQMResult]:
+        """Score several test videos that share ``ref``; its features are computed once.
+
+        ``clock`` (:class:`~cgvqm_core.stage_clock.StageClock`) adds up where the time went.
+        """
         if pool not in POOLINGS:
             raise CGVQMError(f"unknown pooling {pool!r}; choose max or mean")
         t0 = time.perf_counter()
@@ -296,7 +309,7 @@ class CGVQM:
         try:
             outs = run(rsrc, tsrcs, self.scorer, geom, emap_sinks=sinks, progress=progress,
                        desc=f"{self.variant} {Path(str(rsrc.info.path)).name}",
-                       seamless=self.seamless)
+                       seamless=self.seamless, prefetch=self.prefetch, clock=clock)
         finally:
             for w in closers:
                 w.close()

@@ -163,17 +163,20 @@ def check(precision: str, device: torch.device) -> dict[str, object]:
 
 
 @contextlib.contextmanager
-def tf32_mode(device: torch.device, allow: bool) -> Iterator[None]:
+def tf32_mode(device: torch.device, allow: bool, *, benchmark: bool = False
+              ) -> Iterator[None]:
     """On CUDA, for the duration (restored after): cuDNN convolutions may use TF32 when
     ``allow`` (PyTorch's default, as upstream runs), never otherwise; matrix products in
-    fp32 either way (also PyTorch's default), whatever the process had set."""
+    fp32 either way (also PyTorch's default), whatever the process had set. ``benchmark``
+    lets cuDNN time its algorithms once per input shape and keep the fastest (CGVQM's
+    shapes repeat patch after patch, so the search pays for itself after a few patches)."""
     if device.type != "cuda":
         yield
         return
-    saved = torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32
-    torch.backends.cudnn.allow_tf32 = allow
-    torch.backends.cuda.matmul.allow_tf32 = False
+    cudnn, matmul = torch.backends.cudnn, torch.backends.cuda.matmul
+    saved = cudnn.allow_tf32, matmul.allow_tf32, cudnn.benchmark
+    cudnn.allow_tf32, matmul.allow_tf32, cudnn.benchmark = allow, False, benchmark
     try:
         yield
     finally:
-        torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = saved
+        cudnn.allow_tf32, matmul.allow_tf32, cudnn.benchmark = saved

@@ -24,9 +24,11 @@ from tqdm.auto import tqdm
 
 from stimuli_manifests import StimuliError, open_video
 
+from .clip_feed import clip_sets
 from .errors import CGVQMError
 from .features import FeatureNet, PatchScorer
 from .seamless import network_halo, tile
+from .stage_clock import StageClock, stage
 
 log = logging.getLogger(__name__)
 
@@ -342,66 +344,91 @@ def check_fps(ref: FrameSource, test: FrameSource, allow_resample: bool) -> None
 
 def run(ref: FrameSource, tests: Sequence[FrameSource], scorer: PatchScorer, geom: Geometry, *,
         emap_sinks: Sequence[EmapSink | None] | None = None, progress: bool = False,
-        desc: str = "cgvqm", seamless: bool = False) -> list[StreamOutput]:
+        desc: str = "cgvqm", seamless: bool = False, prefetch: bool | None = None,
+        clock: StageClock | None = None) -> list[StreamOutput]:
     """Score every patch of every test video against the reference, clip by clip.
 
     ``seamless`` runs each patch on a crop with a halo and keeps its core's features
-    (:mod:`.seamless`; not upstream-identical).
+    (:mod:`.seamless`; not upstream-identical). ``prefetch`` decodes the next clip in a
+    thread while the current one is scored (:mod:`.clip_feed`; default: on CUDA only, where
+    the network is fast enough for decoding to matter). On CUDA each clip is copied to the
+    GPU once, patches are cut there, several patch positions go through the network
+    together when the batch size allows, and results come back once per clip. ``clock``
+    adds up the time of each stage (:mod:`.stage_clock`).
     """
     sinks = list(emap_sinks) if emap_sinks is not None else [None] * len(tests)
     want_emap = any(s is not None for s in sinks)
     halo = network_halo(scorer.net.model, scorer.net.n_levels) if seamless else None
+    dev = scorer.net.device
+    cuda = dev.type == "cuda"
     ref_clips = padded_clips(_counted(ref, "reference"), geom)
     test_clips = [padded_clips(aligned_frames(t, geom, f"test {i}"), geom)
                   for i, t in enumerate(tests)]
     ph, pw, L = geom.patch_h, geom.patch_w, geom.clip_len
+    grid = [(r, c) for r in range(geom.n_rows) for c in range(geom.n_cols)]
+    per_pass = 1 if halo is not None else scorer.positions_per_pass(len(tests))
     msd: list[list[torch.Tensor]] = [[] for _ in tests]
     series: list[list[torch.Tensor]] = [[] for _ in tests]
     bar = tqdm(total=geom.n_clips, desc=desc, unit="clip", disable=not progress, leave=False)
-    for ci, (rclip, valid) in enumerate(ref_clips):
-        tclips = [next(tc)[0] for tc in test_clips]
-        rt = torch.from_numpy(rclip)
-        tts = [torch.from_numpy(c) for c in tclips]
-        emaps = (np.zeros((len(tests), L, geom.n_rows * ph, geom.n_cols * pw), np.float32)
-                 if want_emap else None)
-        for r in range(geom.n_rows):
-            for c in range(geom.n_cols):
+    feed = clip_sets(ref_clips, test_clips, prefetch=cuda if prefetch is None else prefetch,
+                     pin=cuda, clock=clock)
+    if clock is not None:
+        clock.start()
+    try:
+        for clip in feed:
+            with stage(clock, "copy"):
+                rt = clip.ref.to(dev, non_blocking=True) if cuda else clip.ref
+                tts = [t.to(dev, non_blocking=True) if cuda else t for t in clip.tests]
+            outs = []
+            for g0 in range(0, len(grid), per_pass):
+                group = grid[g0: g0 + per_pass]
                 cores = None
                 if halo is None:
-                    sl = (slice(None), slice(r * ph, (r + 1) * ph), slice(c * pw, (c + 1) * pw))
+                    sls = [(slice(None), slice(r * ph, (r + 1) * ph), slice(c * pw, (c + 1) * pw))
+                           for r, c in group]
                 else:
-                    tl = tile(r, c, ph, pw, geom.height, geom.width, halo)
-                    sl, cores = (slice(None), tl.crop_h, tl.crop_w), tl.cores
-                out = scorer(rt[sl], [t[sl] for t in tts], emap=want_emap, cores=cores)
-                for i in range(len(tests)):
-                    msd[i].append(out.msd[i])
-                    if out.series is not None:
-                        series[i].append(out.series[i])
-                if emaps is not None and out.emap is not None:
-                    emaps[:, :, r * ph:(r + 1) * ph, c * pw:(c + 1) * pw] = out.emap.numpy()
-        if emaps is not None:
-            for i, sink in enumerate(sinks):
-                if sink is not None:
-                    sink(ci, emaps[i, :valid, : geom.height, : geom.width],
-                         tclips[i][:valid, : geom.height, : geom.width])
-        bar.update(1)
-    bar.close()
-    for tc in test_clips:  # run the test streams to their end (frame-count checks)
-        for _ in tc:
-            pass
-    outs = []
+                    tl = tile(*group[0], ph, pw, geom.height, geom.width, halo)
+                    sls, cores = [(slice(None), tl.crop_h, tl.crop_w)], tl.cores
+                outs.append(scorer.compare([rt[sl] for sl in sls], [[t[sl] for t in tts]
+                                           for sl in sls], emap=want_emap, cores=cores,
+                                           clock=clock))
+            with stage(clock, "pooling"):  # one transfer (and sync) per clip
+                m = torch.cat([o.msd for o in outs]).cpu()  # (positions, k, N)
+                s = (torch.cat([o.series for o in outs]).cpu()
+                     if outs[0].series is not None else None)
+                e = torch.cat([o.emap for o in outs]).cpu() if want_emap else None
+            scorer.check_finite(m)
+            for i in range(len(tests)):
+                msd[i].append(m[:, i])
+                if s is not None:
+                    series[i].append(s[:, i])
+            if e is not None:
+                emaps = np.zeros((len(tests), L, geom.n_rows * ph, geom.n_cols * pw), np.float32)
+                for p, (r, c) in enumerate(grid):
+                    emaps[:, :, r * ph:(r + 1) * ph, c * pw:(c + 1) * pw] = e[p].numpy()
+                for i, sink in enumerate(sinks):
+                    if sink is not None:
+                        sink(clip.index, emaps[i, :clip.valid, : geom.height, : geom.width],
+                             clip.tests[i].numpy()[:clip.valid, : geom.height, : geom.width])
+            bar.update(1)
+    finally:
+        feed.close()
+        if clock is not None:
+            clock.stop()
+        bar.close()
+    outs_final = []
     for i in range(len(tests)):
-        m = torch.stack(msd[i]).numpy().astype(np.float32)
-        s = None
+        mi = torch.cat(msd[i]).numpy().astype(np.float32)
+        si = None
         if series[i]:
-            s = torch.stack(series[i]).numpy().reshape(geom.n_clips, geom.n_rows, geom.n_cols, L)
-        outs.append(StreamOutput(geom, m, s))
-    return outs
+            si = torch.cat(series[i]).numpy().reshape(geom.n_clips, geom.n_rows, geom.n_cols, L)
+        outs_final.append(StreamOutput(geom, mi, si))
+    return outs_final
 
 
 def patch_channel_msd(ref: VideoInput, tests: VideoInput | Sequence[VideoInput], net: FeatureNet,
                       *, patch_scale: int = 4, fps: float | None = None,
-                      allow_resample: bool = False, batch_size: int = 2,
+                      allow_resample: bool = False, batch_size: int | None = None,
                       on_conversion: str = "warn", progress: bool = False,
                       seamless: bool = False, strict: bool = False) -> list[StreamOutput]:
     """The per-patch, per-channel mean squared feature differences of test videos vs ``ref``.

@@ -47,7 +47,7 @@ class FeatureSource:
 
 def metric_features(variant: str, *, backbone: str | Path | None = None,
                     random_backbone: int | None = None, device: str = "cpu",
-                    precision: str = "fp32", patch_scale: int = 4, batch_size: int = 2,
+                    precision: str = "fp32", patch_scale: int = 4, batch_size: int | None = None,
                     allow_resample: bool = False, on_conversion: str = "warn"
                     ) -> FeatureSource:
     """The metric's per-patch channel MSD (:meth:`cgvqm_core.metric.CGVQM.channel_msd`)."""

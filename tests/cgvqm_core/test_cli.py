@@ -200,3 +200,25 @@ def test_seamless_score_is_marked_and_equals_api(capsys, pair, weights_file, bac
     rc, _, err = _run(capsys, "score", "--ref", ref, "--test", test, "--weights", weights_file,
                       "--backbone", backbone_file, "--seamless", "--emap", "x.mkv")
     assert rc == 2 and "seamless" in err
+
+
+def test_score_timing_says_where_the_time_went(capsys, pair, weights_file, backbone_file):
+    """--timing: one line on stderr and the stages in the JSON, adding up to the wall time;
+    the score itself is the one without it. Refused for a peer metric."""
+    ref, test = pair
+    rc, out, err = _run(capsys, "score", "--ref", ref, "--test", test, "--weights", weights_file,
+                        "--backbone", backbone_file, "--json", "--timing")
+    assert rc == 0, err
+    doc = json.loads(out)
+    t = doc["timing"]
+    assert set(t) == {"decode", "wait", "copy", "backbone", "pooling", "idle", "wall"}
+    assert t["decode"] + t["copy"] + t["backbone"] + t["pooling"] + t["idle"] == \
+        pytest.approx(t["wall"], abs=1e-5)
+    assert t["backbone"] > 0 and t["decode"] > 0
+    assert "timing: wall" in err and "backbone" in err
+    plain = CGVQM(weights=weights_file, backbone=backbone_file).score(ref, test)
+    assert doc["q"] == plain.q
+    rc, out, err = _run(capsys, "score", "--metric", "psnr", "--ref", ref, "--test", test,
+                        "--timing")
+    assert rc == 2 and err.strip().splitlines()[-1].endswith(
+        "--timing is offered for CGVQM only, not psnr")

@@ -11,12 +11,18 @@ What it measures (CPU unless --device cuda; every precision of --precisions, fp3
    omega/alpha when found, else uniform weights);
 3. the speed-up of each optimisation on CGVQM-2: channels-last layout, batch norm folding,
    batching test + reference, and reference reuse (four test videos sharing one reference),
-   and the single-pair and reference-reuse speed of every precision against the
-   upstream-style configuration (the same-machine stand-in for the authors' code);
+   and the single-pair and reference-reuse speed of every precision (and, on CUDA, of the
+   default ``auto``) against the authors' code as its users run it (upstream_as_run.py, a
+   same-machine stand-in that follows run_cgvqm's data flow), with |dq| against it; on CUDA
+   also the four tf32 configurations (batch norm folded or not, cuDNN benchmark on or off);
 4. on CUDA: fp32 parity with the CPU on the same pair (TF32 off; target |dq| <= 1e-4),
-   pairs per minute for 3 s 1024x1024 stimuli (single pair and four tests per reference),
-   and the CGVQM-2 : CGVQM-5 time ratio on one 32x512x512 patch pair (the paper: CGVQM-2 is
-   27 % faster than CGVQM-5 there, on an A100);
+   pairs per minute for 3 s 1024x1024 stimuli (single pair, four tests per reference, and a
+   batch-size sweep with peak GPU memory; target 350 for CGVQM-2 in bf16/fp16), and the
+   CGVQM-2 : CGVQM-5 time ratio on one 32x512x512 patch pair (the paper: CGVQM-2 is 27 %
+   faster than CGVQM-5 there, on an A100);
+4b. where the time goes when scoring from H.264 files (cgvqm_core.stage_clock): decode,
+   wait, copy, backbone, pooling, idle, with decoding inline and ahead in a thread
+   (T x S x S on a CPU, 3 s 1024x1024 on CUDA); ``--trace DIR`` adds a torch.profiler trace;
 5. peak RSS of a separate process scoring a 1080p30 pair streamed from lossless files, for
    1 s and 10 s (target: under 4 GB), so you can see that memory does not grow with the
    video's length. The 10 s pair is 160 patches of 30x270x480: about 30 min on 2 cores.
@@ -47,6 +53,7 @@ Measured (raw output in benchmarks/results/, random backbone seed 0, published o
     python benchmarks/bench_cgvqm.py --rss-only            # only the 1080p memory figures
     python benchmarks/bench_cgvqm.py --size 256 --frames 16 --rss-seconds 0   # quick look
     python benchmarks/bench_cgvqm.py --device cuda --json cuda.json          # a GPU
+    python benchmarks/bench_cgvqm.py --breakdown-only --trace /tmp/trace     # time split
 """
 
 from __future__ import annotations
@@ -169,7 +176,12 @@ def conv_flops(net: FeatureNet, frames: int, ph: int, pw: int, batch: int) -> fl
 
 
 def timed(fn, repeats: int, device: str = "cpu") -> float:
-    """Best wall time of ``repeats`` calls (the device synchronised before the clock stops)."""
+    """Best wall time of ``repeats`` calls (the device synchronised before the clock stops).
+
+    On CUDA one untimed call comes first: cuDNN's benchmark mode searches its algorithms at
+    the first pass of each new shape, which a run pays once, not per pair."""
+    if str(device).startswith("cuda"):
+        fn()
     best = float("inf")
     for _ in range(repeats):
         sync(device)

@@ -208,14 +208,20 @@ class PatchDiff:
     emap: torch.Tensor | None  # (k, T, h, w) error map (needs weights, only when asked)
 
 
-#: videos per network pass when none is given: two on a CPU (reference + test: the lowest
-#: memory, and larger batches do not run faster there); on CUDA enough to fill the GPU with
-#: 30x128x128 patches (the patches of a 512x512 video), i.e. several patch positions per pass
-DEFAULT_BATCH = {"cpu": 2, "cuda": 16}
+#: what one network pass may hold on CUDA when no batch size is given, in video voxels
+#: (frames x height x width of each patch, summed over the videos of the pass): 16 patches
+#: of 30x128x128, those of a 512x512 video, which peak at about 2.5 GB in fp32
+CUDA_PASS_VOXELS = 16 * 30 * 128 * 128
 
 
-def default_batch_size(device: str | torch.device) -> int:
-    return DEFAULT_BATCH.get(torch.device(device).type, 2)
+def default_batch_size(device: str | torch.device, patch_voxels: int) -> int:
+    """Videos per network pass when none is given: two on a CPU (reference + test: the least
+    memory, and larger batches run no faster there); on CUDA as many patches as fill
+    :data:`CUDA_PASS_VOXELS` (16 at 30x128x128, 4 at 30x256x256, 2 for 1080p), so that
+    several patch positions share a pass while memory stays that of a 512x512 video's."""
+    if torch.device(device).type != "cuda":
+        return 2
+    return max(2, CUDA_PASS_VOXELS // max(int(patch_voxels), 1))
 
 
 class PatchScorer:
@@ -223,19 +229,18 @@ class PatchScorer:
 
     ``level_weights`` (|omega| split per level) and ``alpha`` are needed only for the
     per-frame series and the error map; ``patch_channel_msd`` works without them.
-    ``batch_size`` videos go through the network together (default :data:`DEFAULT_BATCH`
-    for the device): several patch positions at once when each position's reference and k
-    tests fit (:meth:`compare`), otherwise one position in chunks, the reference's
-    normalised levels kept while later chunks of test videos are processed.
+    ``batch_size`` videos go through the network together (default
+    :func:`default_batch_size`, from the device and the patch size): several patch
+    positions at once when each position's reference and k tests fit (:meth:`compare`),
+    otherwise one position in chunks, the reference's normalised levels kept while later
+    chunks of test videos are processed.
     """
 
     def __init__(self, net: FeatureNet, level_weights: list[np.ndarray] | None = None,
                  alpha: float = 1.0, batch_size: int | None = None) -> None:
         self.net = net
         self.alpha = float(alpha)
-        if batch_size is None:
-            batch_size = default_batch_size(net.device)
-        self.batch_size = max(1, int(batch_size))
+        self.batch_size = None if batch_size is None else max(1, int(batch_size))
         self.w = None
         if level_weights is not None:
             if len(level_weights) != net.n_levels:
@@ -244,9 +249,15 @@ class PatchScorer:
             self.w = [torch.as_tensor(w, dtype=torch.float32, device=net.device)
                       for w in level_weights]
 
-    def positions_per_pass(self, k: int) -> int:
+    def videos_per_pass(self, patch_voxels: int) -> int:
+        """The batch size for patches of ``patch_voxels`` (frames x height x width)."""
+        if self.batch_size is not None:
+            return self.batch_size
+        return default_batch_size(self.net.device, patch_voxels)
+
+    def positions_per_pass(self, k: int, patch_voxels: int) -> int:
         """How many patch positions (each a reference and ``k`` tests) one pass takes."""
-        return max(1, self.batch_size // (1 + k))
+        return max(1, self.videos_per_pass(patch_voxels) // (1 + k))
 
     def __call__(self, ref: torch.Tensor, tests: list[torch.Tensor], *,
                  emap: bool = False,
@@ -289,34 +300,36 @@ class PatchScorer:
         if k == 0:
             n = sum(LEVEL_CHANNELS[: self.net.n_levels])
             return PatchDiff(torch.zeros(G, 0, n, device=self.net.device), None, None)
-        if G * (1 + k) <= self.batch_size:
+        batch = self.videos_per_pass(T * h * w)
+        if G * (1 + k) <= batch:
             videos = [v for g in range(G) for v in (refs[g], *tests[g])]
             parts = [self._pass(videos, G, 1 + k, None, (T, h, w), emap, cores, clock)]
         else:
             if G > 1:
                 raise CGVQMError(f"{G} positions of {1 + k} videos do not fit a batch of "
-                                 f"{self.batch_size}")
-            parts = self._chunked(refs[0], tests[0], (T, h, w), emap, cores, clock)
+                                 f"{batch}")
+            parts = self._chunked(refs[0], tests[0], batch, (T, h, w), emap, cores, clock)
         msd = torch.cat([p[0] for p in parts], dim=1)
         series = (torch.cat([p[1] for p in parts], dim=1) * self.alpha
                   if parts[0][1] is not None else None)
         em = torch.cat([p[2] for p in parts], dim=1) * self.alpha if emap else None
         return PatchDiff(msd, series, em)
 
-    def _chunked(self, ref: torch.Tensor, tests: list[torch.Tensor], shape: tuple[int, ...],
-                 emap: bool, cores: tuple[tuple[slice, slice], ...] | None,
+    def _chunked(self, ref: torch.Tensor, tests: list[torch.Tensor], batch: int,
+                 shape: tuple[int, ...], emap: bool,
+                 cores: tuple[tuple[slice, slice], ...] | None,
                  clock: StageClock | None) -> list[tuple]:
-        """One position whose reference and tests do not fit one pass: the reference goes
-        with the first tests, its levels are kept for the later chunks."""
-        first = tests[: self.batch_size - 1] if self.batch_size > 1 else []
+        """One position whose reference and tests do not fit one pass of ``batch`` videos:
+        the reference goes with the first tests, its levels are kept for the later chunks."""
+        first = tests[: batch - 1]
         rest = tests[len(first):]
         ref_levels: list[torch.Tensor] = []
         parts = [self._pass([ref, *first], 1, 1 + len(first), ref_levels, shape, emap, cores,
                             clock)]
-        for i in range(0, len(rest), self.batch_size):
-            parts.append(self._pass(rest[i: i + self.batch_size], 1, len(rest[i: i +
-                                    self.batch_size]), ref_levels, shape, emap, cores, clock,
-                                    ref_given=True))
+        for i in range(0, len(rest), batch):
+            chunk = rest[i: i + batch]
+            parts.append(self._pass(chunk, 1, len(chunk), ref_levels, shape, emap, cores,
+                                    clock, ref_given=True))
         return [p for p in parts if p[0].shape[1] > 0]
 
     def _pass(self, videos: list[torch.Tensor], G: int, per: int,

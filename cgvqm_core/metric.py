@@ -181,10 +181,10 @@ class CGVQM:
     the stem in fp32 under bf16/fp16, which removes most of the drift.
     ``seamless=True`` runs patches with a halo so features do not depend on the patch grid
     (:mod:`.seamless`; not upstream-identical, marked ``mode: seamless``, no error maps).
-    ``batch_size`` is videos per network pass (default 2 on a CPU, 16 on CUDA, where several
-    patch positions then share a pass); ``prefetch`` decodes the next clip in a thread while
-    the current one is scored (default: on CUDA only). Neither changes the numbers beyond
-    float rounding.
+    ``batch_size`` is videos per network pass (default 2 on a CPU; on CUDA as many as fit
+    16 patches of 30x128x128, so that several patch positions share a pass); ``prefetch``
+    decodes the next clip in a thread while the current one is scored (default: on CUDA
+    only). Neither changes the numbers beyond float rounding.
     """
 
     def __init__(

@@ -366,7 +366,8 @@ def run(ref: FrameSource, tests: Sequence[FrameSource], scorer: PatchScorer, geo
                   for i, t in enumerate(tests)]
     ph, pw, L = geom.patch_h, geom.patch_w, geom.clip_len
     grid = [(r, c) for r in range(geom.n_rows) for c in range(geom.n_cols)]
-    per_pass = 1 if halo is not None else scorer.positions_per_pass(len(tests))
+    per_pass = (1 if halo is not None
+                else scorer.positions_per_pass(len(tests), L * ph * pw))
     msd: list[list[torch.Tensor]] = [[] for _ in tests]
     series: list[list[torch.Tensor]] = [[] for _ in tests]
     bar = tqdm(total=geom.n_clips, desc=desc, unit="clip", disable=not progress, leave=False)

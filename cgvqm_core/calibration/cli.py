@@ -101,7 +101,8 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     f.add_argument("--precision", choices=("fp32", "bf16", "fp16"), default="fp32")
     f.add_argument("--patch-scale", type=int, default=4, help="default 4 (upstream)")
     f.add_argument("--batch-size", type=int,
-                   help="videos per network pass (default 2 on a CPU, 16 on CUDA)")
+                   help="videos per network pass (default 2 on a CPU; on CUDA "
+                        "as many as fit 16 patches of 30x128x128)")
     f.add_argument("--allow-resample", action="store_true",
                    help="accept test videos whose fps differs from the reference's")
     f.add_argument("--allow-convert", action="store_true",

@@ -74,7 +74,7 @@ class MetricOptions:
     random_backbone: int | None = None
     precision: str = "auto"
     patch_scale: int = 4
-    batch_size: int | None = None  # videos per network pass; None: 2 on CPU, 16 on CUDA
+    batch_size: int | None = None  # videos per network pass; None: the device's default
     seamless: bool = False
     pools: tuple[str, ...] = ("max",)
     # learned image metrics (LPIPS, DISTS, PieAPP): weights file per part (vgg16, lpips...),

@@ -14,7 +14,7 @@ import torch
 from cgvqm_core import CGVQM
 from cgvqm_core.clip_feed import clip_sets
 from cgvqm_core.errors import CGVQMError
-from cgvqm_core.features import DEFAULT_BATCH, FeatureNet, PatchScorer, default_batch_size
+from cgvqm_core.features import CUDA_PASS_VOXELS, FeatureNet, PatchScorer, default_batch_size
 from cgvqm_core.precision import tf32_mode
 from cgvqm_core.stage_clock import STAGES, StageClock
 from cgvqm_core.stream import Geometry, padded_clips
@@ -34,7 +34,7 @@ def test_several_positions_per_pass_match_the_spec(vids, state_dict, backbone, b
     test = vids.distort(ref, seed=12)
     weights = _random_weights("cgvqm-2", 131, seed=13)
     metric = CGVQM(weights=weights, backbone=backbone, batch_size=batch_size)
-    assert metric.scorer.positions_per_pass(1) == batch_size // 2
+    assert metric.scorer.positions_per_pass(1, 4 * 4 * 5) == batch_size // 2
     res = metric.score(ref, test, fps=4, emap=True)
     q_max, q_mean, emap = straightforward_cgvqm(ref, test, state_dict, weights.omega,
                                                 weights.alpha, 3, 4)
@@ -55,7 +55,7 @@ def test_grouped_passes_equal_one_position_at_a_time(vids, backbone):
         m = CGVQM(weights=weights, backbone=backbone, batch_size=bs)
         runs[bs] = m.score_many(ref, tests, fps=3, emap=[True] * 4)
     assert CGVQM(weights=weights, backbone=backbone, batch_size=10
-                 ).scorer.positions_per_pass(4) == 2
+                 ).scorer.positions_per_pass(4, 100) == 2
     for bs in (5, 10):
         for a, b in zip(runs[2], runs[bs], strict=True):
             np.testing.assert_allclose(b.patch_errors, a.patch_errors, rtol=1e-5, atol=1e-6)
@@ -178,8 +178,13 @@ def test_prefetched_clips_are_owned_copies(vids):
 
 def test_default_batch_and_cudnn_switches():
     """The device defaults, and cuDNN's benchmark switch set for a run and restored."""
-    assert default_batch_size("cpu") == DEFAULT_BATCH["cpu"] == 2
-    assert default_batch_size("cuda") == DEFAULT_BATCH["cuda"]
+    """CPU: reference + test. CUDA: 16 patches of a 512x512 video per pass, 4 of a 1024x1024
+    one, 2 of 1080p (never fewer than 2), and a given batch size wins."""
+    assert default_batch_size("cpu", 30 * 128 * 128) == 2
+    assert default_batch_size("cuda", 30 * 128 * 128) == 16
+    assert default_batch_size("cuda", 30 * 256 * 256) == 4
+    assert default_batch_size("cuda", 30 * 270 * 480) == 2
+    assert default_batch_size("cuda", 1) == CUDA_PASS_VOXELS
     saved = torch.backends.cudnn.benchmark
     try:
         torch.backends.cudnn.benchmark = False

@@ -3,8 +3,9 @@
 A :class:`StageClock` handed to :func:`cgvqm_core.stream.run` (or ``CGVQM.score_many``)
 adds up the time of each stage:
 
-- ``decode``: reading, resizing, resampling and padding frames into clips (host time; in the
-  prefetch thread when decoding runs ahead, where it overlaps everything else);
+- ``decode``: reading, resizing, resampling and padding frames into clips (host time; when
+  decoding runs ahead, the sum over the decode threads, one per video, which overlap each
+  other and everything else);
 - ``wait``: time the scorer waited for a decoded clip (only with prefetching);
 - ``copy``: moving a clip to the device and turning uint8 into the normalised float input;
 - ``backbone``: the network's stages and the unit normalisation of their outputs;
@@ -108,7 +109,7 @@ class StageClock:
         for name in (*STAGES, "idle"):
             if name == "wait" and not self.overlapped:
                 continue
-            label = "decode (in a thread, overlapped)" if (
+            label = "decode (in threads, overlapped)" if (
                 name == "decode" and self.overlapped) else name
             parts.append(f"{label} {s[name]:.3f} s ({100 * s[name] / wall:.0f} %)")
         return f"wall {s['wall']:.3f} s: " + ", ".join(parts)

@@ -380,25 +380,8 @@ def run(ref: FrameSource, tests: Sequence[FrameSource], scorer: PatchScorer, geo
             with stage(clock, "copy"):
                 rt = clip.ref.to(dev, non_blocking=True) if cuda else clip.ref
                 tts = [t.to(dev, non_blocking=True) if cuda else t for t in clip.tests]
-            outs = []
-            for g0 in range(0, len(grid), per_pass):
-                group = grid[g0: g0 + per_pass]
-                cores = None
-                if halo is None:
-                    sls = [(slice(None), slice(r * ph, (r + 1) * ph), slice(c * pw, (c + 1) * pw))
-                           for r, c in group]
-                else:
-                    tl = tile(*group[0], ph, pw, geom.height, geom.width, halo)
-                    sls, cores = [(slice(None), tl.crop_h, tl.crop_w)], tl.cores
-                outs.append(scorer.compare([rt[sl] for sl in sls], [[t[sl] for t in tts]
-                                           for sl in sls], emap=want_emap, cores=cores,
-                                           clock=clock))
-            with stage(clock, "pooling"):  # one transfer (and sync) per clip
-                m = torch.cat([o.msd for o in outs]).cpu()  # (positions, k, N)
-                s = (torch.cat([o.series for o in outs]).cpu()
-                     if outs[0].series is not None else None)
-                e = torch.cat([o.emap for o in outs]).cpu() if want_emap else None
-            scorer.check_finite(m)
+            m, s, e = _score_clip(scorer, rt, tts, geom, grid, per_pass, halo, want_emap,
+                                  clock)
             for i in range(len(tests)):
                 msd[i].append(m[:, i])
                 if s is not None:
@@ -425,6 +408,34 @@ def run(ref: FrameSource, tests: Sequence[FrameSource], scorer: PatchScorer, geo
             si = torch.cat(series[i]).numpy().reshape(geom.n_clips, geom.n_rows, geom.n_cols, L)
         outs_final.append(StreamOutput(geom, mi, si))
     return outs_final
+
+
+def _score_clip(scorer: PatchScorer, rt: torch.Tensor, tts: list[torch.Tensor],
+                geom: Geometry, grid: list[tuple[int, int]], per_pass: int, halo: Any,
+                want_emap: bool, clock: StageClock | None
+                ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+    """Every patch position of one clip, ``per_pass`` positions per network pass; the
+    results come back to the host together: msd (positions, k, N), per-frame series
+    (positions, k, T) and error maps (positions, k, T, h, w) when asked."""
+    ph, pw = geom.patch_h, geom.patch_w
+    outs = []
+    for g0 in range(0, len(grid), per_pass):
+        group = grid[g0: g0 + per_pass]
+        cores = None
+        if halo is None:
+            sls = [(slice(None), slice(r * ph, (r + 1) * ph), slice(c * pw, (c + 1) * pw))
+                   for r, c in group]
+        else:
+            tl = tile(*group[0], ph, pw, geom.height, geom.width, halo)
+            sls, cores = [(slice(None), tl.crop_h, tl.crop_w)], tl.cores
+        outs.append(scorer.compare([rt[sl] for sl in sls], [[t[sl] for t in tts] for sl in sls],
+                                   emap=want_emap, cores=cores, clock=clock))
+    with stage(clock, "pooling"):  # one transfer (and sync) per clip
+        m = torch.cat([o.msd for o in outs]).cpu()
+        s = torch.cat([o.series for o in outs]).cpu() if outs[0].series is not None else None
+        e = torch.cat([o.emap for o in outs]).cpu() if want_emap else None
+    scorer.check_finite(m)
+    return m, s, e
 
 
 def patch_channel_msd(ref: VideoInput, tests: VideoInput | Sequence[VideoInput], net: FeatureNet,

@@ -226,3 +226,44 @@ def test_the_benchmarks_upstream_stand_in_computes_cgvqm(vids, state_dict, backb
     assert run.q_max == pytest.approx(q_max, abs=1e-3)
     assert run.q_mean == pytest.approx(q_mean, abs=1e-3)
     assert run.seconds > 0
+
+
+def test_the_clock_on_cuda_reads_device_stages_from_events(monkeypatch):
+    """The CUDA bookkeeping with stand-in events (no GPU here): device stages take the
+    events' elapsed time, host stages their own, idle is the wall time the device stages
+    leave; events are read once, at the end."""
+    import time as _time
+
+    class FakeEvent:
+        def __init__(self, enable_timing: bool = False) -> None:
+            assert enable_timing
+            self.t: float | None = None
+
+        def record(self) -> None:
+            self.t = _time.perf_counter()
+
+        def elapsed_time(self, end: FakeEvent) -> float:
+            return (end.t - self.t) * 1e3
+
+    syncs = []
+    monkeypatch.setattr(torch.cuda, "Event", FakeEvent)
+    monkeypatch.setattr(torch.cuda, "synchronize", lambda device=None: syncs.append(1))
+    clock = StageClock("cuda")
+    clock.start()
+    with clock.stage("backbone"):
+        _time.sleep(0.05)
+    with clock.stage("copy"):
+        _time.sleep(0.01)
+    clock.add("decode", 0.5)  # in a thread: overlapped, not on the GPU's path
+    with clock.stage("wait"):  # a host stage even on CUDA
+        _time.sleep(0.02)
+    _time.sleep(0.03)
+    clock.stop()
+    n_syncs = len(syncs)
+    s = clock.seconds()
+    assert len(syncs) == n_syncs + 1  # one synchronisation to read every event
+    assert s["backbone"] == pytest.approx(0.05, abs=0.02)
+    assert s["copy"] == pytest.approx(0.01, abs=0.01)
+    assert s["decode"] == 0.5 and s["wait"] == pytest.approx(0.02, abs=0.015)
+    assert s["idle"] == pytest.approx(s["wall"] - s["backbone"] - s["copy"], abs=1e-9)
+    assert s["idle"] >= 0.04  # the wait and the last sleep: the GPU did nothing then

@@ -26,13 +26,14 @@ from .backbone import LEVEL_CHANNELS, Conv2Plus1D, VideoResNet, build_backbone
 from .errors import CGVQMError
 from .hub import Backbone
 from .precision import DTYPES, PRECISIONS, check, resolve, tf32_mode
+from .ref_delta import LevelPair, RefTape, difference_levels
 from .stage_clock import StageClock, stage
+from .unit_norm import EPS, unit_norm_fp32
 
 #: torchvision's Kinetics-400 normalisation (applied after scaling uint8 to [0, 1])
 MEAN = (0.43216, 0.394666, 0.37645)
 STD = (0.22803, 0.22145, 0.216989)
-EPS = 1e-10
-__all__ = ["PRECISIONS", "FeatureNet", "PatchDiff", "PatchScorer"]
+__all__ = ["EPS", "PRECISIONS", "FeatureNet", "PatchDiff", "PatchScorer", "RefTape"]
 
 
 def _fuse_batchnorm(model: nn.Module) -> None:
@@ -69,12 +70,17 @@ class FeatureNet:
     ``fp32_stem`` keeps the stem convolution in fp32 under bf16/fp16: the stem level carries
     most of |omega| (92 % in CGVQM-2, 57 % in CGVQM-5), so this removes most of the drift for
     about 5 % of the time. Channels-last is the default on CPU and for bf16/fp16.
+    ``differences`` (default: on for bf16) carries each test video's activations as exact
+    differences from its reference's (:mod:`.ref_delta`), so bf16 rounding no longer adds
+    noise to the differences CGVQM measures. fp16 keeps the plain path: small differences
+    would fall into its subnormal range. (Asked for in fp32 it computes the plain path's
+    numbers up to float rounding, which is how the tests check it.)
     """
 
     def __init__(self, backbone: Backbone, n_levels: int, *, device: str | torch.device = "cpu",
                  precision: str = "auto", fuse_bn: bool | None = None,
                  channels_last: bool | None = None, fp32_stem: bool = True,
-                 cudnn_benchmark: bool = True) -> None:
+                 cudnn_benchmark: bool = True, differences: bool | None = None) -> None:
         if not 1 <= n_levels <= 6:
             raise CGVQMError(f"n_levels must be 1..6, got {n_levels}")
         try:
@@ -95,6 +101,11 @@ class FeatureNet:
         self.fp32_stem = bool(fp32_stem) and self.dtype != torch.float32
         if self.fp32_stem:
             self.precision_info["fp32_stem"] = True
+        if differences is None:
+            differences = self.dtype == torch.bfloat16
+        self.differences = bool(differences)
+        if self.differences:
+            self.precision_info["differences"] = "propagated from the reference"
         if channels_last is None:
             channels_last = self.device.type == "cpu" or self.dtype != torch.float32
         self.channels_last = channels_last
@@ -164,31 +175,43 @@ class FeatureNet:
                 # the next stage's input first: then the fp32 stem's output is free to be
                 # normalised in place
                 h = out.to(self.stage_dtypes[i + 1]) if i + 1 < len(stages) else None
-                yield _unit_norm_fp32(out, inplace=h is not out)
+                yield unit_norm_fp32(out, inplace=h is not out)
                 del out
+
+    def pair_levels(self, x: torch.Tensor, G: int, n: int, tape: RefTape | None = None
+                    ) -> Iterator[LevelPair]:
+        """Per level, G references' features (G, 1, C, T, H, W) and those of their n tests
+        each (G, n, C, T, H, W), in float32, unit-normalised from level 1 on.
+
+        ``x`` (from :meth:`to_input`) holds the G references, then their tests in reference
+        order. With a ``tape`` the first pass records what the references contribute and
+        later passes, whose ``x`` holds tests only (G == 1), replay it.
+        """
+        if self.differences:
+            with torch.inference_mode(), tf32_mode(self.device, False,
+                                                   benchmark=self.cudnn_benchmark):
+                yield from difference_levels(self.model, x, G, n, self.n_levels,
+                                             self.dtype, self.fp32_stem, tape)
+            return
+        replay = tape is not None and tape.filled
+        if tape is not None:
+            tape.rewind()
+        for a in self.levels(x):
+            if replay:
+                assert tape is not None
+                r, t = tape.through(lambda: None), a
+            else:
+                r, t = a[:G], a[G:]
+                if tape is not None:
+                    tape.through(lambda r=r: r.clone())
+            yield r.unsqueeze(1), t.unflatten(0, (G, n))
+        if tape is not None:
+            tape.filled = True
 
     @property
     def stage_dtypes(self) -> list[torch.dtype]:
         """The dtype each stage computes in (stem, layer1, ...)."""
         return [next(s.parameters()).dtype for s in self.model.stages()]
-
-
-def _unit_norm_fp32(a: torch.Tensor, *, inplace: bool = False) -> torch.Tensor:
-    """An activation (bf16/fp16, or the fp32 stem's) as fp32, unit-normalised across channels.
-
-    Channels-last tensors are normalised in their memory order (channels innermost), which
-    saves a pass over memory against the broadcast division of the fp32 path. ``inplace``
-    lets an fp32 activation that nothing else needs be overwritten.
-    """
-    cl = a.dim() == 5 and a.is_contiguous(memory_format=torch.channels_last_3d)
-    v = a.permute(0, 2, 3, 4, 1) if cl else a  # (B, T, H, W, C) contiguous when cl
-    dim = -1 if cl else 1
-    if v.dtype == torch.float32 and not inplace:
-        v = v / torch.linalg.vector_norm(v, dim=dim, keepdim=True).add_(EPS)
-    else:
-        v = v.float()  # a copy unless already fp32
-        v.div_(torch.linalg.vector_norm(v, dim=dim, keepdim=True).add_(EPS))
-    return v.permute(0, 4, 1, 2, 3) if cl else v
 
 
 def _mean_hw(d: torch.Tensor) -> torch.Tensor:
@@ -302,8 +325,8 @@ class PatchScorer:
             return PatchDiff(torch.zeros(G, 0, n, device=self.net.device), None, None)
         batch = self.videos_per_pass(T * h * w)
         if G * (1 + k) <= batch:
-            videos = [v for g in range(G) for v in (refs[g], *tests[g])]
-            parts = [self._pass(videos, G, 1 + k, None, (T, h, w), emap, cores, clock)]
+            parts = [self._pass(refs, [v for g in tests for v in g], G, k, None, (T, h, w),
+                                emap, cores, clock)]
         else:
             if G > 1:
                 raise CGVQMError(f"{G} positions of {1 + k} videos do not fit a batch of "
@@ -320,51 +343,41 @@ class PatchScorer:
                  cores: tuple[tuple[slice, slice], ...] | None,
                  clock: StageClock | None) -> list[tuple]:
         """One position whose reference and tests do not fit one pass of ``batch`` videos:
-        the reference goes with the first tests, its levels are kept for the later chunks."""
+        the reference goes with the first tests, what it contributes is kept on a tape for
+        the later chunks."""
         first = tests[: batch - 1]
         rest = tests[len(first):]
-        ref_levels: list[torch.Tensor] = []
-        parts = [self._pass([ref, *first], 1, 1 + len(first), ref_levels, shape, emap, cores,
-                            clock)]
+        tape = RefTape()
+        parts = [self._pass([ref], first, 1, len(first), tape, shape, emap, cores, clock)]
         for i in range(0, len(rest), batch):
             chunk = rest[i: i + batch]
-            parts.append(self._pass(chunk, 1, len(chunk), ref_levels, shape, emap, cores,
-                                    clock, ref_given=True))
+            parts.append(self._pass([], chunk, 1, len(chunk), tape, shape, emap, cores, clock))
         return [p for p in parts if p[0].shape[1] > 0]
 
-    def _pass(self, videos: list[torch.Tensor], G: int, per: int,
-              ref_levels: list[torch.Tensor] | None, shape: tuple[int, ...], emap: bool,
-              cores: tuple[tuple[slice, slice], ...] | None, clock: StageClock | None, *,
-              ref_given: bool = False) -> tuple:
-        """One network pass over G groups of ``per`` videos. Each group's first video is its
-        reference, unless ``ref_given`` (G == 1; the reference's levels are
-        ``ref_levels``, filled by an earlier pass that was handed the list)."""
+    def _pass(self, refs: list[torch.Tensor], tests: list[torch.Tensor], G: int, n: int,
+              tape: RefTape | None, shape: tuple[int, ...], emap: bool,
+              cores: tuple[tuple[slice, slice], ...] | None, clock: StageClock | None
+              ) -> tuple:
+        """One network pass over G references (none when ``tape`` replays them) and their
+        ``n`` tests each (``tests`` in reference order)."""
         T, h, w = shape
         with stage(clock, "copy"):
-            x = self.net.to_input(torch.stack(videos))
-        n_test = per if ref_given else per - 1
+            x = self.net.to_input(torch.stack([*refs, *tests]))
         msd_l: list[torch.Tensor] = []
         series = em = None
-        levels = self.net.levels(x)
+        levels = self.net.pair_levels(x, G, n, tape)
         for li in range(self.net.n_levels):
             with stage(clock, "backbone"):
-                a = next(levels)
+                r, t = next(levels)
             with stage(clock, "pooling"):
-                if cores is not None:
-                    a = a[..., cores[li][0], cores[li][1]]
-                a6 = a.unflatten(0, (G, per))
-                if ref_given:
-                    assert ref_levels is not None
-                    r, t = ref_levels[li].unsqueeze(0), a6
-                else:
-                    r, t = a6[:, :1], a6[:, 1:]
-                    if ref_levels is not None:
-                        ref_levels.append(a[:1])
-                if n_test == 0:
-                    del a, a6, r, t
+                if n == 0:
+                    del r, t
                     continue
-                d = (t - r).pow_(2).flatten(0, 1)  # (G * n_test, C, t, h, w)
-                mt = _mean_hw(d)  # (G * n_test, C, t_l)
+                if cores is not None:
+                    r = r[..., cores[li][0], cores[li][1]]
+                    t = t[..., cores[li][0], cores[li][1]]
+                d = (t - r).pow_(2).flatten(0, 1)  # (G * n, C, t, h, w)
+                mt = _mean_hw(d)  # (G * n, C, t_l)
                 msd_l.append(mt.mean(dim=2))
                 if self.w is not None:
                     wl = self.w[li]
@@ -378,14 +391,14 @@ class PatchScorer:
                         e = F.interpolate(e, size=(T, h, w), mode="trilinear",
                                           align_corners=False)[:, 0]
                         em = e if em is None else em + e
-                del a, a6, r, t, d  # free this level before the network computes the next
+                del r, t, d  # free this level before the network computes the next
         for _ in levels:  # let the generator finish (restores its precision switches)
             pass
-        if n_test == 0:
-            n = sum(LEVEL_CHANNELS[: self.net.n_levels])
-            return (torch.zeros(G, 0, n, device=self.net.device), None, None)
+        if n == 0:
+            n_ch = sum(LEVEL_CHANNELS[: self.net.n_levels])
+            return (torch.zeros(G, 0, n_ch, device=self.net.device), None, None)
         with stage(clock, "pooling"):
-            msd = torch.cat(msd_l, dim=1).unflatten(0, (G, n_test))
+            msd = torch.cat(msd_l, dim=1).unflatten(0, (G, n))
             return (msd,
-                    None if series is None else series.unflatten(0, (G, n_test)),
-                    None if em is None else em.unflatten(0, (G, n_test)))
+                    None if series is None else series.unflatten(0, (G, n)),
+                    None if em is None else em.unflatten(0, (G, n)))

@@ -178,7 +178,9 @@ class CGVQM:
     ``bf16`` (CPUs with AMX/AVX512-BF16 and GPUs), ``fp16`` or ``tf32`` (GPUs): faster, not
     bit-exact
     (:mod:`.precision`; the measured drift is in the README); ``fp32_stem`` (default) keeps
-    the stem in fp32 under bf16/fp16, which removes most of the drift.
+    the stem in fp32 under bf16/fp16, which removes most of the drift; ``differences``
+    (default: on for bf16) carries each test's activations as exact differences from its
+    reference's (:mod:`.ref_delta`), which removes most of the rest.
     ``seamless=True`` runs patches with a halo so features do not depend on the patch grid
     (:mod:`.seamless`; not upstream-identical, marked ``mode: seamless``, no error maps).
     ``batch_size`` is videos per network pass (default 2 on a CPU; on CUDA as many as fit
@@ -205,6 +207,7 @@ class CGVQM:
         allow_download: bool = True,
         seamless: bool = False,
         fp32_stem: bool = True,
+        differences: bool | None = None,
     ) -> None:
         self.weights = resolve_weights(weights, variant, allow_download=allow_download)
         self.variant = self.weights.variant
@@ -221,7 +224,7 @@ class CGVQM:
         self.net = FeatureNet(self.backbone, self.weights.n_levels, device=device,
                               precision=precision, fuse_bn=fuse_bn, channels_last=channels_last,
                               cudnn_benchmark=cudnn_benchmark,
-                              fp32_stem=fp32_stem)
+                              fp32_stem=fp32_stem, differences=differences)
         self.scorer = PatchScorer(self.net, self.weights.level_weights(), self.weights.alpha,
                                   batch_size=batch_size)
         self._omega_abs = np.abs(self.weights.omega).astype(np.float64)

@@ -68,9 +68,12 @@ class CGVQMScorer(VideoScorer):
 
     def settings(self) -> dict[str, Any]:
         p = self.metric.provenance()
-        return {"variant": p["variant"], "patch_scale": p["patch_scale"],
-                "precision": p["precision"], "device": self.metric.net.device.type,
-                "mode": p["mode"]}
+        out = {"variant": p["variant"], "patch_scale": p["patch_scale"],
+               "precision": p["precision"], "device": self.metric.net.device.type,
+               "mode": p["mode"]}
+        if self.metric.net.differences:  # bf16 numbers differ from the plain path's
+            out["differences"] = True
+        return out
 
     def provenance(self) -> dict[str, Any]:
         p = self.metric.provenance()

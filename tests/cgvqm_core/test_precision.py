@@ -128,13 +128,13 @@ def test_bf16_provenance_and_json(vids, backbone):
 @needs_bf16
 def test_reduced_precision_refuses_non_finite_features(vids, backbone, monkeypatch):
     net = FeatureNet(backbone, 3, precision="bf16")
-    real = FeatureNet.levels
+    real = FeatureNet.pair_levels
 
-    def poisoned(self, x):
-        for i, a in enumerate(real(self, x)):
-            yield a.clone().fill_(float("inf")) if i == 2 else a
+    def poisoned(self, x, G, n, tape=None):
+        for i, (r, t) in enumerate(real(self, x, G, n, tape)):
+            yield (r, t.clone().fill_(float("inf"))) if i == 2 else (r, t)
 
-    monkeypatch.setattr(FeatureNet, "levels", poisoned)
+    monkeypatch.setattr(FeatureNet, "pair_levels", poisoned)
     ref = torch.from_numpy(vids.smooth(1, 4, 16, 16))
     with pytest.raises(CGVQMError, match="overflowed in bf16"):
         PatchScorer(net)(ref, [ref])

@@ -79,3 +79,15 @@ def test_reduced_precisions_drift_within_the_bound(pair, backbone, precision):
     fast = CGVQM(weights=w, backbone=backbone, device="cuda", precision=precision)
     a, b = exact.score(ref, test, fps=8), fast.score(ref, test, fps=8)
     assert abs(a.quality("max") - b.quality("max")) <= 0.05
+
+
+def test_bf16_differences_on_cuda_compute_the_plain_numbers_in_fp32(pair, backbone):
+    """The difference path's algebra on the GPU's kernels: asked for in strict fp32 it gives
+    the plain path's patch errors."""
+    ref, test = pair
+    w = _random_weights("cgvqm-5", 1027, seed=46)
+    plain = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision="fp32")
+    diff = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision="fp32",
+                 differences=True)
+    a, b = plain.score(ref, test, fps=8), diff.score(ref, test, fps=8)
+    np.testing.assert_allclose(b.msd, a.msd, rtol=2e-4, atol=1e-9)

@@ -24,6 +24,7 @@ from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 from .backbone import LEVEL_CHANNELS, Conv2Plus1D, VideoResNet, build_backbone
 from .errors import CGVQMError
+from .host_memory import MAX_KEPT_BLOCK
 from .hub import Backbone
 from .precision import DTYPES, PRECISIONS, check, resolve, tf32_mode
 from .ref_delta import LevelPair, RefTape, difference_levels
@@ -238,13 +239,19 @@ CUDA_PASS_VOXELS = 16 * 30 * 128 * 128
 
 
 def default_batch_size(device: str | torch.device, patch_voxels: int) -> int:
-    """Videos per network pass when none is given: two on a CPU (reference + test: the least
-    memory, and larger batches run no faster there); on CUDA as many patches as fill
+    """Videos per network pass when none is given.
+
+    On a CPU two (reference + test) when both videos' largest activation (64 channels at
+    half the patch's height and width, fp32: 64 bytes per patch voxel) stays within the
+    32 MiB blocks glibc can keep for the next pass (:mod:`.host_memory`), else one: larger
+    batches run no faster there, and fresh pages for every pass cost 10 % (one video per
+    pass at 30x128x128, the patches of a 512x512 video). On CUDA as many patches as fill
     :data:`CUDA_PASS_VOXELS` (16 at 30x128x128, 4 at 30x256x256, 2 for 1080p), so that
     several patch positions share a pass while memory stays that of a 512x512 video's."""
+    voxels = max(int(patch_voxels), 1)
     if torch.device(device).type != "cuda":
-        return 2
-    return max(2, CUDA_PASS_VOXELS // max(int(patch_voxels), 1))
+        return 2 if 2 * 64 * voxels <= MAX_KEPT_BLOCK else 1
+    return max(2, CUDA_PASS_VOXELS // voxels)
 
 
 class PatchScorer:

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Run HERE (a machine with pip and the package index) before a GPU session: the GPU machine
 # has torch, numpy and tqdm but neither PyAV nor pydantic, and no network. This puts their
-# wheels (CPython 3.12, x86-64) and the published CGVQM weights into .whl/ (git-ignored),
-# which the device call carries:  carry [".whl"], command "bash benchmarks/gpu/run.sh STEP".
+# wheels (CPython 3.12, x86-64), the published CGVQM weights and half the demo study (one
+# scene, 24 conditions, for run.sh precision) into .whl/ (git-ignored, under the 64 MiB a
+# device call carries), which the device call carries:  carry [".whl"], command "bash benchmarks/gpu/run.sh STEP".
 set -euo pipefail
 cd "$(git rev-parse --show-toplevel)"
 exclude="$(git rev-parse --git-path info/exclude)"
@@ -19,5 +20,8 @@ PY=.venv/bin/python
 weights=../shared/data/cgvqm_upstream
 if [ -f "$weights/cgvqm-2.pickle" ]; then
     mkdir -p .whl/cgvqm_upstream && cp "$weights"/cgvqm-*.pickle .whl/cgvqm_upstream/
+fi
+if [ -x .venv/bin/cgvq-study ]; then  # made by make install
+    .venv/bin/cgvq-study synth --out .whl/demo --scenes colonnade --no-progress --overwrite
 fi
 du -sh .whl

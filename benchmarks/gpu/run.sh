@@ -7,9 +7,12 @@
 #   cgvqm5    the same for CGVQM-5 (without the CGVQM-2-only ablation)
 #   dataset   benchmarks/bench_dataset.py --device cuda, both variants
 #   trace     the time breakdown from H.264 files and one pair under torch.profiler
+#   precision benchmarks/bench_precision.py --device cuda on the demo study prepare.sh made
+#             (.whl/demo): tf32, bf16 (tests as differences), bf16-plain, fp16 against
+#             fp32, and fp32 against the CPU
 # Each step stops itself after 9.5 minutes, so what it printed still comes back.
 set -euo pipefail
-step=${1:?usage: run.sh tests|cgvqm|cgvqm5|dataset|trace}
+step=${1:?usage: run.sh tests|cgvqm|cgvqm5|dataset|trace|precision}
 out=${OUT:-/tmp/out}
 mkdir -p "$out"
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
@@ -37,5 +40,11 @@ case "$step" in
     trace)
         timeout 570 python3 benchmarks/bench_cgvqm.py --device cuda --breakdown-only --trace "$out" \
             2>&1 | tee "$out/bench_breakdown_cuda.txt" ;;
+    precision)
+        [ -f .whl/demo/manifest.json ] || { echo "no .whl/demo: run prepare.sh here" >&2; exit 2; }
+        timeout 570 python3 benchmarks/bench_precision.py --device cuda \
+            --precisions tf32,bf16,bf16-plain,fp16 --parity-cpu \
+            --manifest .whl/demo/manifest.json --json "$out/bench_precision_cuda.json" 2>&1 \
+            | tee "$out/bench_precision_cuda.txt" ;;
     *) echo "unknown step $step" >&2; exit 2 ;;
 esac

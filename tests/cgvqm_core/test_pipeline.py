@@ -180,7 +180,13 @@ def test_default_batch_and_cudnn_switches():
     """The device defaults, and cuDNN's benchmark switch set for a run and restored."""
     """CPU: reference + test. CUDA: 16 patches of a 512x512 video per pass, 4 of a 1024x1024
     one, 2 of 1080p (never fewer than 2), and a given batch size wins."""
-    assert default_batch_size("cpu", 30 * 128 * 128) == 2
+    # CPU: two videos while their largest activation (64 fp32 channels at half the patch's
+    # height and width) fits the 32 MiB blocks glibc keeps between passes, else one
+    assert default_batch_size("cpu", 30 * 128 * 128) == 1  # 2 x 31.5 MB
+    assert default_batch_size("cpu", 30 * 64 * 64) == 2  # 2 x 7.9 MB
+    assert default_batch_size("cpu", 16 * 128 * 128) == 2  # 2 x 16.8 MB = 32 MiB
+    assert default_batch_size("cpu", 16 * 128 * 128 + 1) == 1
+    assert default_batch_size("cpu", 30 * 270 * 480) == 1
     assert default_batch_size("cuda", 30 * 128 * 128) == 16
     assert default_batch_size("cuda", 30 * 256 * 256) == 4
     assert default_batch_size("cuda", 30 * 270 * 480) == 2

@@ -244,7 +244,7 @@ def default_batch_size(device: str | torch.device, patch_voxels: int) -> int:
     On a CPU two (reference + test) when both videos' largest activation (64 channels at
     half the patch's height and width, fp32: 64 bytes per patch voxel) stays within the
     32 MiB blocks glibc can keep for the next pass (:mod:`.host_memory`), else one: larger
-    batches run no faster there, and fresh pages for every pass cost 10 % (one video per
+    batches run no faster there, and fresh pages for every pass cost 9 % (one video per
     pass at 30x128x128, the patches of a 512x512 video). On CUDA as many patches as fill
     :data:`CUDA_PASS_VOXELS` (16 at 30x128x128, 4 at 30x256x256, 2 for 1080p), so that
     several patch positions share a pass while memory stays that of a 512x512 video's."""

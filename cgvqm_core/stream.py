@@ -376,7 +376,7 @@ def run(ref: FrameSource, tests: Sequence[FrameSource], scorer: PatchScorer, geo
                      pin=cuda, clock=clock)
     if clock is not None:
         clock.start()
-    # on a CPU, freed activations are kept for the next pass (fresh pages cost 12 %)
+    # on a CPU, freed activations are kept for the next pass (fresh pages cost 9 %)
     try:
         with retained(dev.type == "cpu"):
             for clip in feed:

@@ -72,8 +72,8 @@ def _add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = Fal
                         "(NOT upstream-identical; no error maps)")
     p.add_argument("--batch-size", type=int,
                    help="videos per network pass (reference + tests; default on a CPU: "
-                        "2 for patches up to 16x128x128, else 1; on CUDA as many as fit 16 "
-                        "patches of 30x128x128, several patch positions per pass)")
+                        "2 for patches up to 16x128x128 or in bf16, else 1; on CUDA as many "
+                        "as fit 16 patches of 30x128x128, several patch positions per pass)")
     p.add_argument("--threads", type=int,
                    help="CPU threads for PyTorch (default: PyTorch's choice)")
     p.add_argument("--allow-resample", action="store_true",

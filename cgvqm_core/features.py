@@ -238,19 +238,22 @@ class PatchDiff:
 CUDA_PASS_VOXELS = 16 * 30 * 128 * 128
 
 
-def default_batch_size(device: str | torch.device, patch_voxels: int) -> int:
+def default_batch_size(device: str | torch.device, patch_voxels: int,
+                       separate_reference: bool = False) -> int:
     """Videos per network pass when none is given.
 
     On a CPU two (reference + test) when both videos' largest activation (64 channels at
     half the patch's height and width, fp32: 64 bytes per patch voxel) stays within the
     32 MiB blocks glibc can keep for the next pass (:mod:`.host_memory`), else one: larger
     batches run no faster there, and fresh pages for every pass cost 9 % (one video per
-    pass at 30x128x128, the patches of a 512x512 video). On CUDA as many patches as fill
+    pass at 30x128x128, the patches of a 512x512 video). Two whatever the size when the
+    reference runs as a tensor of its own (``separate_reference``: bf16 tests carried as
+    differences), as a second pass would only replay it. On CUDA as many patches as fill
     :data:`CUDA_PASS_VOXELS` (16 at 30x128x128, 4 at 30x256x256, 2 for 1080p), so that
     several patch positions share a pass while memory stays that of a 512x512 video's."""
     voxels = max(int(patch_voxels), 1)
     if torch.device(device).type != "cuda":
-        return 2 if 2 * 64 * voxels <= MAX_KEPT_BLOCK else 1
+        return 2 if separate_reference or 2 * 64 * voxels <= MAX_KEPT_BLOCK else 1
     return max(2, CUDA_PASS_VOXELS // voxels)
 
 
@@ -283,7 +286,7 @@ class PatchScorer:
         """The batch size for patches of ``patch_voxels`` (frames x height x width)."""
         if self.batch_size is not None:
             return self.batch_size
-        return default_batch_size(self.net.device, patch_voxels)
+        return default_batch_size(self.net.device, patch_voxels, self.net.differences)
 
     def positions_per_pass(self, k: int, patch_voxels: int) -> int:
         """How many patch positions (each a reference and ``k`` tests) one pass takes."""

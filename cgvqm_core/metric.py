@@ -184,7 +184,7 @@ class CGVQM:
     ``seamless=True`` runs patches with a halo so features do not depend on the patch grid
     (:mod:`.seamless`; not upstream-identical, marked ``mode: seamless``, no error maps).
     ``batch_size`` is videos per network pass (default on a CPU: 2 for patches up to
-    16x128x128, else 1; on CUDA as many as fit 16 patches of 30x128x128, so that several
+    16x128x128 or in bf16, else 1; on CUDA as many as fit 16 patches of 30x128x128, so that several
     patch positions share a pass; :func:`~.features.default_batch_size`); ``prefetch``
     decodes the next clip in a thread while the current one is scored (default: on CUDA
     only). Neither changes the numbers beyond float rounding.

@@ -176,10 +176,11 @@ def test_prefetched_clips_are_owned_copies(vids):
     np.testing.assert_array_equal(sets[2].ref.numpy()[2:], video[[9, 9]])
 
 
-def test_default_batch_and_cudnn_switches():
-    """The device defaults, and cuDNN's benchmark switch set for a run and restored."""
-    """CPU: reference + test. CUDA: 16 patches of a 512x512 video per pass, 4 of a 1024x1024
-    one, 2 of 1080p (never fewer than 2), and a given batch size wins."""
+def test_default_batch_and_cudnn_switches(backbone):
+    """The device defaults, and cuDNN's benchmark switch set for a run and restored.
+
+    CUDA: 16 patches of a 512x512 video per pass, 4 of a 1024x1024 one, 2 of 1080p (never
+    fewer than 2), and a given batch size wins."""
     # CPU: two videos while their largest activation (64 fp32 channels at half the patch's
     # height and width) fits the 32 MiB blocks glibc keeps between passes, else one
     assert default_batch_size("cpu", 30 * 128 * 128) == 1  # 2 x 31.5 MB
@@ -187,6 +188,12 @@ def test_default_batch_and_cudnn_switches():
     assert default_batch_size("cpu", 16 * 128 * 128) == 2  # 2 x 16.8 MB = 32 MiB
     assert default_batch_size("cpu", 16 * 128 * 128 + 1) == 1
     assert default_batch_size("cpu", 30 * 270 * 480) == 1
+    # bf16 differences: reference and tests are separate tensors, blocks of one video each
+    assert default_batch_size("cpu", 30 * 128 * 128, separate_reference=True) == 2
+    patch = 30 * 128 * 128
+    assert PatchScorer(FeatureNet(backbone, 3)).videos_per_pass(patch) == 1
+    assert PatchScorer(FeatureNet(backbone, 3, differences=True)).videos_per_pass(patch) == 2
+    assert PatchScorer(FeatureNet(backbone, 3), batch_size=5).videos_per_pass(patch) == 5
     assert default_batch_size("cuda", 30 * 128 * 128) == 16
     assert default_batch_size("cuda", 30 * 256 * 256) == 4
     assert default_batch_size("cuda", 30 * 270 * 480) == 2

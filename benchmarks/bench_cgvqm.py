@@ -71,6 +71,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -500,6 +501,18 @@ def write_h264(path: Path, frames: np.ndarray, fps: int = 30) -> None:
         out.mux(st.encode())
 
 
+@contextlib.contextmanager
+def h264_files(frames: int, size: int) -> Iterator[list[Path]]:
+    """A reference and four noisy tests of it as H.264 files, in a temporary folder."""
+    with tempfile.TemporaryDirectory() as tmp:
+        ref = video(7, frames, size, size)
+        paths = [Path(tmp) / "ref.mp4"] + [Path(tmp) / f"test{i}.mp4" for i in range(4)]
+        write_h264(paths[0], ref)
+        for i, pth in enumerate(paths[1:]):
+            write_h264(pth, noisy(ref, 70 + i))
+        yield paths
+
+
 def breakdown_section(args, precs, bb, fig) -> None:
     """Where the time goes when scoring from files: decode, copy, backbone, pooling, idle
     (cgvqm_core.stage_clock), with decoding inline and in the prefetch thread."""
@@ -511,12 +524,7 @@ def breakdown_section(args, precs, bb, fig) -> None:
     print(f"\ntime breakdown, {v}, {T}x{S}x{S} at 30 fps read from H.264 files (crf 18, "
           "4:2:0, as stimuli usually are); one pair, then 4 tests sharing a reference:")
     rows = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        ref_v = video(7, T, S, S)
-        paths = [Path(tmp) / "ref.mp4"] + [Path(tmp) / f"test{i}.mp4" for i in range(4)]
-        write_h264(paths[0], ref_v)
-        for i, pth in enumerate(paths[1:]):
-            write_h264(pth, noisy(ref_v, 70 + i))
+    with h264_files(T, S) as paths:
         for p in (["auto", *[x for x in precs if x in ("bf16", "fp16")]] if cuda else precs):
             for prefetch in (False, True):
                 m = CGVQM(v, weights=w, backbone=bb, device=dev, precision=p, prefetch=prefetch)
@@ -548,7 +556,7 @@ def trace_section(args, bb) -> None:
     args.trace.mkdir(parents=True, exist_ok=True)
     out = args.trace / f"cgvqm_{dev.split(':')[0]}.json"
     prof.export_chrome_trace(str(out))
-    sort = "self_cuda_time_total" if dev.startswith("cuda") else "self_cpu_time_total"
+    sort = "self_device_time_total" if dev.startswith("cuda") else "self_cpu_time_total"
     print(f"\nprofiler: trace written to {out}; top operations:")
     print(prof.key_averages().table(sort_by=sort, row_limit=12))
 

@@ -4,6 +4,7 @@
 # wheels (CPython 3.12, x86-64), the published CGVQM weights and half the demo study (one
 # scene, 24 conditions, for run.sh precision) into .whl/ (git-ignored, under the 64 MiB a
 # device call carries), which the device call carries:  carry [".whl"], command "bash benchmarks/gpu/run.sh STEP".
+# With UPSTREAM_REPO set it also copies the authors' own cgvqm code there (see below).
 set -euo pipefail
 cd "$(git rev-parse --show-toplevel)"
 exclude="$(git rev-parse --git-path info/exclude)"
@@ -20,6 +21,25 @@ PY=.venv/bin/python
 weights=../shared/data/cgvqm_upstream
 if [ -f "$weights/cgvqm-2.pickle" ]; then
     mkdir -p .whl/cgvqm_upstream && cp "$weights"/cgvqm-*.pickle .whl/cgvqm_upstream/
+fi
+# The authors' own code, for session.py's "their own script" section (never committed):
+# UPSTREAM_REPO names a clone of IntelLabs/cgvqm (a work tree or a bare git directory).
+UPSTREAM_COMMIT=9872ccbabf68a9b878d032ea1abccd5ef10c855c
+if [ -n "${UPSTREAM_REPO:-}" ]; then
+    gd="$UPSTREAM_REPO"; [ -d "$gd/.git" ] && gd="$gd/.git"
+    mkdir -p .whl/upstream/utils .whl/upstream/weights
+    for f in cgvqm.py utils/resnet18.py utils/utils.py; do
+        git --git-dir="$gd" show "$UPSTREAM_COMMIT:$f" > ".whl/upstream/$f"
+    done
+    : > .whl/upstream/utils/__init__.py  # a regular package, so no other 'utils' shadows it
+    if [ -f "$weights/cgvqm-2.pickle" ]; then
+        cp "$weights"/cgvqm-*.pickle .whl/upstream/weights/
+    else
+        for v in 2 5; do
+            git --git-dir="$gd" show "$UPSTREAM_COMMIT:weights/cgvqm-$v.pickle" \
+                > ".whl/upstream/weights/cgvqm-$v.pickle"
+        done
+    fi
 fi
 if [ -x .venv/bin/cgvq-study ]; then  # made by make install
     .venv/bin/cgvq-study synth --out .whl/demo --scenes colonnade --no-progress --overwrite

@@ -1,6 +1,10 @@
 #!/usr/bin/env bash
-# Run ON THE GPU MACHINE (after benchmarks/gpu/prepare.sh here; carry .whl). One step per
-# call, each well inside the 10-minute limit of one command; outputs go to $OUT:
+# Run ON THE GPU MACHINE (after benchmarks/gpu/prepare.sh here; carry .whl). Outputs go to $OUT.
+#   session   FIRST CHOICE, and the only step a 15-minute device lease has room for:
+#             benchmarks/gpu/session.py, every figure issue #21 asks for, most important
+#             first, inside BUDGET seconds (default 420; give the device call a timeout_s of
+#             about 540), figures saved after each section, a table of the targets last
+# The steps below are the longer plan, one per call, for a lease with room for them:
 #   tests     the CUDA tests (tests/cgvqm_core/test_cuda.py) and the pipeline tests
 #   cgvqm     benchmarks/bench_cgvqm.py --device cuda for CGVQM-2 (precisions, upstream as
 #             run, tf32 configurations, batch sweep, pairs/min, parity with the CPU)
@@ -10,9 +14,9 @@
 #   precision benchmarks/bench_precision.py --device cuda on the demo study prepare.sh made
 #             (.whl/demo): tf32, bf16 (tests as differences), bf16-plain, fp16 against
 #             fp32, and fp32 against the CPU
-# Each step stops itself after 9.5 minutes, so what it printed still comes back.
+# Each of those stops itself after 9.5 minutes, so what it printed still comes back.
 set -euo pipefail
-step=${1:?usage: run.sh tests|cgvqm|cgvqm5|dataset|trace|precision}
+step=${1:?usage: run.sh session|tests|cgvqm|cgvqm5|dataset|trace|precision}
 out=${OUT:-/tmp/out}
 mkdir -p "$out"
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
@@ -22,6 +26,9 @@ export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1
 python3 -c 'import torch; print("torch", torch.__version__, "CUDA", torch.version.cuda,
 "cuDNN", torch.backends.cudnn.version(), torch.cuda.get_device_name())'
 case "$step" in
+    session)
+        timeout $(( ${BUDGET:-420} + 90 )) python3 benchmarks/gpu/session.py --device cuda \
+            --budget "${BUDGET:-420}" --json "$out/session.json" 2>&1 | tee "$out/session.txt" ;;
     tests)
         timeout 570 python3 -m pytest -q -p no:cacheprovider tests/cgvqm_core/test_cuda.py \
             tests/cgvqm_core/test_pipeline.py tests/cgvqm_core/test_parity.py 2>&1 \

@@ -301,7 +301,9 @@ def stem_in_tf32(m: CGVQM) -> None:
     The stem is 6 % of CGVQM-2's convolution FLOPs, but in true fp32 it runs at about a
     seventh of the bf16 rate on an H100, so it may take a third of the network's time.
     TF32 (10 mantissa bits) runs it at about half the bf16 rate; the stem level carries
-    92 % of CGVQM-2's |omega|, so its drift is measured alongside."""
+    92 % of CGVQM-2's |omega|, so its drift is measured alongside (emulated on a CPU over
+    the half demo set, a TF32 or fp16 stem alone moves q by up to 0.032:
+    benchmarks/bench_stem_drift.py)."""
     stem = m.net.model.stages()[0]
     plain = stem.forward
 

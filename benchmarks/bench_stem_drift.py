@@ -1,0 +1,120 @@
+"""How far a lower-precision stem alone moves q, emulated on a CPU (prints figures).
+
+Under bf16/fp16 the stem convolution runs in fp32 (``fp32_stem``): the stem level carries
+most of |omega|. On a GPU that fp32 convolution runs at about a seventh of the bf16 rate, so
+``benchmarks/gpu/session.py`` times the stem in TF32 and in the low precision. This script
+gives the other half of that trade without a GPU: the drift each stem adds, with the rest
+of the network in exact fp32.
+
+- TF32: both operands of the stem's convolution rounded to 10 mantissa bits (to nearest,
+  ties away from zero, as the GPU converts them), products summed in fp32.
+- fp16: operands and output rounded to fp16, products summed in fp32.
+
+``--check-pair`` first validates the emulation: every convolution in TF32 on the
+benchmark pair (CGVQM-2, 30x512x512, random backbone seed 0, batch norm unfolded as the
+tf32 precision runs) against the drift measured on an H100 (|dq| 2.23e-3 max pooling,
+1.95e-3 mean pooling, bench_cgvqm_cuda.txt).
+
+Measured (bench_stem_drift_cpu.txt, half demo set, 24 pairs, random backbone): the
+emulation gave 2.49e-3 / 2.18e-3 on the benchmark pair; a TF32 stem alone moves q by up to
+3.2e-2 (CGVQM-2) and 2.1e-2 (CGVQM-5), an fp16 stem by 3.2e-2 and 2.3e-2: either uses more
+than half of the 0.05 allowed for bf16/fp16 against fp32.
+
+    python benchmarks/bench_stem_drift.py --manifest .whl/demo/manifest.json --check-pair
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_cgvqm import noisy, video, weights_for
+from bench_precision import manifest_set, score_set, weights_path
+
+from cgvqm_core import CGVQM
+from cgvqm_core.hub import random_backbone
+
+H100_TF32_DQ = (2.23e-3, 1.95e-3)  # max, mean pooling; bench_cgvqm_cuda.txt
+
+
+def tf32(x: torch.Tensor) -> torch.Tensor:
+    """``x`` rounded to TF32's 10 mantissa bits (to nearest, ties away from zero)."""
+    i = x.contiguous().view(torch.int32)
+    sign = i & torch.tensor(-(2**31), dtype=torch.int32)
+    mag = (i & 0x7FFFFFFF) + 0x1000
+    return ((mag & ~0x1FFF) | sign).view(torch.float32)
+
+
+def fp16(x: torch.Tensor | None) -> torch.Tensor | None:
+    return None if x is None else x.half().float()
+
+
+def tf32_conv(c: torch.nn.Conv3d) -> Callable[[torch.Tensor], torch.Tensor]:
+    return lambda x: F.conv3d(tf32(x), tf32(c.weight), c.bias, c.stride, c.padding)
+
+
+def fp16_conv(c: torch.nn.Conv3d) -> Callable[[torch.Tensor], torch.Tensor]:
+    return lambda x: fp16(F.conv3d(fp16(x), fp16(c.weight), fp16(c.bias), c.stride, c.padding))
+
+
+def convs(module: torch.nn.Module) -> list[torch.nn.Conv3d]:
+    return [c for c in module.modules() if isinstance(c, torch.nn.Conv3d)]
+
+
+def check_pair() -> None:
+    bb = random_backbone(0)
+    w = weights_for("cgvqm-2")
+    ref = video(1, 30, 512, 512)
+    test = noisy(ref, 10)
+    base = CGVQM("cgvqm-2", weights=w, backbone=bb, precision="fp32", fuse_bn=False)
+    m = CGVQM("cgvqm-2", weights=w, backbone=bb, precision="fp32", fuse_bn=False)
+    for c in convs(m.net.model):
+        c.forward = tf32_conv(c)
+    a, b = base.score(ref, test), m.score(ref, test)
+    print(f"emulation check, every convolution in TF32, CGVQM-2 30x512x512 pair: |dq| "
+          f"{abs(a.quality('max') - b.quality('max')):.2e} (max pooling), "
+          f"{abs(a.quality('mean') - b.quality('mean')):.2e} (mean pooling); measured on an "
+          f"H100: {H100_TF32_DQ[0]:.2e}, {H100_TF32_DQ[1]:.2e}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--manifest", type=Path, required=True)
+    ap.add_argument("--weights-dir", help="folder with cgvqm-2.pickle / cgvqm-5.pickle")
+    ap.add_argument("--variants", default="cgvqm-2,cgvqm-5")
+    ap.add_argument("--check-pair", action="store_true",
+                    help="first compare the TF32 emulation with the H100's measured drift")
+    args = ap.parse_args()
+    torch.manual_seed(0)
+    if args.check_pair:
+        check_pair()
+    ps = manifest_set(args.manifest)
+    bb = random_backbone(0)
+    print(f"stem alone, the rest of the network in fp32; {ps.n_pairs} pairs of "
+          f"{args.manifest}; |dq| against fp32:")
+    for v in args.variants.split(","):
+        w = weights_path(v, args.weights_dir)
+        q0, _ = score_set(CGVQM(v, weights=w, backbone=bb, precision="fp32"), ps)
+        in_range = (q0[:, 0] >= 0) & (q0[:, 0] <= 100)
+        for name, make in (("TF32", tf32_conv), ("fp16", fp16_conv)):
+            m = CGVQM(v, weights=w, backbone=bb, precision="fp32")
+            stem = convs(m.net.model.stages()[0])[0]
+            stem.forward = make(stem)
+            q1, _ = score_set(m, ps)
+            d = np.abs(q1 - q0)
+            part = f"{d[in_range, 0].max():.2e}" if in_range.any() else "-"
+            print(f"  {v}, stem in {name}: max pooling max {d[:, 0].max():.2e} mean "
+                  f"{d[:, 0].mean():.2e} (pairs with 0 <= q <= 100: {part}); mean pooling max "
+                  f"{d[:, 1].max():.2e} mean {d[:, 1].mean():.2e}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

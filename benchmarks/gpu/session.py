@@ -140,21 +140,21 @@ class Session:
         return CGVQM(variant, weights=weights_for(variant), backbone=self.bb,
                      device=self.device, **kw)
 
+    def _videos(self, key: str, seed: int, frames: int, size: int
+                ) -> tuple[np.ndarray, list[np.ndarray]]:
+        """A reference and four noisy tests of it, made once per session."""
+        if key not in self.cache:
+            ref = video(seed, frames, size, size)
+            self.cache[key] = ref, [noisy(ref, 10 * seed + i) for i in range(4)]
+        return self.cache[key]
+
     def pair(self) -> tuple[np.ndarray, list[np.ndarray]]:
-        """A reference and four tests of frames x size x size (made once)."""
-        if "pair" not in self.cache:
-            s = self.sizes
-            ref = video(1, s.frames, s.size, s.size)
-            self.cache["pair"] = ref, [noisy(ref, 10 + i) for i in range(4)]
-        return self.cache["pair"]
+        """frames x size x size (the 512 pair)."""
+        return self._videos("pair", 1, self.sizes.frames, self.sizes.size)
 
     def big(self) -> tuple[np.ndarray, list[np.ndarray]]:
-        """The same at 3 s 1024x1024 (made once: about 1.4 GB, seconds to generate)."""
-        if "big" not in self.cache:
-            s = self.sizes
-            ref = video(3, s.frames3, s.size3, s.size3)
-            self.cache["big"] = ref, [noisy(ref, 30 + i) for i in range(4)]
-        return self.cache["big"]
+        """3 s 1024x1024 (about 1.4 GB, seconds to generate)."""
+        return self._videos("big", 3, self.sizes.frames3, self.sizes.size3)
 
     def save(self) -> None:
         if self.args.json:

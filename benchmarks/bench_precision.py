@@ -157,6 +157,25 @@ def weights_path(variant: str, wdir: str | None) -> str:
 
 
 PLAIN = "-plain"
+#: ``+option`` suffixes of a precision label and the CGVQM arguments they stand for
+OPTIONS = {"tf32stem": {"tf32_stem": True}, "lowstem": {"fp32_stem": False},
+           "fused": {"fused": True}, "padstem": {"pad_stem": True}}
+
+
+def parse_config(label: str) -> tuple[str, dict]:
+    """``fp16+fused+padstem`` -> ("fp16", {"fused": True, "pad_stem": True}); ``bf16-plain``
+    is bf16 without carrying the tests as differences (so is bf16 with fused or padstem)."""
+    prec, *opts = label.split("+")
+    kw: dict = {}
+    if prec.endswith(PLAIN):
+        prec, kw["differences"] = prec[: -len(PLAIN)], False
+    for o in opts:
+        if o not in OPTIONS:
+            raise ValueError(f"unknown option +{o} in {label!r}; known: {', '.join(OPTIONS)}")
+        kw.update(OPTIONS[o])
+    if prec == "bf16" and ("fused" in kw or "pad_stem" in kw):
+        kw["differences"] = False
+    return prec, kw
 
 
 def _fmt(x: float | None) -> str:
@@ -169,7 +188,9 @@ def main() -> int:
     ap.add_argument("--precisions", help="comma-separated; fp32 is always the reference "
                                          "(default: bf16 on CPU, tf32,bf16,fp16 on CUDA); "
                                          "bf16-plain is bf16 without carrying the tests as "
-                                         "differences from their reference")
+                                         "differences from their reference; +tf32stem, "
+                                         "+lowstem, +fused, +padstem add GPU options, e.g. "
+                                         "fp16+fused+padstem")
     ap.add_argument("--variants", default="cgvqm-2,cgvqm-5")
     ap.add_argument("--manifest", action="append", default=[], type=Path)
     ap.add_argument("--real", action="append", default=[], type=Path)
@@ -220,10 +241,8 @@ def main() -> int:
                 comps.append(("fp32 cpu", "cpu", "fp32"))
             comps += [(p, args.device, p) for p in precs]
             for label, dev, p in comps:
-                kw = {}
-                if p.endswith(PLAIN):  # bf16 without carrying tests as differences
-                    p, kw = p[: -len(PLAIN)], {"differences": False}
                 try:
+                    p, kw = parse_config(p)
                     m = CGVQM(v, weights=wp, backbone=bb, device=dev, precision=p, **kw)
                 except Exception as exc:  # refused precision: say so and go on
                     print(f"  {label}: {exc}")

@@ -13,6 +13,7 @@ network once. Everything about frames, clips and padding lives in :mod:`.stream`
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -24,11 +25,13 @@ from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 from .backbone import LEVEL_CHANNELS, Conv2Plus1D, VideoResNet, build_backbone
 from .errors import CGVQMError
+from .fused_conv import fusable, fused_stage
 from .host_memory import MAX_KEPT_BLOCK
 from .hub import Backbone
-from .precision import DTYPES, PRECISIONS, check, resolve, tf32_mode
+from .precision import DTYPES, PRECISIONS, check, cudnn_tf32, resolve, tf32_mode
 from .ref_delta import LevelPair, RefTape, difference_levels
 from .stage_clock import StageClock, stage
+from .stem_input import pad_stem_conv, padded_channels, padded_input
 from .unit_norm import EPS, unit_norm_fp32
 
 #: torchvision's Kinetics-400 normalisation (applied after scaling uint8 to [0, 1])
@@ -76,12 +79,19 @@ class FeatureNet:
     noise to the differences CGVQM measures. fp16 keeps the plain path: small differences
     would fall into its subnormal range. (Asked for in fp32 it computes the plain path's
     numbers up to float rounding, which is how the tests check it.)
+    ``tf32_stem`` lets that fp32 stem use cuDNN's TF32 mode (CUDA). ``fused`` runs each
+    convolution with its bias, residual and ReLU as one cuDNN call (:mod:`.fused_conv`;
+    CUDA, batch norm folded). ``pad_stem`` gives the stem a 16-byte voxel by adding zero
+    input channels (:mod:`.stem_input`; meant for cuDNN). None of the three changes the function
+    beyond rounding; the measured cost and drift are in docs/performance.md.
     """
 
     def __init__(self, backbone: Backbone, n_levels: int, *, device: str | torch.device = "cpu",
                  precision: str = "auto", fuse_bn: bool | None = None,
                  channels_last: bool | None = None, fp32_stem: bool = True,
-                 cudnn_benchmark: bool = True, differences: bool | None = None) -> None:
+                 cudnn_benchmark: bool = True, differences: bool | None = None,
+                 tf32_stem: bool = False, fused: bool | None = None,
+                 pad_stem: bool | None = None) -> None:
         if not 1 <= n_levels <= 6:
             raise CGVQMError(f"n_levels must be 1..6, got {n_levels}")
         try:
@@ -112,6 +122,26 @@ class FeatureNet:
         self.channels_last = channels_last
         self.fuse_bn = precision != "tf32" if fuse_bn is None else bool(fuse_bn)
         self.cudnn_benchmark = bool(cudnn_benchmark)
+        cuda = self.device.type == "cuda"
+        self.tf32_stem = bool(tf32_stem) and self.fp32_stem
+        if tf32_stem and not (cuda and self.fp32_stem):
+            raise CGVQMError("a TF32 stem needs --device cuda and bf16/fp16 with the stem in "
+                             "fp32")
+        if fused and not cuda:
+            raise CGVQMError("fused convolutions need cuDNN: use --device cuda")
+        if fused and not self.fuse_bn:
+            raise CGVQMError("fused convolutions need batch norm folded (fuse_bn)")
+        for name, asked in (("fused convolutions", fused), ("a padded stem", pad_stem)):
+            if asked and self.differences:
+                raise CGVQMError(f"{name} do not apply to tests carried as differences "
+                                 "(bf16's default): also turn differences off")
+        self.fused = bool(fused)
+        self.pad_stem = bool(pad_stem)
+        for key, on in (("tf32_stem", self.tf32_stem), ("fused", self.fused),
+                        ("pad_stem", self.pad_stem)):
+            if on:
+                self.precision_info[key] = True
+        self._fused_proven = False
         self.model = self._build(backbone, max(n_levels - 2, 0), self.fuse_bn)
         # made once: a tensor built from a list on CUDA is a blocking copy, which would
         # make the host wait for the GPU at every pass
@@ -141,9 +171,41 @@ class FeatureNet:
                     stage.to(self.dtype)
         if self.channels_last:
             model = model.to(memory_format=torch.channels_last_3d)
+        stem = model.stages()[0]
+        if self.pad_stem and isinstance(stem, nn.Sequential) \
+                and isinstance(stem[0], nn.Conv3d):
+            stem[0] = pad_stem_conv(stem[0], padded_channels(stem[0].weight.dtype),
+                                    self.channels_last)
+        else:
+            self.pad_stem = False
+            self.precision_info.pop("pad_stem", None)
         for p in model.parameters():
             p.requires_grad_(False)
         return model
+
+    def stem_input(self, x: torch.Tensor) -> torch.Tensor:
+        """What the stem convolves: ``x`` in the stem's dtype, zero-padded when ``pad_stem``."""
+        dtype = self.stage_dtypes[0]
+        if self.pad_stem:
+            return padded_input(x, self.model.stem[0].in_channels, dtype, self.channels_last)
+        return x.to(dtype)
+
+    def run_stage(self, i: int, stage: nn.Module, h: torch.Tensor) -> torch.Tensor:
+        """Stage ``i`` (0 is the stem) on ``h``: fused when asked and possible, the stem in
+        TF32 when asked. A cuDNN without the fused operation for these shapes turns fusion
+        off for this network (recorded in :attr:`precision_info`) on its first call."""
+        with cudnn_tf32(True) if i == 0 and self.tf32_stem else contextlib.nullcontext():
+            if self.fused and fusable(stage):
+                try:
+                    out = fused_stage(stage, h)
+                    self._fused_proven = True
+                    return out
+                except RuntimeError as exc:
+                    if self._fused_proven:
+                        raise
+                    self.fused = False
+                    self.precision_info["fused"] = f"unavailable: {str(exc).splitlines()[0]}"
+            return stage(h)
 
     def to_input(self, clips_u8: torch.Tensor) -> torch.Tensor:
         """(B, T, H, W, 3) uint8 -> normalised float (B, 3, T, H, W), as torchvision does it."""
@@ -161,18 +223,17 @@ class FeatureNet:
         """
         with torch.inference_mode(), tf32_mode(self.device, self.precision == "tf32",
                                                benchmark=self.cudnn_benchmark):
-            if self.dtype == torch.float32:
-                it = self.model.levels(x, self.n_levels)
-                for _ in range(self.n_levels):
-                    a = next(it)
-                    yield a if a is x else a / torch.linalg.vector_norm(
-                        a, dim=1, keepdim=True).add_(EPS)
-                return
             yield x
             stages = self.model.stages()[: self.n_levels - 1]
-            h = x.to(self.stage_dtypes[0])
+            if self.dtype == torch.float32:
+                h = self.stem_input(x) if self.pad_stem else x
+                for i, stage in enumerate(stages):
+                    h = self.run_stage(i, stage, h)
+                    yield h / torch.linalg.vector_norm(h, dim=1, keepdim=True).add_(EPS)
+                return
+            h = self.stem_input(x)
             for i, stage in enumerate(stages):
-                out = stage(h)
+                out = self.run_stage(i, stage, h)
                 # the next stage's input first: then the fp32 stem's output is free to be
                 # normalised in place
                 h = out.to(self.stage_dtypes[i + 1]) if i + 1 < len(stages) else None
@@ -192,7 +253,8 @@ class FeatureNet:
             with torch.inference_mode(), tf32_mode(self.device, False,
                                                    benchmark=self.cudnn_benchmark):
                 yield from difference_levels(self.model, x, G, n, self.n_levels,
-                                             self.dtype, self.fp32_stem, tape)
+                                             self.dtype, self.fp32_stem, tape,
+                                             tf32_stem=self.tf32_stem)
             return
         replay = tape is not None and tape.filled
         if tape is not None:
@@ -386,7 +448,8 @@ class PatchScorer:
                 if cores is not None:
                     r = r[..., cores[li][0], cores[li][1]]
                     t = t[..., cores[li][0], cores[li][1]]
-                d = (t - r).pow_(2).flatten(0, 1)  # (G * n, C, t, h, w)
+                # (t - r)^2 in one pass (a subtraction, then squaring in place, made two)
+                d = F.mse_loss(t, r.expand_as(t), reduction="none").flatten(0, 1)
                 mt = _mean_hw(d)  # (G * n, C, t_l)
                 msd_l.append(mt.mean(dim=2))
                 if self.w is not None:

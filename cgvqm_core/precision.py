@@ -180,3 +180,16 @@ def tf32_mode(device: torch.device, allow: bool, *, benchmark: bool = False
         yield
     finally:
         cudnn.allow_tf32, matmul.allow_tf32, cudnn.benchmark = saved
+
+
+@contextlib.contextmanager
+def cudnn_tf32(allow: bool) -> Iterator[None]:
+    """cuDNN's TF32 switch alone, for the duration (restored after): how the fp32 stem of a
+    bf16/fp16 network runs in TF32 while the rest keeps its own settings."""
+    cudnn = torch.backends.cudnn
+    saved = cudnn.allow_tf32
+    cudnn.allow_tf32 = allow
+    try:
+        yield
+    finally:
+        cudnn.allow_tf32 = saved

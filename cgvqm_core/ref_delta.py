@@ -33,6 +33,7 @@ from torch import nn
 
 from .backbone import BasicBlock, VideoResNet
 from .errors import CGVQMError
+from .precision import cudnn_tf32
 from .unit_norm import unit_norm_fp32
 
 LevelPair = tuple[torch.Tensor, torch.Tensor]
@@ -137,12 +138,13 @@ class _DifferencePass:
 
 
 def difference_levels(model: VideoResNet, x: torch.Tensor, G: int, n: int, n_levels: int,
-                      dtype: torch.dtype, fp32_stem: bool, tape: RefTape | None
-                      ) -> Iterator[LevelPair]:
+                      dtype: torch.dtype, fp32_stem: bool, tape: RefTape | None, *,
+                      tf32_stem: bool = False) -> Iterator[LevelPair]:
     """Per level, the references' and the tests' features (see :meth:`FeatureNet.pair_levels`).
 
     ``x`` is the fp32 input of the G references followed by their G x n tests (the tests
-    only, when ``tape`` replays); the stem runs on all of them in fp32 when ``fp32_stem``.
+    only, when ``tape`` replays); the stem runs on all of them in fp32 when ``fp32_stem``
+    (cuDNN's TF32 mode allowed for it when ``tf32_stem``).
     """
     p = _DifferencePass(G, tape)
     xr = p.ref(lambda: x[:G].clone() if tape is not None else x[:G])
@@ -152,7 +154,8 @@ def difference_levels(model: VideoResNet, x: torch.Tensor, G: int, n: int, n_lev
     if not stages:
         return
     if fp32_stem:
-        h = stages[0](x)
+        with cudnn_tf32(tf32_stem):
+            h = stages[0](x)
         hr = p.ref(lambda: h[:G].clone() if tape is not None else h[:G])
         ht = h if p.replay else h[G:]
         d = (ht.unflatten(0, (G, n)) - hr.unsqueeze(1)).flatten(0, 1).to(dtype) if n else None

@@ -21,9 +21,8 @@ def unit_norm_fp32(a: torch.Tensor, *, inplace: bool = False) -> torch.Tensor:
     cl = a.dim() == 5 and a.is_contiguous(memory_format=torch.channels_last_3d)
     v = a.permute(0, 2, 3, 4, 1) if cl else a  # (B, T, H, W, C) contiguous when cl
     dim = -1 if cl else 1
-    if v.dtype == torch.float32 and not inplace:
-        v = v / torch.linalg.vector_norm(v, dim=dim, keepdim=True).add_(EPS)
-    else:
-        v = v.float()  # a copy unless already fp32
-        v.div_(torch.linalg.vector_norm(v, dim=dim, keepdim=True).add_(EPS))
+    # the norm read straight from bf16/fp16 with fp32 arithmetic, and one division that
+    # promotes to fp32: two passes over the activation, where a copy to fp32 first made four
+    norm = torch.linalg.vector_norm(v, dim=dim, keepdim=True, dtype=torch.float32).add_(EPS)
+    v = v.div_(norm) if v.dtype == torch.float32 and inplace else torch.div(v, norm)
     return v.permute(0, 4, 1, 2, 3) if cl else v

@@ -4,6 +4,8 @@
 #             benchmarks/gpu/session.py, every figure issue #21 asks for, most important
 #             first, inside BUDGET seconds (default 420; give the device call a timeout_s of
 #             about 540), figures saved after each section, a table of the targets last
+#   fast      the session's fast-path sections (fused stages, padded and TF32 stems) with
+#             the defaults, drift and tests re-checked: the second call of a lease
 # The steps below are the longer plan, one per call, for a lease with room for them:
 #   tests     the CUDA tests (tests/cgvqm_core/test_cuda.py) and the pipeline tests
 #   cgvqm     benchmarks/bench_cgvqm.py --device cuda for CGVQM-2 (precisions, upstream as
@@ -16,7 +18,7 @@
 #             fp32, and fp32 against the CPU
 # Each of those stops itself after 9.5 minutes, so what it printed still comes back.
 set -euo pipefail
-step=${1:?usage: run.sh session|tests|cgvqm|cgvqm5|dataset|trace|precision}
+step=${1:?usage: run.sh session|fast|tests|cgvqm|cgvqm5|dataset|trace|precision}
 out=${OUT:-/tmp/out}
 mkdir -p "$out"
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
@@ -29,6 +31,11 @@ case "$step" in
     session)
         timeout $(( ${BUDGET:-420} + 90 )) python3 benchmarks/gpu/session.py --device cuda \
             --budget "${BUDGET:-420}" --json "$out/session.json" 2>&1 | tee "$out/session.txt" ;;
+    fast)
+        timeout $(( ${BUDGET:-380} + 80 )) python3 benchmarks/gpu/session.py --device cuda \
+            --budget "${BUDGET:-380}" --json "$out/session_fast.json" \
+            --only defaults,paper_set,fastpath,fast_drift,decoding,drift,tests,fast_breakdown,fast_trace \
+            2>&1 | tee "$out/session_fast.txt" ;;
     tests)
         timeout 570 python3 -m pytest -q -p no:cacheprovider tests/cgvqm_core/test_cuda.py \
             tests/cgvqm_core/test_pipeline.py tests/cgvqm_core/test_parity.py 2>&1 \

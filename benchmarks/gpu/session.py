@@ -19,15 +19,22 @@ them), and a table of the issue's targets, met or missed, is printed last.
                 a batch sweep and peak GPU memory (target 350 in bf16/fp16)
  6. stem        experiment: bf16/fp16 with the stem in fp32 (default), TF32 or bf16/fp16:
                 pairs/min and |dq| (the fp32 stem may take a third of the network's time)
- 7. breakdown   the same from H.264 files: decode, wait, copy, backbone, pooling, idle
- 8. drift       bench_precision.py on the demo set prepare.sh made (.whl/demo): the
+ 7. fastpath    fused convolution stages, the zero-padded stem and the TF32 stem, alone
+                and together (FAST_CONFIGS): pairs/min, backbone share, |dq| against fp32
+ 8. fast_drift  bench_precision.py on the demo set for the promising ones (FAST_DRIFT)
+ 9. breakdown   the same from H.264 files: decode, wait, copy, backbone, pooling, idle
+10. drift       bench_precision.py on the demo set prepare.sh made (.whl/demo): the
                 bf16/fp16 |dq| target
- 9. upstream_own  the authors' own run_cgvqm (a copy in .whl/upstream, see upstream_own.py)
+11. upstream_own  the authors' own run_cgvqm (a copy in .whl/upstream, see upstream_own.py)
                 against ours on the same H.264 files: seconds per call and |dq|
-10. differences bf16 with tests carried as differences from the reference: cost, |dq|
-11. cgvqm5_*    sections 2-4 for CGVQM-5 (three sections, so a cut loses one)
-12. tests       the CUDA tests (pytest, in a child process)
-13. trace       torch.profiler's top operations of one reference with four tests, fp16
+12. differences bf16 with tests carried as differences from the reference: cost, |dq|
+13. cgvqm5_*    sections 2-4 for CGVQM-5 (three sections, so a cut loses one)
+14. tests       the CUDA tests (pytest, in a child process)
+15. fast_breakdown  the breakdown with the fastest fast path within the drift bound
+16. trace       torch.profiler's top operations of one reference with four tests, fp16
+17. fast_trace  the same with the fastest fast path
+(decoding, after breakdown: this host's decoding of a reference and 4 tests serially, in
+threads and in processes, the ceiling of any rate read from files)
 
 Then the many-GPU statement, from the measured single-GPU rate and the host's decoding.
 
@@ -74,6 +81,7 @@ from bench_cgvqm import (  # noqa: E402
     weights_for,
 )
 from bench_dataset import dataset, run_batched, run_upstream  # noqa: E402
+from bench_precision import parse_config  # noqa: E402
 from upstream_as_run import UpstreamAsRun  # noqa: E402
 
 from cgvqm_core import CGVQM  # noqa: E402
@@ -295,29 +303,6 @@ def throughput(ss: Session) -> dict:
     return out
 
 
-def stem_in_tf32(m: CGVQM) -> None:
-    """Experiment: let cuDNN use TF32 for the fp32 stem of a bf16/fp16 network only.
-
-    The stem is 6 % of CGVQM-2's convolution FLOPs, but in true fp32 it runs at about a
-    seventh of the bf16 rate on an H100, so it may take a third of the network's time.
-    TF32 (10 mantissa bits) runs it at about half the bf16 rate; the stem level carries
-    92 % of CGVQM-2's |omega|, so its drift is measured alongside (emulated on a CPU over
-    the half demo set, a TF32 or fp16 stem alone moves q by up to 0.032:
-    benchmarks/bench_stem_drift.py)."""
-    stem = m.net.model.stages()[0]
-    plain = stem.forward
-
-    def forward(x: torch.Tensor) -> torch.Tensor:
-        saved = torch.backends.cudnn.allow_tf32
-        torch.backends.cudnn.allow_tf32 = True
-        try:
-            return plain(x)
-        finally:
-            torch.backends.cudnn.allow_tf32 = saved
-
-    stem.forward = forward
-
-
 def stem(ss: Session) -> dict:
     """bf16/fp16 with the stem in fp32 (the default), in TF32, or in the low precision:
     pairs/min on 3 s 1024x1024 (4 tests per reference) and |dq| against fp32."""
@@ -330,10 +315,9 @@ def stem(ss: Session) -> dict:
           "max |dq| against fp32 over 4 tests of the 512 pair):")
     for p in ss.low():
         for mode in ("fp32", "tf32", "low"):
-            # (on a CPU the TF32 switch does nothing: the rehearsal runs the code path only)
-            m = ss.metric("cgvqm-2", precision=p, fp32_stem=mode != "low")
-            if mode == "tf32":
-                stem_in_tf32(m)
+            # (a TF32 stem needs CUDA: the rehearsal runs the fp32 stem in its place)
+            m = ss.metric("cgvqm-2", precision=p, fp32_stem=mode != "low",
+                          tf32_stem=mode == "tf32" and ss.cuda)
             dq = max(max(dq_of(a, b).values())
                      for a, b in zip(m.score_many(ref, tests_), exact, strict=True))
             m.score_many(big_ref[:30], [t[:30] for t in big_tests])
@@ -344,7 +328,104 @@ def stem(ss: Session) -> dict:
     return out
 
 
-def breakdown(ss: Session) -> dict:
+#: the fast-path configurations timed (bench_precision.parse_config labels); ``+lowstem``
+#: is the stem in bf16/fp16 itself
+FAST_CONFIGS = (
+    "fp16", "fp16+tf32stem", "fp16+padstem", "fp16+fused", "fp16+fused+padstem",
+    "fp16+fused+padstem+tf32stem", "fp16+fused+padstem+lowstem",
+    "bf16", "bf16+tf32stem", "bf16-plain", "bf16+fused+padstem",
+    "bf16+fused+padstem+tf32stem", "auto+padstem", "fp32+fused+padstem",
+)
+#: what fast_drift, fast_breakdown and fast_trace run: the promising fast paths
+FAST_DRIFT = ("fp16+fused+padstem", "fp16+fused+padstem+tf32stem",
+              "fp16+fused+padstem+lowstem", "bf16+fused+padstem", "bf16+tf32stem")
+
+
+def fast_metric(ss: Session, config: str, variant: str = "cgvqm-2", **kw: object) -> CGVQM:
+    prec, opts = parse_config(config)
+    return ss.metric(variant, precision=prec, **opts, **kw)
+
+
+def peak_for(ss: Session, precision: str) -> float:
+    """The conv3d peak of ``precision`` at the 3 s 1024 shape (measured once a session)."""
+    key = f"peak/{precision}"
+    if key not in ss.cache:
+        ss.cache[key] = conv_peak_of(30, ss.sizes.size3, ss.device, max(2, ss.sizes.repeats),
+                                     precision)
+    return ss.cache[key]
+
+
+def fastpath(ss: Session) -> dict:
+    """Fused convolution stages, the padded stem and the TF32 stem, alone and together:
+    pairs/min on 3 s 1024x1024 (4 tests per reference), the backbone's share of the conv3d
+    peak, peak memory, and max |dq| against fp32 over 4 tests of the 512 pair."""
+    ref, tests_ = ss.pair()
+    big_ref, big_tests = ss.big()
+    dev, reps = ss.device, ss.sizes.repeats3
+    f1 = flops_per_video(ss.bb, "cgvqm-2", ss.sizes.frames3, ss.sizes.size3)
+    exact = ss.metric("cgvqm-2", precision="fp32").score_many(ref, tests_)
+    out = {}
+    print("cgvqm-2 fast paths (pairs/min on 3 s 1024x1024 with 4 tests per reference; backbone "
+          "share of the conv3d peak; max |dq| against fp32 over 4 tests of the 512 pair):")
+    for config in FAST_CONFIGS:
+        prec = parse_config(config)[0]
+        if prec not in ss.precs and prec != "auto":
+            continue
+        try:
+            m = fast_metric(ss, config)
+        except Exception as exc:  # an option this device refuses: say so, go on
+            out[config] = {"refused": str(exc)}
+            print(f"  {config}: refused: {exc}")
+            continue
+        dq = max(max(dq_of(a, b).values())
+                 for a, b in zip(m.score_many(ref, tests_), exact, strict=True))
+        m.score_many(big_ref[:30], [t[:30] for t in big_tests])
+        if ss.cuda:
+            torch.cuda.reset_peak_memory_stats()
+        sec = timed(lambda m=m: m.score_many(big_ref, big_tests), reps, dev) / 4
+        gb = torch.cuda.max_memory_allocated() / 1024**3 if ss.cuda else float("nan")
+        clock = StageClock(dev)
+        m.score_many(big_ref, big_tests, clock=clock)
+        bb_s = clock.seconds()["backbone"]
+        peak = peak_for(ss, m.net.precision)
+        share = 5 * f1 / bb_s / 1e9 / peak
+        info = {k: v for k, v in m.net.precision_info.items()
+                if k in ("fused", "pad_stem", "tf32_stem", "fp32_stem", "differences")}
+        out[config] = {"pairs_per_min": 60 / sec, "s_per_pair": sec, "peak_gpu_gb": gb,
+                       "backbone_share": share, "backbone_s": bb_s,
+                       "max_dq_vs_fp32": dq, "stages": clock.seconds(), "detail": info}
+        print(f"  {config}: {60 / sec:.1f} pairs/min, backbone {100 * share:.0f} % of the "
+              f"{m.net.precision} peak ({gb:.1f} GB), |dq| {dq:.2e}; {info}")
+    return out
+
+
+def fast_drift(ss: Session) -> dict:
+    """bench_precision on the demo set for the promising fast paths (the |dq| <= 0.05 bound)."""
+    offered = [c for c in FAST_DRIFT if parse_config(c)[0] in ss.precs]
+    # (a CPU rehearsal has none of them: it runs the one fast path a CPU takes)
+    return drift(ss, ",".join(offered or ["fp32+padstem"]), "bench_precision_fast")
+
+
+def best_fast(ss: Session) -> str:
+    """The fastest fast path measured whose |dq| against fp32 stayed within the bound."""
+    rows = {k: r for k, r in (ss.fig.get("fastpath") or {}).items()
+            if "pairs_per_min" in r and r["max_dq_vs_fp32"] <= TARGETS["dq_low"]}
+    if not rows:
+        return next((c for c in FAST_DRIFT if parse_config(c)[0] in ss.precs), "fp32+padstem")
+    return max(rows, key=lambda k: rows[k]["pairs_per_min"])
+
+
+def fast_breakdown(ss: Session) -> dict:
+    """The breakdown from H.264 files with the fastest fast path."""
+    return breakdown(ss, [best_fast(ss)])
+
+
+def fast_trace(ss: Session) -> dict:
+    """torch.profiler's top operations with the fastest fast path."""
+    return trace(ss, best_fast(ss))
+
+
+def breakdown(ss: Session, configs: list[str] | None = None) -> dict:
     s = ss.sizes
     out = {}
     print(f"cgvqm-2 from H.264 files, 3 s {s.size3}x{s.size3}, 4 tests per reference:")
@@ -357,8 +438,8 @@ def breakdown(ss: Session) -> dict:
         decode_one = time.perf_counter() - t0
         out["decode_one_video_s"] = decode_one
         print(f"  decoding one video on one host thread: {decode_one:.2f} s ({n} frames)")
-        for p in ("auto", *ss.low()[-1:]):
-            m = ss.metric("cgvqm-2", precision=p)
+        for p in configs or ("auto", *ss.low()[-1:]):
+            m = fast_metric(ss, p)
             m.score(paths[0], paths[1])
             clock = StageClock(ss.device)
             m.score_many(paths[0], paths[1:], clock=clock)
@@ -366,6 +447,46 @@ def breakdown(ss: Session) -> dict:
             out[p] = {**sec, "pairs_per_min": 60 * 4 / sec["wall"]}
             print(f"  {p}: {60 * 4 / sec['wall']:.1f} pairs/min; {clock.report()}")
     return out
+
+
+def decoding(ss: Session) -> dict:
+    """How fast this host decodes a reference and its 4 tests (3 s 1024x1024 H.264) to RGB:
+    one video after another, in 5 threads (as clip_feed does) and in 5 processes. The
+    file-reading rate cannot beat 4 pairs per that time."""
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    from decode_work import decode
+
+    s, out = ss.sizes, {}
+    with h264_files(s.frames3, s.size3) as paths:
+        names = [str(p) for p in paths]
+        decode(names[0])  # the files into the page cache
+        t0 = time.perf_counter()
+        for n in names:
+            decode(n)
+        out["serial_s"] = time.perf_counter() - t0
+        with cf.ThreadPoolExecutor(len(names)) as pool:
+            t0 = time.perf_counter()
+            list(pool.map(decode, names))
+            out["threads_s"] = time.perf_counter() - t0
+        with cf.ProcessPoolExecutor(len(names), mp_context=mp.get_context("spawn")) as pool:
+            list(pool.map(decode, names))  # the workers' start-up out of the clock
+            t0 = time.perf_counter()
+            list(pool.map(decode, names))
+            out["processes_s"] = time.perf_counter() - t0
+    print(f"decoding a reference and 4 tests, 3 s {s.size3}x{s.size3} H.264 to RGB, on "
+          f"{os.cpu_count()} cores (PyAV {av_version()}):")
+    for k in ("serial_s", "threads_s", "processes_s"):
+        out[k.replace("_s", "_pairs_per_min")] = 4 * 60 / out[k]
+        print(f"  {k[:-2]}: {out[k]:.2f} s, at most {4 * 60 / out[k]:.0f} pairs/min from files")
+    return out
+
+
+def av_version() -> str:
+    import av
+
+    return str(av.__version__)
 
 
 def upstream_own(ss: Session) -> dict:
@@ -465,12 +586,12 @@ def tests(ss: Session) -> dict:
                       "tests/cgvqm_core/test_cuda.py"], "tests_cuda.txt")
 
 
-def trace(ss: Session) -> dict:
+def trace(ss: Session, config: str | None = None) -> dict:
     from torch.profiler import ProfilerActivity, profile
 
-    p = ss.low()[-1] if ss.low() else "auto"
+    p = config or (ss.low()[-1] if ss.low() else "auto")
     ref, tests_ = ss.pair()
-    m = ss.metric("cgvqm-2", precision=p)
+    m = fast_metric(ss, p)
     m.score_many(ref, tests_)
     acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if ss.cuda else [])
     with profile(activities=acts) as prof:
@@ -494,16 +615,16 @@ def cgvqm5_shares(ss: Session) -> dict:
     return shares(ss, "cgvqm-5")
 
 
-def drift(ss: Session) -> dict:
+def drift(ss: Session, precs: str | None = None, name: str = "bench_precision") -> dict:
     manifest = ss.args.demo / "manifest.json"
     if not manifest.is_file():
         raise FileNotFoundError(f"no demo set at {manifest}: run prepare.sh")
-    precs = ",".join(p for p in ss.precs if p != "fp32")
+    precs = precs or ",".join(p for p in ss.precs if p != "fp32")
     out_json = (ss.args.json.parent if ss.args.json else Path(tempfile.gettempdir())
-                ) / "bench_precision.json"
+                ) / f"{name}.json"
     rec = child(ss, [sys.executable, "benchmarks/bench_precision.py", "--device", ss.device,
                      "--precisions", precs, "--manifest", str(manifest), "--json",
-                     str(out_json)], "bench_precision.txt")
+                     str(out_json)], f"{name}.txt")
     if out_json.is_file():
         rec["figures"] = json.loads(out_json.read_text())
     return rec
@@ -514,10 +635,13 @@ def drift(ss: Session) -> dict:
 PLAN: list[tuple[str, float, Callable[[Session], dict]]] = [
     ("parity", 20, parity), ("defaults", 25, defaults), ("paper_set", 20, paper_set),
     ("shares", 35, shares), ("throughput", 60, throughput), ("stem", 40, stem),
-    ("breakdown", 60, breakdown), ("drift", 45, drift), ("upstream_own", 40, upstream_own),
+    ("fastpath", 90, fastpath), ("fast_drift", 45, fast_drift),
+    ("breakdown", 60, breakdown), ("decoding", 25, decoding), ("drift", 45, drift),
+    ("upstream_own", 40, upstream_own),
     ("differences", 15, differences), ("cgvqm5_defaults", 20, cgvqm5_defaults),
     ("cgvqm5_set", 15, cgvqm5_set), ("cgvqm5_shares", 25, cgvqm5_shares),
-    ("tests", 60, tests), ("trace", 15, trace),
+    ("tests", 60, tests), ("fast_breakdown", 25, fast_breakdown),
+    ("trace", 15, trace), ("fast_trace", 15, fast_trace),
 ]
 
 
@@ -634,6 +758,22 @@ def summary(ss: Session) -> list[str]:
         w = worst.get(p)
         row(f"{p}: |dq| against fp32 on the demo <= {t['dq_low']} (worst case)",
             f"{w[0]:.3f} ({w[1]})" if w else "-", None if not w else w[0] <= t["dq_low"])
+    fast = {k: r for k, r in (f.get("fastpath") or {}).items() if "pairs_per_min" in r}
+    fast_worst = drift_worst(f.get("fast_drift") or {})
+    ok = {k: r for k, r in fast.items() if r["max_dq_vs_fp32"] <= t["dq_low"]
+          and fast_worst.get(k, (0.0, ""))[0] <= t["dq_low"]}
+    if fast or f.get("sections", {}).get("fastpath"):
+        best = max(ok, key=lambda k: ok[k]["pairs_per_min"]) if ok else None
+        row(f"fast paths: >= {t['pairs_min']:.0f} pairs/min (best within the drift bound)",
+            f"{ok[best]['pairs_per_min']:.0f} ({best})" if best else "-",
+            None if not best else ok[best]["pairs_per_min"] >= t["pairs_min"])
+        share = max(ok, key=lambda k: ok[k]["backbone_share"]) if ok else None
+        row(f"fast paths: backbone >= {100 * t['low_share']:.0f} % of the conv3d peak",
+            f"{100 * ok[share]['backbone_share']:.0f} % ({share})" if share else "-",
+            None if not share else ok[share]["backbone_share"] >= t["low_share"])
+        for k, (dq, where) in fast_worst.items():
+            row(f"{k}: |dq| on the demo <= {t['dq_low']}", f"{dq:.3f} ({where})",
+                dq <= t["dq_low"])
     up = f.get("upstream_own", {}).get("cgvqm-2")
     row("against the authors' own run_cgvqm (files, per call)",
         f"x{up['auto']['x']:.2f}, |dq| {up['auto']['dq']:.1e}" if up else "-",

@@ -91,3 +91,34 @@ def test_bf16_differences_on_cuda_compute_the_plain_numbers_in_fp32(pair, backbo
                  differences=True)
     a, b = plain.score(ref, test, fps=8), diff.score(ref, test, fps=8)
     np.testing.assert_allclose(b.msd, a.msd, rtol=2e-4, atol=1e-9)
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+def test_fused_stages_and_the_padded_stem_on_cuda(pair, backbone, precision):
+    """cuDNN's fused convolution (bias, residual and ReLU in the epilogue) and the zero-padded
+    stem compute the plain network's numbers: to 1e-4 in strict fp32, within fp16's own
+    rounding in fp16. The fused operation must actually run (not fall back)."""
+    ref, test = pair
+    w = _random_weights("cgvqm-5", 1027, seed=47)
+    plain = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda",
+                  precision=precision).score(ref, test, fps=8)
+    fast = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision=precision,
+                 fused=True, pad_stem=True)
+    got = fast.score(ref, test, fps=8)
+    detail = fast.net.precision_info
+    assert detail["fused"] is True and detail["pad_stem"] is True
+    assert fast.net.model.stem[0].in_channels == 4  # the stem runs in fp32 either way
+    bound = 1e-4 if precision == "fp32" else 5e-3
+    assert abs(got.quality("max") - plain.quality("max")) <= bound
+    assert abs(got.quality("mean") - plain.quality("mean")) <= bound
+
+
+def test_a_tf32_stem_stays_within_the_drift_bound(pair, backbone):
+    ref, test = pair
+    w = _random_weights("cgvqm-2", 131, seed=48)
+    exact = CGVQM(weights=w, backbone=backbone, device="cuda", precision="fp32")
+    fast = CGVQM(weights=w, backbone=backbone, device="cuda", precision="fp16", tf32_stem=True,
+                 fused=True, pad_stem=True)
+    a, b = exact.score(ref, test, fps=8), fast.score(ref, test, fps=8)
+    assert fast.net.precision_info["tf32_stem"] is True
+    assert abs(a.quality("max") - b.quality("max")) <= 0.05

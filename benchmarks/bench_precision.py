@@ -159,7 +159,9 @@ def weights_path(variant: str, wdir: str | None) -> str:
 PLAIN = "-plain"
 #: ``+option`` suffixes of a precision label and the CGVQM arguments they stand for
 OPTIONS = {"tf32stem": {"tf32_stem": True}, "lowstem": {"fp32_stem": False},
-           "fused": {"fused": True}, "padstem": {"pad_stem": True}}
+           "fused": {"fused": True}, "padstem": {"pad_stem": True},
+           "exactstem": {"tf32_stem": False}, "nofused": {"fused": False},
+           "nopad": {"pad_stem": False}}
 
 
 def parse_config(label: str) -> tuple[str, dict]:
@@ -173,7 +175,7 @@ def parse_config(label: str) -> tuple[str, dict]:
         if o not in OPTIONS:
             raise ValueError(f"unknown option +{o} in {label!r}; known: {', '.join(OPTIONS)}")
         kw.update(OPTIONS[o])
-    if prec == "bf16" and ("fused" in kw or "pad_stem" in kw):
+    if prec == "bf16" and (kw.get("fused") or kw.get("pad_stem")):
         kw["differences"] = False
     return prec, kw
 
@@ -189,8 +191,9 @@ def main() -> int:
                                          "(default: bf16 on CPU, tf32,bf16,fp16 on CUDA); "
                                          "bf16-plain is bf16 without carrying the tests as "
                                          "differences from their reference; +tf32stem, "
-                                         "+lowstem, +fused, +padstem add GPU options, e.g. "
-                                         "fp16+fused+padstem")
+                                         "+lowstem, +fused, +padstem (or +exactstem, "
+                                         "+nofused, +nopad) set GPU options, e.g. "
+                                         "fp16+exactstem")
     ap.add_argument("--variants", default="cgvqm-2,cgvqm-5")
     ap.add_argument("--manifest", action="append", default=[], type=Path)
     ap.add_argument("--real", action="append", default=[], type=Path)

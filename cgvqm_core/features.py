@@ -28,7 +28,7 @@ from .errors import CGVQMError
 from .fused_conv import fusable, fused_stage
 from .host_memory import MAX_KEPT_BLOCK
 from .hub import Backbone
-from .precision import DTYPES, PRECISIONS, check, cudnn_tf32, resolve, tf32_mode
+from .precision import DTYPES, PRECISIONS, check, cudnn_tf32, fast_path, resolve, tf32_mode
 from .ref_delta import LevelPair, RefTape, difference_levels
 from .stage_clock import StageClock, stage
 from .stem_input import pad_stem_conv, padded_channels, padded_input
@@ -82,15 +82,16 @@ class FeatureNet:
     ``tf32_stem`` lets that fp32 stem use cuDNN's TF32 mode (CUDA). ``fused`` runs each
     convolution with its bias, residual and ReLU as one cuDNN call (:mod:`.fused_conv`;
     CUDA, batch norm folded). ``pad_stem`` gives the stem a 16-byte voxel by adding zero
-    input channels (:mod:`.stem_input`; meant for cuDNN). None of the three changes the function
-    beyond rounding; the measured cost and drift are in docs/performance.md.
+    input channels (:mod:`.stem_input`; meant for cuDNN). None of the three changes the
+    function beyond rounding; None (the default) picks what was measured fastest within
+    the drift bound (:func:`.precision.fast_path`; figures in docs/performance.md).
     """
 
     def __init__(self, backbone: Backbone, n_levels: int, *, device: str | torch.device = "cpu",
                  precision: str = "auto", fuse_bn: bool | None = None,
                  channels_last: bool | None = None, fp32_stem: bool = True,
                  cudnn_benchmark: bool = True, differences: bool | None = None,
-                 tf32_stem: bool = False, fused: bool | None = None,
+                 tf32_stem: bool | None = None, fused: bool | None = None,
                  pad_stem: bool | None = None) -> None:
         if not 1 <= n_levels <= 6:
             raise CGVQMError(f"n_levels must be 1..6, got {n_levels}")
@@ -122,21 +123,10 @@ class FeatureNet:
         self.channels_last = channels_last
         self.fuse_bn = precision != "tf32" if fuse_bn is None else bool(fuse_bn)
         self.cudnn_benchmark = bool(cudnn_benchmark)
-        cuda = self.device.type == "cuda"
-        self.tf32_stem = bool(tf32_stem) and self.fp32_stem
-        if tf32_stem and not (cuda and self.fp32_stem):
-            raise CGVQMError("a TF32 stem needs --device cuda and bf16/fp16 with the stem in "
-                             "fp32")
-        if fused and not cuda:
-            raise CGVQMError("fused convolutions need cuDNN: use --device cuda")
-        if fused and not self.fuse_bn:
-            raise CGVQMError("fused convolutions need batch norm folded (fuse_bn)")
-        for name, asked in (("fused convolutions", fused), ("a padded stem", pad_stem)):
-            if asked and self.differences:
-                raise CGVQMError(f"{name} do not apply to tests carried as differences "
-                                 "(bf16's default): also turn differences off")
-        self.fused = bool(fused)
-        self.pad_stem = bool(pad_stem)
+        fast = fast_path(self.device, self.dtype, fp32_stem=self.fp32_stem,
+                         differences=self.differences, fuse_bn=self.fuse_bn,
+                         tf32_stem=tf32_stem, fused=fused, pad_stem=pad_stem)
+        self.tf32_stem, self.fused, self.pad_stem = fast.tf32_stem, fast.fused, fast.pad_stem
         for key, on in (("tf32_stem", self.tf32_stem), ("fused", self.fused),
                         ("pad_stem", self.pad_stem)):
             if on:

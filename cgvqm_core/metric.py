@@ -210,7 +210,7 @@ class CGVQM:
         seamless: bool = False,
         fp32_stem: bool = True,
         differences: bool | None = None,
-        tf32_stem: bool = False,
+        tf32_stem: bool | None = None,
         fused: bool | None = None,
         pad_stem: bool | None = None,
     ) -> None:

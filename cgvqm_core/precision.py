@@ -193,3 +193,45 @@ def cudnn_tf32(allow: bool) -> Iterator[None]:
         yield
     finally:
         cudnn.allow_tf32 = saved
+
+
+@dataclass(frozen=True)
+class FastPath:
+    """How the network runs on CUDA beyond its precision: measured on an H200 (issue #21,
+    docs/performance.md), each resolved here when not asked for explicitly."""
+
+    tf32_stem: bool  # the fp32 stem of fp16 in TF32: x1.3 for CGVQM-2, q within the bound
+    fused: bool  # convolution, bias, residual and ReLU in one cuDNN call
+    pad_stem: bool  # a 16-byte stem voxel: faster in TF32, slower in true fp32
+
+
+def fast_path(device: torch.device, dtype: torch.dtype, *, fp32_stem: bool, differences: bool,
+              fuse_bn: bool, tf32_stem: bool | None, fused: bool | None,
+              pad_stem: bool | None) -> FastPath:
+    """The fast path for this device and precision; an explicit choice that cannot apply is
+    refused with the reason.
+
+    On CUDA by default: fused stages wherever batch norm is folded and the tests are not
+    carried as differences (fp32, fp16); the stem in TF32 under fp16 only (bf16's
+    difference path measured 0.060 with it, over the 0.05 bound); the padded stem where the
+    stem runs in TF32 or in 16 bits. Elsewhere none of them.
+    """
+    cuda = device.type == "cuda"
+    if tf32_stem and not (cuda and fp32_stem):
+        raise CGVQMError("a TF32 stem needs --device cuda and bf16/fp16 with the stem in fp32")
+    if fused and not cuda:
+        raise CGVQMError("fused convolutions need cuDNN: use --device cuda")
+    if fused and not fuse_bn:
+        raise CGVQMError("fused convolutions need batch norm folded (fuse_bn)")
+    for name, asked in (("fused convolutions", fused), ("a padded stem", pad_stem)):
+        if asked and differences:
+            raise CGVQMError(f"{name} do not apply to tests carried as differences (bf16's "
+                             "default): also turn differences off")
+    if tf32_stem is None:
+        tf32_stem = cuda and fp32_stem and dtype == torch.float16
+    if fused is None:
+        fused = cuda and fuse_bn and not differences
+    if pad_stem is None:
+        stem_fast = tf32_stem or (dtype != torch.float32 and not fp32_stem)
+        pad_stem = cuda and not differences and stem_fast
+    return FastPath(bool(tf32_stem), bool(fused), bool(pad_stem))

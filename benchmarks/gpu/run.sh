@@ -6,6 +6,8 @@
 #             about 540), figures saved after each section, a table of the targets last
 #   fast      the session's fast-path sections (fused stages, padded and TF32 stems) with
 #             the defaults, drift and tests re-checked: the second call of a lease
+#   verify    the defaults chosen from "fast" against their alternatives, the CUDA tests and
+#             the drift: a last short call
 # The steps below are the longer plan, one per call, for a lease with room for them:
 #   tests     the CUDA tests (tests/cgvqm_core/test_cuda.py) and the pipeline tests
 #   cgvqm     benchmarks/bench_cgvqm.py --device cuda for CGVQM-2 (precisions, upstream as
@@ -18,7 +20,7 @@
 #             fp32, and fp32 against the CPU
 # Each of those stops itself after 9.5 minutes, so what it printed still comes back.
 set -euo pipefail
-step=${1:?usage: run.sh session|fast|tests|cgvqm|cgvqm5|dataset|trace|precision}
+step=${1:?usage: run.sh session|fast|verify|tests|cgvqm|cgvqm5|dataset|trace|precision}
 out=${OUT:-/tmp/out}
 mkdir -p "$out"
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
@@ -36,6 +38,12 @@ case "$step" in
             --budget "${BUDGET:-380}" --json "$out/session_fast.json" \
             --only defaults,paper_set,fastpath,fast_drift,decoding,drift,tests,fast_breakdown,fast_trace \
             2>&1 | tee "$out/session_fast.txt" ;;
+    verify)
+        timeout $(( ${BUDGET:-150} + 60 )) python3 benchmarks/gpu/session.py --device cuda \
+            --budget "${BUDGET:-150}" --json "$out/session_verify.json" \
+            --only defaults,fastpath,tests,drift \
+            --configs fp16,fp16+nopad,fp16+exactstem,fp32,fp32+nofused,fp32+padstem,bf16 \
+            2>&1 | tee "$out/session_verify.txt" ;;
     tests)
         timeout 570 python3 -m pytest -q -p no:cacheprovider tests/cgvqm_core/test_cuda.py \
             tests/cgvqm_core/test_pipeline.py tests/cgvqm_core/test_parity.py 2>&1 \

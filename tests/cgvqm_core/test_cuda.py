@@ -100,10 +100,10 @@ def test_fused_stages_and_the_padded_stem_on_cuda(pair, backbone, precision):
     rounding in fp16. The fused operation must actually run (not fall back)."""
     ref, test = pair
     w = _random_weights("cgvqm-5", 1027, seed=47)
-    plain = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda",
-                  precision=precision).score(ref, test, fps=8)
+    plain = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision=precision,
+                  fused=False, pad_stem=False, tf32_stem=False).score(ref, test, fps=8)
     fast = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision=precision,
-                 fused=True, pad_stem=True)
+                 fused=True, pad_stem=True, tf32_stem=False)
     got = fast.score(ref, test, fps=8)
     detail = fast.net.precision_info
     assert detail["fused"] is True and detail["pad_stem"] is True
@@ -122,3 +122,14 @@ def test_a_tf32_stem_stays_within_the_drift_bound(pair, backbone):
     a, b = exact.score(ref, test, fps=8), fast.score(ref, test, fps=8)
     assert fast.net.precision_info["tf32_stem"] is True
     assert abs(a.quality("max") - b.quality("max")) <= 0.05
+
+
+def test_fp16_on_cuda_takes_the_fast_path_by_default(pair, backbone):
+    """fp16's default on CUDA: fused stages, the padded stem in TF32, all really running."""
+    ref, test = pair
+    m = CGVQM(weights=_random_weights("cgvqm-2", 131, seed=49), backbone=backbone,
+              device="cuda", precision="fp16")
+    m.score(ref, test, fps=8)
+    d = m.provenance()["precision_detail"]
+    assert d["fused"] is True and d["pad_stem"] is True and d["tf32_stem"] is True
+    assert m.net._fused_proven

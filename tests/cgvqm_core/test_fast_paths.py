@@ -14,6 +14,7 @@ from cgvqm_core.backbone import build_backbone
 from cgvqm_core.errors import CGVQMError
 from cgvqm_core.features import FeatureNet, _fuse_batchnorm
 from cgvqm_core.fused_conv import REFERENCE, fusable, fused_stage
+from cgvqm_core.precision import fast_path
 from cgvqm_core.stem_input import pad_stem_conv, padded_channels, padded_input
 from cgvqm_core.unit_norm import EPS, unit_norm_fp32
 
@@ -132,3 +133,38 @@ def test_fast_path_refusals(backbone):
         FeatureNet(backbone, 3, tf32_stem=True)
     with pytest.raises(CGVQMError, match="differences"):
         FeatureNet(backbone, 3, pad_stem=True, differences=True)
+
+
+CUDA, CPU = torch.device("cuda"), torch.device("cpu")
+
+
+@pytest.mark.parametrize("device, dtype, fp32_stem, differences, fuse_bn, want", [
+    # fp16 on CUDA: the measured fastest within the drift bound (TF32 stem, fused, padded)
+    (CUDA, torch.float16, True, False, True, (True, True, True)),
+    # fp16 with its stem in fp16: fused, padded to 8 channels, no TF32 stem
+    (CUDA, torch.float16, False, False, True, (False, True, True)),
+    # bf16 carries tests as differences: none apply
+    (CUDA, torch.bfloat16, True, True, True, (False, False, False)),
+    # bf16 without differences: fused only (the fp32 stem padded ran slower)
+    (CUDA, torch.bfloat16, True, False, True, (False, True, False)),
+    # strict fp32: fused (exact), stem left as it is
+    (CUDA, torch.float32, False, False, True, (False, True, False)),
+    # tf32 (auto on CUDA) keeps batch norm apart, as upstream rounds it: nothing
+    (CUDA, torch.float32, False, False, False, (False, False, False)),
+    # a CPU: nothing
+    (CPU, torch.bfloat16, True, False, True, (False, False, False)),
+    (CPU, torch.float32, False, False, True, (False, False, False)),
+])
+def test_fast_path_defaults(device, dtype, fp32_stem, differences, fuse_bn, want):
+    got = fast_path(device, dtype, fp32_stem=fp32_stem, differences=differences,
+                    fuse_bn=fuse_bn, tf32_stem=None, fused=None, pad_stem=None)
+    assert (got.tf32_stem, got.fused, got.pad_stem) == want
+
+
+def test_explicit_fast_path_choices_win():
+    got = fast_path(CUDA, torch.float16, fp32_stem=True, differences=False, fuse_bn=True,
+                    tf32_stem=False, fused=False, pad_stem=True)
+    assert (got.tf32_stem, got.fused, got.pad_stem) == (False, False, True)
+    with pytest.raises(CGVQMError, match="batch norm folded"):
+        fast_path(CUDA, torch.float32, fp32_stem=False, differences=False, fuse_bn=False,
+                  tf32_stem=None, fused=True, pad_stem=None)

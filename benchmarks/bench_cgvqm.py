@@ -80,10 +80,11 @@ import torch.nn.functional as F
 
 from cgvqm_core import CGVQM, host_memory
 from cgvqm_core.errors import CGVQMError
-from cgvqm_core.features import FeatureNet, PatchScorer
+from cgvqm_core.features import FeatureNet
 from cgvqm_core.host_memory import retained
 from cgvqm_core.hub import random_backbone
 from cgvqm_core.metric import CGVQMResult
+from cgvqm_core.patch_scorer import PatchScorer
 from cgvqm_core.precision import DTYPES, cpu_bf16, cpu_name
 from cgvqm_core.stage_clock import StageClock
 from cgvqm_core.weights import resolve_weights, uniform_weights

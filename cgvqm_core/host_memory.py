@@ -7,7 +7,7 @@ page faults (on transparent huge pages) and 19.0 s, against 6 thousand and 17.4 
 memory kept. While scoring, :func:`retained` raises the threshold to glibc's largest (32
 MiB) and keeps freed memory in the heap (a high ``M_TRIM_THRESHOLD``); a pass's activations
 reuse it when each stays under 32 MiB, which is what the CPU batch size aims for
-(:func:`~cgvqm_core.features.default_batch_size`). Larger blocks keep their own mapping:
+(:func:`~cgvqm_core.patch_scorer.default_batch_size`). Larger blocks keep their own mapping:
 putting them in the heap as well (``M_MMAP_MAX`` 0) was a little faster but fragmented it,
 doubling the peak memory of a 1080p pair. On leaving, glibc's defaults come back and
 ``malloc_trim`` returns the kept memory.

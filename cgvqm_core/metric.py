@@ -21,8 +21,9 @@ import torch
 
 from .emap import EmapRecorder, EmapVideoWriter, fit_tone_curve
 from .errors import CGVQMError
-from .features import FeatureNet, PatchScorer
+from .features import FeatureNet
 from .hub import Backbone, resolve_backbone
+from .patch_scorer import PatchScorer
 from .precision import cpu_name
 from .scale_anchor import anchoring_for, apply_anchor
 from .stage_clock import StageClock
@@ -186,7 +187,7 @@ class CGVQM:
     (:mod:`.seamless`; not upstream-identical, marked ``mode: seamless``, no error maps).
     ``batch_size`` is videos per network pass (default on a CPU: 2 for patches up to
     16x128x128 or in bf16, else 1; on CUDA as many as fit 16 patches of 30x128x128, so that several
-    patch positions share a pass; :func:`~.features.default_batch_size`); ``prefetch``
+    patch positions share a pass; :func:`~.patch_scorer.default_batch_size`); ``prefetch``
     decodes the next clip in a thread while the current one is scored (default: on CUDA
     only). Neither changes the numbers beyond float rounding.
     """

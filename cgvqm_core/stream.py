@@ -26,8 +26,9 @@ from stimuli_manifests import StimuliError, open_video
 
 from .clip_feed import ClipSet, clip_sets
 from .errors import CGVQMError
-from .features import FeatureNet, PatchScorer
+from .features import FeatureNet
 from .host_memory import retained
+from .patch_scorer import PatchScorer
 from .seamless import network_halo, tile
 from .stage_clock import StageClock, stage
 

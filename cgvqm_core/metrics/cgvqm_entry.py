@@ -60,7 +60,8 @@ class CGVQMScorer(VideoScorer):
         self.metric = CGVQM(spec.name, weights=options.weights, backbone=options.backbone,
                             random_backbone=options.random_backbone, device=options.device,
                             precision=options.precision, patch_scale=options.patch_scale,
-                            batch_size=options.batch_size, seamless=options.seamless)
+                            batch_size=options.batch_size, seamless=options.seamless,
+                            tf32_stem=False if options.exact_stem else None)
 
     @property
     def name(self) -> str:
@@ -73,6 +74,8 @@ class CGVQMScorer(VideoScorer):
                "mode": p["mode"]}
         if self.metric.net.differences:  # bf16 numbers differ from the plain path's
             out["differences"] = True
+        if self.metric.net.tf32_stem:  # fp16 on CUDA: so do those of a TF32 stem
+            out["tf32_stem"] = True
         return out
 
     def provenance(self) -> dict[str, Any]:

@@ -226,3 +226,10 @@ def test_help_documents_strict(capsys):
             main([command, "--help"])
         text = " ".join(capsys.readouterr().out.split())
         assert "--strict" in text and "refuse (exit 2) a test video whose frame count" in text
+
+
+@pytest.mark.parametrize("extra", [[], ["--precision", "fp16"], ["--precision", "bf16"]])
+def test_exact_stem_outside_fp16_on_cuda_is_refused(capsys, npy_pair, extra):
+    """--exact-stem changes only fp16 on CUDA; anywhere else it would do nothing, silently."""
+    rc, _, err = _run(capsys, *_score_args(npy_pair, "--exact-stem", *extra))
+    _refused(rc, err, "--exact-stem", "fp16", "cuda")

@@ -128,6 +128,22 @@ def test_summary_judges_the_targets_from_the_figures(session, tmp_path):
     # 1.0 s of a core
     assert "N x 200 pairs/min" in model and "351 from memory" in model
     assert "1.00 s of one core per pair" in model
+    # the host's measured decoding ceiling, and fast paths: the fastest within the bound
+    # counts, one over the drift bound (on the demo) does not
+    ss.fig["decoding"] = {"threads_pairs_per_min": 270.0, "processes_pairs_per_min": 300.0}
+    ss.fig["fastpath"] = {"fp16": {"pairs_per_min": 380.0, "max_dq_vs_fp32": 2e-3,
+                                   "backbone_share": 0.7},
+                          "bf16+x": {"pairs_per_min": 390.0, "max_dq_vs_fp32": 3e-3,
+                                     "backbone_share": 0.8}}
+    ss.fig["fast_drift"] = {"figures": {"results": [{"variant": "cgvqm-5", "other": {
+        "fp16": {"max_pool": {"max": 0.03}, "mean_pool": {"max": 0.01}},
+        "bf16+x": {"max_pool": {"max": 0.08}, "mean_pool": {"max": 0.01}}}}]}}
+    model = session.many_gpus(ss)[0]
+    assert "380 from memory" in model and "measured at 300 pairs/min" in model
+    assert "N <= 1.5 GPUs" in model  # 300 / 200
+    rows = [line for line in session.summary(ss) if "fast paths" in line]
+    assert "380 (fp16)" in rows[0] and rows[0].endswith("met")
+    assert "70 % (fp16)" in rows[1] and rows[1].endswith("met")
 
 
 def test_the_pyav_reader_keeps_read_videos_contract(tmp_path):

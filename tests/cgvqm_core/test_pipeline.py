@@ -14,7 +14,8 @@ import torch
 from cgvqm_core import CGVQM
 from cgvqm_core.clip_feed import clip_sets
 from cgvqm_core.errors import CGVQMError
-from cgvqm_core.features import CUDA_PASS_VOXELS, FeatureNet, PatchScorer, default_batch_size
+from cgvqm_core.features import FeatureNet
+from cgvqm_core.patch_scorer import CUDA_PASS_VOXELS, PatchScorer, default_batch_size
 from cgvqm_core.precision import tf32_mode
 from cgvqm_core.stage_clock import STAGES, StageClock
 from cgvqm_core.stream import Geometry, padded_clips

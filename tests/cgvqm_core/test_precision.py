@@ -13,7 +13,8 @@ from cgvqm_core import CGVQM, patch_channel_msd
 from cgvqm_core import precision as prec
 from cgvqm_core.cli import main
 from cgvqm_core.errors import CGVQMError
-from cgvqm_core.features import EPS, FeatureNet, PatchScorer
+from cgvqm_core.features import EPS, FeatureNet
+from cgvqm_core.patch_scorer import PatchScorer
 from cgvqm_core.weights import FeatureWeights
 
 HAS_BF16 = prec.cpu_bf16().supported

@@ -15,8 +15,9 @@ import torch
 from cgvqm_core import CGVQM
 from cgvqm_core import precision as prec
 from cgvqm_core.backbone import build_backbone
-from cgvqm_core.features import FeatureNet, PatchScorer
+from cgvqm_core.features import FeatureNet
 from cgvqm_core.hub import from_state_dict
+from cgvqm_core.patch_scorer import PatchScorer
 
 from .test_parity import _random_weights
 

@@ -182,8 +182,8 @@ class FeatureNet:
                     self._fused_proven = True
                     return out
                 except RuntimeError as exc:
-                    if self._fused_proven:
-                        raise
+                    if self._fused_proven or isinstance(exc, torch.OutOfMemoryError):
+                        raise  # (out of memory is not a missing operation)
                     self.fused = False
                     self.precision_info["fused"] = f"unavailable: {str(exc).splitlines()[0]}"
             return stage(h)

@@ -168,3 +168,18 @@ def test_explicit_fast_path_choices_win():
     with pytest.raises(CGVQMError, match="batch norm folded"):
         fast_path(CUDA, torch.float32, fp32_stem=False, differences=False, fuse_bn=False,
                   tf32_stem=None, fused=True, pad_stem=None)
+
+
+def test_running_out_of_memory_is_not_taken_for_a_missing_operation(vids, backbone,
+                                                                    monkeypatch):
+    ref = vids.smooth(4, 8, 24, 24)
+
+    def oom(stage, h):
+        raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 2.00 GiB")
+
+    monkeypatch.setattr(features, "fused_stage", oom)
+    m = CGVQM(weights=_random_weights("cgvqm-2", 131, seed=11), backbone=backbone)
+    m.net.fused = True
+    with pytest.raises(torch.OutOfMemoryError):
+        m.score(ref, vids.distort(ref, seed=7), fps=8)
+    assert m.net.fused and "fused" not in m.net.precision_info

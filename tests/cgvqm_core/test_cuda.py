@@ -125,11 +125,15 @@ def test_a_tf32_stem_stays_within_the_drift_bound(pair, backbone):
 
 
 def test_fp16_on_cuda_takes_the_fast_path_by_default(pair, backbone):
-    """fp16's default on CUDA: fused stages, the padded stem in TF32, all really running."""
+    """fp16's default on CUDA: fused stages really running, the stem in exact fp32; with the
+    TF32 stem asked for, the stem padded too."""
     ref, test = pair
-    m = CGVQM(weights=_random_weights("cgvqm-2", 131, seed=49), backbone=backbone,
-              device="cuda", precision="fp16")
+    w = _random_weights("cgvqm-2", 131, seed=49)
+    m = CGVQM(weights=w, backbone=backbone, device="cuda", precision="fp16")
     m.score(ref, test, fps=8)
     d = m.provenance()["precision_detail"]
-    assert d["fused"] is True and d["pad_stem"] is True and d["tf32_stem"] is True
+    assert d["fused"] is True and "pad_stem" not in d and "tf32_stem" not in d
     assert m.net._fused_proven
+    fast = CGVQM(weights=w, backbone=backbone, device="cuda", precision="fp16", tf32_stem=True)
+    d = fast.provenance()["precision_detail"]
+    assert d["fused"] is True and d["pad_stem"] is True and d["tf32_stem"] is True

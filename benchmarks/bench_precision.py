@@ -161,7 +161,8 @@ PLAIN = "-plain"
 OPTIONS = {"tf32stem": {"tf32_stem": True}, "lowstem": {"fp32_stem": False},
            "fused": {"fused": True}, "padstem": {"pad_stem": True},
            "exactstem": {"tf32_stem": False}, "nofused": {"fused": False},
-           "nopad": {"pad_stem": False}}
+           "nopad": {"pad_stem": False}, "splitstem": {"split_stem": "int"},
+           "split3stem": {"split_stem": "3xtf32"}}
 
 
 def parse_config(label: str) -> tuple[str, dict]:
@@ -175,7 +176,7 @@ def parse_config(label: str) -> tuple[str, dict]:
         if o not in OPTIONS:
             raise ValueError(f"unknown option +{o} in {label!r}; known: {', '.join(OPTIONS)}")
         kw.update(OPTIONS[o])
-    if prec == "bf16" and (kw.get("fused") or kw.get("pad_stem")):
+    if prec == "bf16" and (kw.get("fused") or kw.get("pad_stem") or kw.get("split_stem")):
         kw["differences"] = False
     return prec, kw
 
@@ -191,7 +192,8 @@ def main() -> int:
                                          "(default: bf16 on CPU, tf32,bf16,fp16 on CUDA); "
                                          "bf16-plain is bf16 without carrying the tests as "
                                          "differences from their reference; +tf32stem, "
-                                         "+lowstem, +fused, +padstem (or +exactstem, "
+                                         "+lowstem, +fused, +padstem, +splitstem "
+                                         "(int), +split3stem (3xtf32) (or +exactstem, "
                                          "+nofused, +nopad) set GPU options, e.g. "
                                          "fp16+exactstem")
     ap.add_argument("--variants", default="cgvqm-2,cgvqm-5")

@@ -9,6 +9,11 @@ of the network in exact fp32.
 - TF32: both operands of the stem's convolution rounded to 10 mantissa bits (to nearest,
   ties away from zero, as the GPU converts them), products summed in fp32.
 - fp16: operands and output rounded to fp16, products summed in fp32.
+- split-int, split-3xtf32: the split stems of ``cgvqm_core.stem_input`` as they run (their
+  operands are TF32 numbers already, so a CPU computes what the GPU's TF32 kernel does, up
+  to summation order).
+- fp64: the stem in float64, rounded once to fp32: the control, how far fp32's own stem
+  is from exact arithmetic on that set (fp32's noise floor).
 
 ``--check-pair`` first validates the emulation: every convolution in TF32 on the
 benchmark pair (CGVQM-2, 30x512x512, random backbone seed 0, batch norm unfolded as the
@@ -49,16 +54,10 @@ from bench_precision import manifest_set, pair_set, real_set, score_set, weights
 
 from cgvqm_core import CGVQM
 from cgvqm_core.hub import random_backbone
+from cgvqm_core.stem_input import SPLITS
+from cgvqm_core.stem_input import round_tf32 as tf32
 
 H100_TF32_DQ = (2.23e-3, 1.95e-3)  # max, mean pooling; bench_cgvqm_cuda.txt
-
-
-def tf32(x: torch.Tensor) -> torch.Tensor:
-    """``x`` rounded to TF32's 10 mantissa bits (to nearest, ties away from zero)."""
-    i = x.contiguous().view(torch.int32)
-    sign = i & torch.tensor(-(2**31), dtype=torch.int32)
-    mag = (i & 0x7FFFFFFF) + 0x1000
-    return ((mag & ~0x1FFF) | sign).view(torch.float32)
 
 
 def fp16(x: torch.Tensor | None) -> torch.Tensor | None:
@@ -71,6 +70,12 @@ def tf32_conv(c: torch.nn.Conv3d) -> Callable[[torch.Tensor], torch.Tensor]:
 
 def fp16_conv(c: torch.nn.Conv3d) -> Callable[[torch.Tensor], torch.Tensor]:
     return lambda x: fp16(F.conv3d(fp16(x), fp16(c.weight), fp16(c.bias), c.stride, c.padding))
+
+
+def fp64_conv(c: torch.nn.Conv3d) -> Callable[[torch.Tensor], torch.Tensor]:
+    """The exact stem, rounded once to fp32: how far fp32's own stem is from the math."""
+    b = None if c.bias is None else c.bias.double()
+    return lambda x: F.conv3d(x.double(), c.weight.double(), b, c.stride, c.padding).float()
 
 
 def convs(module: torch.nn.Module) -> list[torch.nn.Conv3d]:
@@ -99,7 +104,8 @@ def main() -> int:
     ap.add_argument("--real", type=Path, action="append", default=[],
                     help="a real clip: its first 50 frames at 640 px against four distortions")
     ap.add_argument("--real-pair", action="append", default=[], metavar="REF,TEST")
-    ap.add_argument("--stems", default="TF32,fp16", help="which stems (TF32, fp16)")
+    ap.add_argument("--stems", default="TF32,fp16",
+                    help="which stems (TF32, fp16, fp64, split-int, split-3xtf32)")
     ap.add_argument("--weights-dir", help="folder with cgvqm-2.pickle / cgvqm-5.pickle")
     ap.add_argument("--variants", default="cgvqm-2,cgvqm-5")
     ap.add_argument("--check-pair", action="store_true",
@@ -115,11 +121,12 @@ def main() -> int:
         sets.append(pair_set(args.real_pair))
     if not sets:
         ap.error("give at least one --manifest, --real or --real-pair")
-    stems = {"TF32": tf32_conv, "fp16": fp16_conv}
+    stems = {"TF32": tf32_conv, "fp16": fp16_conv, "fp64": fp64_conv}
+    built = {f"split-{s}": {"split_stem": s} for s in SPLITS}  # stems the library runs
     wanted = [x for x in args.stems.split(",") if x]
-    unknown = [x for x in wanted if x not in stems]
+    unknown = [x for x in wanted if x not in stems and x not in built]
     if unknown:
-        ap.error(f"unknown stem {unknown[0]!r}; choose from TF32, fp16")
+        ap.error(f"unknown stem {unknown[0]!r}; choose from {', '.join([*stems, *built])}")
     bb = random_backbone(0)
     for ps in sets:
         print(f"stem alone, the rest of the network in fp32; {ps.n_pairs} pairs of "
@@ -129,9 +136,10 @@ def main() -> int:
             q0, _ = score_set(CGVQM(v, weights=w, backbone=bb, precision="fp32"), ps)
             in_range = (q0[:, 0] >= 0) & (q0[:, 0] <= 100)
             for name in wanted:
-                m = CGVQM(v, weights=w, backbone=bb, precision="fp32")
-                stem = convs(m.net.model.stages()[0])[0]
-                stem.forward = stems[name](stem)
+                m = CGVQM(v, weights=w, backbone=bb, precision="fp32", **built.get(name, {}))
+                if name in stems:
+                    stem = convs(m.net.model.stages()[0])[0]
+                    stem.forward = stems[name](stem)
                 q1, _ = score_set(m, ps)
                 d = np.abs(q1 - q0)
                 part = f"{d[in_range, 0].max():.2e}" if in_range.any() else "-"

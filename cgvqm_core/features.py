@@ -22,7 +22,7 @@ from .fused_conv import fusable, fused_stage
 from .hub import Backbone
 from .precision import DTYPES, PRECISIONS, check, cudnn_tf32, fast_path, resolve, tf32_mode
 from .ref_delta import LevelPair, RefTape, difference_levels
-from .stem_input import pad_stem_conv, padded_channels, padded_input
+from .stem_input import SplitStem, pad_stem_conv, padded_channels, padded_input
 from .unit_norm import EPS, unit_norm_fp32
 
 #: torchvision's Kinetics-400 normalisation (applied after scaling uint8 to [0, 1])
@@ -73,7 +73,10 @@ class FeatureNet:
     ``tf32_stem`` lets that fp32 stem use cuDNN's TF32 mode (CUDA). ``fused`` runs each
     convolution with its bias, residual and ReLU as one cuDNN call (:mod:`.fused_conv`;
     CUDA, batch norm folded). ``pad_stem`` gives the stem a 16-byte voxel by adding zero
-    input channels (:mod:`.stem_input`; meant for cuDNN). None of the three changes the
+    input channels (:mod:`.stem_input`; meant for cuDNN). ``split_stem`` (``"int"`` or
+    ``"3xtf32"``, :mod:`.stem_input`) computes the fp32 stem as one TF32 convolution of
+    split operands, fp32's numbers to about 2^-22 (a candidate for fp16's speed, not yet
+    timed on a GPU; asked for only). None of the four changes the
     function beyond rounding; None (the default) picks what was measured fastest within
     the drift bound (:func:`.precision.fast_path`; figures in docs/performance.md); the TF32
     stem, faster but further from fp32, only when asked for.
@@ -84,7 +87,7 @@ class FeatureNet:
                  channels_last: bool | None = None, fp32_stem: bool = True,
                  cudnn_benchmark: bool = True, differences: bool | None = None,
                  tf32_stem: bool = False, fused: bool | None = None,
-                 pad_stem: bool | None = None) -> None:
+                 pad_stem: bool | None = None, split_stem: str | None = None) -> None:
         if not 1 <= n_levels <= 6:
             raise CGVQMError(f"n_levels must be 1..6, got {n_levels}")
         try:
@@ -117,13 +120,19 @@ class FeatureNet:
         self.cudnn_benchmark = bool(cudnn_benchmark)
         fast = fast_path(self.device, self.dtype, fp32_stem=self.fp32_stem,
                          differences=self.differences, fuse_bn=self.fuse_bn,
-                         tf32_stem=tf32_stem, fused=fused, pad_stem=pad_stem)
+                         tf32_stem=tf32_stem, fused=fused, pad_stem=pad_stem,
+                         split_stem=split_stem, tf32_net=precision == "tf32")
         self.tf32_stem, self.fused, self.pad_stem = fast.tf32_stem, fast.fused, fast.pad_stem
+        self.split_stem = fast.split_stem
         for key, on in (("tf32_stem", self.tf32_stem), ("fused", self.fused),
                         ("pad_stem", self.pad_stem)):
             if on:
                 self.precision_info[key] = True
+        if self.split_stem:
+            self.precision_info["split_stem"] = self.split_stem
         self._fused_proven = False
+        self._split: SplitStem | None = None  # made by _build when split_stem
+        self._split_checked = False  # the int split's input checked once, on the first pass
         self.model = self._build(backbone, max(n_levels - 2, 0), self.fuse_bn)
         # made once: a tensor built from a list on CUDA is a blocking copy, which would
         # make the host wait for the GPU at every pass
@@ -154,8 +163,14 @@ class FeatureNet:
         if self.channels_last:
             model = model.to(memory_format=torch.channels_last_3d)
         stem = model.stages()[0]
-        if self.pad_stem and isinstance(stem, nn.Sequential) \
-                and isinstance(stem[0], nn.Conv3d):
+        plain_stem = isinstance(stem, nn.Sequential) and isinstance(stem[0], nn.Conv3d)
+        if self.split_stem and plain_stem:
+            self._split = SplitStem(self.split_stem, MEAN, STD, self.device)
+            stem[0] = self._split.conv(stem[0], self.channels_last)
+        elif self.split_stem:
+            raise CGVQMError(f"a split stem needs a plain 3D convolution as the stem; "
+                             f"{backbone.arch} has none")
+        if self.pad_stem and plain_stem:
             stem[0] = pad_stem_conv(stem[0], padded_channels(stem[0].weight.dtype),
                                     self.channels_last)
         else:
@@ -166,8 +181,17 @@ class FeatureNet:
         return model
 
     def stem_input(self, x: torch.Tensor) -> torch.Tensor:
-        """What the stem convolves: ``x`` in the stem's dtype, zero-padded when ``pad_stem``."""
+        """What the stem convolves: ``x`` in the stem's dtype, zero-padded when ``pad_stem``,
+        split into TF32 numbers when ``split_stem``."""
         dtype = self.stage_dtypes[0]
+        if self.split_stem:
+            try:
+                assert self._split is not None
+                out = self._split.input(x, self.channels_last, check=not self._split_checked)
+            except ValueError as exc:
+                raise CGVQMError(str(exc)) from None
+            self._split_checked = True
+            return out
         if self.pad_stem:
             return padded_input(x, self.model.stem[0].in_channels, dtype, self.channels_last)
         return x.to(dtype)
@@ -176,7 +200,8 @@ class FeatureNet:
         """Stage ``i`` (0 is the stem) on ``h``: fused when asked and possible, the stem in
         TF32 when asked. A cuDNN without the fused operation for these shapes turns fusion
         off for this network (recorded in :attr:`precision_info`) on its first call."""
-        with cudnn_tf32(True) if i == 0 and self.tf32_stem else contextlib.nullcontext():
+        tf32 = i == 0 and (self.tf32_stem or self.split_stem is not None)
+        with cudnn_tf32(True) if tf32 else contextlib.nullcontext():
             if self.fused and fusable(stage):
                 try:
                     out = fused_stage(stage, h)
@@ -208,7 +233,7 @@ class FeatureNet:
             yield x
             stages = self.model.stages()[: self.n_levels - 1]
             if self.dtype == torch.float32:
-                h = self.stem_input(x) if self.pad_stem else x
+                h = self.stem_input(x) if self.pad_stem or self.split_stem else x
                 for i, stage in enumerate(stages):
                     h = self.run_stage(i, stage, h)
                     yield h / torch.linalg.vector_norm(h, dim=1, keepdim=True).add_(EPS)

@@ -182,7 +182,8 @@ class CGVQM:
     the stem in fp32 under bf16/fp16, which removes most of the drift; ``differences``
     (default: on for bf16) carries each test's activations as exact differences from its
     reference's (:mod:`.ref_delta`), which removes most of the rest. ``tf32_stem``,
-    ``fused`` and ``pad_stem`` are GPU speed-ups (:class:`~.features.FeatureNet`).
+    ``fused``, ``pad_stem`` and ``split_stem`` are GPU speed-ups
+    (:class:`~.features.FeatureNet`).
     ``seamless=True`` runs patches with a halo so features do not depend on the patch grid
     (:mod:`.seamless`; not upstream-identical, marked ``mode: seamless``, no error maps).
     ``batch_size`` is videos per network pass (default on a CPU: 2 for patches up to
@@ -214,6 +215,7 @@ class CGVQM:
         tf32_stem: bool = False,
         fused: bool | None = None,
         pad_stem: bool | None = None,
+        split_stem: str | None = None,
     ) -> None:
         self.weights = resolve_weights(weights, variant, allow_download=allow_download)
         self.variant = self.weights.variant
@@ -231,7 +233,8 @@ class CGVQM:
                               precision=precision, fuse_bn=fuse_bn, channels_last=channels_last,
                               cudnn_benchmark=cudnn_benchmark,
                               fp32_stem=fp32_stem, differences=differences,
-                              tf32_stem=tf32_stem, fused=fused, pad_stem=pad_stem)
+                              tf32_stem=tf32_stem, fused=fused, pad_stem=pad_stem,
+                              split_stem=split_stem)
         self.scorer = PatchScorer(self.net, self.weights.level_weights(), self.weights.alpha,
                                   batch_size=batch_size)
         self._omega_abs = np.abs(self.weights.omega).astype(np.float64)

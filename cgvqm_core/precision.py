@@ -35,6 +35,7 @@ from pathlib import Path
 import torch
 
 from .errors import CGVQMError
+from .stem_input import SPLITS
 
 PRECISIONS = ("auto", "fp32", "tf32", "bf16", "fp16")
 AUTO = {"cpu": "fp32", "cuda": "tf32"}
@@ -203,11 +204,13 @@ class FastPath:
     tf32_stem: bool  # fp16's fp32 stem in TF32: x1.47, but q off by up to 0.14 (opt-in)
     fused: bool  # convolution, bias, residual and ReLU in one cuDNN call
     pad_stem: bool  # a 16-byte stem voxel: faster in TF32, slower in true fp32
+    split_stem: str | None = None  # fp32's stem from one TF32 convolution (not yet timed)
 
 
 def fast_path(device: torch.device, dtype: torch.dtype, *, fp32_stem: bool, differences: bool,
               fuse_bn: bool, tf32_stem: bool, fused: bool | None,
-              pad_stem: bool | None) -> FastPath:
+              pad_stem: bool | None, split_stem: str | None = None,
+              tf32_net: bool = False) -> FastPath:
     """The fast path for this device and precision; an explicit choice that cannot apply is
     refused with the reason.
 
@@ -217,6 +220,12 @@ def fast_path(device: torch.device, dtype: torch.dtype, *, fp32_stem: bool, diff
     faster, but moves q against fp32 by up to 0.032 on the demo and, emulated on a CPU, by
     0.068 (CGVQM-2) and 0.14 (CGVQM-5) on real content far below q = 0, over the 0.05 the
     reduced precisions keep to. Elsewhere none of them.
+
+    ``split_stem`` (:data:`.stem_input.SPLITS`) computes an fp32 stem (strict fp32's, or
+    bf16/fp16's) from one TF32 convolution of split operands, fp32's numbers to about 2^-22;
+    only when asked for until its speed is measured on a GPU. It replaces the padded and the
+    TF32 stem, and is refused for ``tf32_net`` (the tf32 precision keeps upstream's TF32 stem).
+    On a CPU it computes the same numbers, slower (it is how the tests check it).
     """
     cuda = device.type == "cuda"
     if tf32_stem and not (cuda and fp32_stem):
@@ -225,14 +234,27 @@ def fast_path(device: torch.device, dtype: torch.dtype, *, fp32_stem: bool, diff
         raise CGVQMError("fused convolutions need cuDNN: use --device cuda")
     if fused and not fuse_bn:
         raise CGVQMError("fused convolutions need batch norm folded (fuse_bn)")
-    for name, asked in (("fused convolutions", fused), ("a padded stem", pad_stem)):
-        if asked and differences:
-            raise CGVQMError(f"{name} do not apply to tests carried as differences (bf16's "
-                             "default): also turn differences off")
+    if split_stem is not None:
+        if split_stem not in SPLITS:
+            raise CGVQMError(f"split stem must be one of {', '.join(SPLITS)}, got "
+                             f"{split_stem!r}")
+        if tf32_stem:
+            raise CGVQMError("a split stem and a TF32 stem exclude each other: pick one")
+        if tf32_net or not (fp32_stem or dtype == torch.float32):
+            raise CGVQMError("a split stem computes an fp32 stem: use fp32, or bf16/fp16 with "
+                             "the stem in fp32")
+    asked = (("fused convolutions", fused), ("a padded stem", pad_stem),
+             ("a split stem", split_stem is not None))
+    for name, on in asked:
+        if on and differences:
+            raise CGVQMError(f"{name}: not for tests carried as differences (bf16's "
+                             "default); also turn differences off")
     tf32_stem = bool(tf32_stem)
     if fused is None:
         fused = cuda and fuse_bn and not differences
-    if pad_stem is None:
+    if split_stem is not None:
+        pad_stem = False  # the split input is 16-byte aligned already
+    elif pad_stem is None:
         stem_fast = tf32_stem or (dtype != torch.float32 and not fp32_stem)
         pad_stem = cuda and not differences and stem_fast
-    return FastPath(bool(tf32_stem), bool(fused), bool(pad_stem))
+    return FastPath(bool(tf32_stem), bool(fused), bool(pad_stem), split_stem)

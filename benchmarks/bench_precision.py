@@ -162,7 +162,7 @@ OPTIONS = {"tf32stem": {"tf32_stem": True}, "lowstem": {"fp32_stem": False},
            "fused": {"fused": True}, "padstem": {"pad_stem": True},
            "exactstem": {"tf32_stem": False}, "nofused": {"fused": False},
            "nopad": {"pad_stem": False}, "splitstem": {"split_stem": "int"},
-           "split3stem": {"split_stem": "3xtf32"}}
+           "split3stem": {"split_stem": "3xtf32"}, "stem2d": {"stem_2d": True}}
 
 
 def parse_config(label: str) -> tuple[str, dict]:
@@ -176,7 +176,8 @@ def parse_config(label: str) -> tuple[str, dict]:
         if o not in OPTIONS:
             raise ValueError(f"unknown option +{o} in {label!r}; known: {', '.join(OPTIONS)}")
         kw.update(OPTIONS[o])
-    if prec == "bf16" and (kw.get("fused") or kw.get("pad_stem") or kw.get("split_stem")):
+    if prec == "bf16" and any(kw.get(k) for k in ("fused", "pad_stem", "split_stem",
+                                                    "stem_2d")):
         kw["differences"] = False
     return prec, kw
 
@@ -193,7 +194,7 @@ def main() -> int:
                                          "bf16-plain is bf16 without carrying the tests as "
                                          "differences from their reference; +tf32stem, "
                                          "+lowstem, +fused, +padstem, +splitstem "
-                                         "(int), +split3stem (3xtf32) (or +exactstem, "
+                                         "(int), +split3stem (3xtf32), +stem2d (or +exactstem, "
                                          "+nofused, +nopad) set GPU options, e.g. "
                                          "fp16+exactstem")
     ap.add_argument("--variants", default="cgvqm-2,cgvqm-5")

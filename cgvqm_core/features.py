@@ -22,7 +22,7 @@ from .fused_conv import fusable, fused_stage
 from .hub import Backbone
 from .precision import DTYPES, PRECISIONS, check, cudnn_tf32, fast_path, resolve, tf32_mode
 from .ref_delta import LevelPair, RefTape, difference_levels
-from .stem_input import SplitStem, pad_stem_conv, padded_channels, padded_input
+from .stem_input import FramesStem, SplitStem, pad_stem_conv, padded_channels, padded_input
 from .unit_norm import EPS, unit_norm_fp32
 
 #: torchvision's Kinetics-400 normalisation (applied after scaling uint8 to [0, 1])
@@ -76,10 +76,12 @@ class FeatureNet:
     input channels (:mod:`.stem_input`; meant for cuDNN). ``split_stem`` (``"int"`` or
     ``"3xtf32"``, :mod:`.stem_input`) computes the fp32 stem as one TF32 convolution of
     split operands, fp32's numbers to about 2^-22 (a candidate for fp16's speed, not yet
-    timed on a GPU; asked for only). None of the four changes the
-    function beyond rounding; None (the default) picks what was measured fastest within
-    the drift bound (:func:`.precision.fast_path`; figures in docs/performance.md); the TF32
-    stem, faster but further from fp32, only when asked for.
+    timed on a GPU; asked for only). ``stem_2d`` computes the stem as one 2D convolution
+    over all frames with its temporal taps as channels (:class:`.stem_input.FramesStem`;
+    the same products, another kernel; asked for only, not yet timed on a GPU). None of
+    them changes the function beyond rounding; None (the default) picks what was measured
+    fastest within the drift bound (:func:`.precision.fast_path`; figures in
+    docs/performance.md); the TF32 stem, faster but further from fp32, only when asked for.
     """
 
     def __init__(self, backbone: Backbone, n_levels: int, *, device: str | torch.device = "cpu",
@@ -87,7 +89,8 @@ class FeatureNet:
                  channels_last: bool | None = None, fp32_stem: bool = True,
                  cudnn_benchmark: bool = True, differences: bool | None = None,
                  tf32_stem: bool = False, fused: bool | None = None,
-                 pad_stem: bool | None = None, split_stem: str | None = None) -> None:
+                 pad_stem: bool | None = None, split_stem: str | None = None,
+                 stem_2d: bool = False) -> None:
         if not 1 <= n_levels <= 6:
             raise CGVQMError(f"n_levels must be 1..6, got {n_levels}")
         try:
@@ -121,11 +124,12 @@ class FeatureNet:
         fast = fast_path(self.device, self.dtype, fp32_stem=self.fp32_stem,
                          differences=self.differences, fuse_bn=self.fuse_bn,
                          tf32_stem=tf32_stem, fused=fused, pad_stem=pad_stem,
-                         split_stem=split_stem, tf32_net=precision == "tf32")
+                         split_stem=split_stem, tf32_net=precision == "tf32",
+                         stem_2d=stem_2d)
         self.tf32_stem, self.fused, self.pad_stem = fast.tf32_stem, fast.fused, fast.pad_stem
-        self.split_stem = fast.split_stem
+        self.split_stem, self.stem_2d = fast.split_stem, fast.stem_2d
         for key, on in (("tf32_stem", self.tf32_stem), ("fused", self.fused),
-                        ("pad_stem", self.pad_stem)):
+                        ("pad_stem", self.pad_stem), ("stem_2d", self.stem_2d)):
             if on:
                 self.precision_info[key] = True
         if self.split_stem:
@@ -170,7 +174,19 @@ class FeatureNet:
         elif self.split_stem:
             raise CGVQMError(f"a split stem needs a plain 3D convolution as the stem; "
                              f"{backbone.arch} has none")
-        if self.pad_stem and plain_stem:
+        if self.stem_2d:
+            if not plain_stem or stem[0].stride[0] != 1:
+                raise CGVQMError(f"a 2D stem needs a plain 3D convolution of temporal stride "
+                                 f"1 as the stem; {backbone.arch} has none")
+            channels = None  # or the taps' channels padded to 16-byte voxels
+            if self.pad_stem and self.channels_last:
+                unit = padded_channels(stem[0].weight.dtype)
+                channels = -(-stem[0].kernel_size[0] * stem[0].in_channels // unit) * unit
+            stem[0] = FramesStem(stem[0], self.channels_last, channels)
+            self.pad_stem = bool(channels)
+            if not self.pad_stem:
+                self.precision_info.pop("pad_stem", None)
+        elif self.pad_stem and plain_stem:
             stem[0] = pad_stem_conv(stem[0], padded_channels(stem[0].weight.dtype),
                                     self.channels_last)
         else:
@@ -192,7 +208,7 @@ class FeatureNet:
                 raise CGVQMError(str(exc)) from None
             self._split_checked = True
             return out
-        if self.pad_stem:
+        if self.pad_stem and not self.stem_2d:  # (a 2D stem pads what it builds itself)
             return padded_input(x, self.model.stem[0].in_channels, dtype, self.channels_last)
         return x.to(dtype)
 

@@ -1,10 +1,12 @@
 """The stem's convolution rewritten over more input channels, for cuDNN's fast kernels.
 
-Two rewrites, each a new stem convolution and the input it takes:
+Three rewrites, each a new stem convolution and the input it takes:
 
 - **Padded** (:func:`pad_stem_conv`, :func:`padded_input`): zero channels, same function.
 - **Split** (:class:`SplitStem`): fp32's function from one TF32 convolution, for a fast
   stem that is not TF32's (see below).
+- **Frames** (:class:`FramesStem`): the 3D convolution as one 2D convolution over all
+  frames, its temporal taps as input channels (see below).
 
 Padding. The stem convolves 3-channel video. In the channels-last layout a voxel's three values
 are 12 bytes (fp32) or 6 bytes (bf16/fp16), which rules out cuDNN's vectorised kernels:
@@ -33,6 +35,14 @@ that matter at fp32's precision become extra input channels of one TF32 convolut
 Either way the products are exact, their sum fp32, and the result within about 2^-22 of the
 fp32 stem in relative terms: fp32's numbers, at whatever speed cuDNN's TF32 kernels give
 8 or 12 channels (to be measured on a GPU).
+
+Frames. The stem's temporal stride is 1, so output frame t sees input frames t-1, t and
+t+1 with the same weights wherever t is. Stacking those frames' channels (9, zeros beyond
+the clip's ends, as the 3D convolution pads) makes the stem a 7x7 conv2d over every frame
+at once: the same products in another order, so fp32's numbers in fp32. cuDNN's fp32 conv3d
+ran the stem at about 16 TFLOP/s on an H200, a quarter of its fp32 units; its 2D kernels
+are tuned for far more networks (whether they do better here is for a GPU to show). It
+composes with a split: the split convolution is a 3D convolution like the stem's.
 """
 
 from __future__ import annotations
@@ -40,6 +50,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 SPLITS = ("int", "3xtf32")
@@ -84,6 +95,78 @@ def padded_input(x: torch.Tensor, channels: int, dtype: torch.dtype, channels_la
     out[..., c:].zero_()
     out[..., :c].copy_(x.permute(0, 2, 3, 4, 1))
     return out.permute(0, 4, 1, 2, 3)
+
+
+def frames_as_channels(x: torch.Tensor, taps: int, pad: int, channels_last: bool,
+                       channels: int | None = None) -> torch.Tensor:
+    """(B, C, T, H, W) as (B*T', taps*C, H, W), T' = T + 2 ``pad`` - ``taps`` + 1 (the
+    frames a temporal convolution of ``taps`` taps and ``pad`` zeros at each end outputs):
+    for output frame t the channels of input frames t - ``pad`` ... t - ``pad`` + ``taps``
+    - 1 in that order, zeros for frames beyond the ends; then zero channels up to
+    ``channels`` (channels-last only), in ``x``'s dtype and the channels-last layout or not."""
+    b, c, t, h, w = x.shape
+    n = channels or taps * c
+    t_out = t + 2 * pad - taps + 1
+    if t_out < 1:
+        raise ValueError(f"{t} frames are fewer than {taps} taps with {pad} padding")
+    if n < taps * c or (n != taps * c and not channels_last):
+        raise ValueError(f"{taps * c} channels cannot be padded to {n}"
+                         + ("" if channels_last else " in the contiguous layout"))
+    if channels_last:
+        out = torch.empty((b, t_out, h, w, n), dtype=x.dtype, device=x.device)
+        src = x.permute(0, 2, 3, 4, 1)  # (B, T, H, W, C)
+        dst = [out[..., k * c: (k + 1) * c] for k in range(taps)]
+        out[..., taps * c:].zero_()
+    else:
+        out = torch.empty((b, t_out, taps, c, h, w), dtype=x.dtype, device=x.device)
+        src = x.transpose(1, 2)  # (B, T, C, H, W)
+        dst = [out[:, :, k] for k in range(taps)]
+    for k, d in enumerate(dst):
+        # output frames j with a source frame j - pad + k inside the clip
+        lo, hi = max(0, pad - k), max(0, min(t_out, t + pad - k))
+        d[:, :lo].zero_()
+        d[:, hi:].zero_()
+        if hi > lo:
+            d[:, lo:hi].copy_(src[:, lo - pad + k: hi - pad + k])
+    if channels_last:
+        return out.view(b * t_out, h, w, n).permute(0, 3, 1, 2)
+    return out.view(b * t_out, n, h, w)
+
+
+class FramesStem(nn.Module):
+    """A 3D convolution of temporal stride 1 computed as one 2D convolution over all frames,
+    its temporal taps as input channels (``channels`` pads them with zeros, channels-last
+    only). Same function, same products, in another order."""
+
+    def __init__(self, conv: nn.Conv3d, channels_last: bool, channels: int | None = None
+                 ) -> None:
+        super().__init__()
+        kt, kh, kw = conv.kernel_size
+        if conv.stride[0] != 1 or conv.dilation[0] != 1 or conv.groups != 1 \
+                or isinstance(conv.padding, str) or conv.padding_mode != "zeros":
+            raise ValueError("the temporal taps become channels only for a convolution with "
+                             "temporal stride 1, no dilation, no groups and zero padding")
+        o, c = conv.out_channels, conv.in_channels
+        n = channels or kt * c
+        w = conv.weight.detach()
+        w2 = torch.zeros((o, n, kh, kw), dtype=w.dtype, device=w.device)
+        w2[:, : kt * c] = w.permute(0, 2, 1, 3, 4).reshape(o, kt * c, kh, kw)
+        if channels_last:
+            w2 = w2.contiguous(memory_format=torch.channels_last)
+        self.weight = nn.Parameter(w2, requires_grad=False)
+        self.bias = None if conv.bias is None else nn.Parameter(conv.bias.detach().clone(),
+                                                                requires_grad=False)
+        self.taps, self.pad = kt, conv.padding[0]
+        self.stride, self.padding = conv.stride[1:], conv.padding[1:]
+        self.dilation = conv.dilation[1:]
+        self.channels_last = channels_last
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        frames = frames_as_channels(x.to(self.weight.dtype), self.taps, self.pad,
+                                    self.channels_last, self.weight.shape[1])
+        y = F.conv2d(frames, self.weight, self.bias, self.stride, self.padding,
+                     self.dilation)
+        return y.unflatten(0, (x.shape[0], -1)).transpose(1, 2)  # (B, O, T', H', W')
 
 
 def round_tf32(x: torch.Tensor) -> torch.Tensor:

@@ -17,6 +17,8 @@ them), and a table of the issue's targets, met or missed, is printed last.
                 3 s 1024x1024 with four tests per reference (target bf16/fp16 >= 60 %)
  5. throughput  pairs/min, 3 s 1024x1024, CGVQM-2, four tests per reference, per precision,
                 a batch sweep and peak GPU memory (target 350 in bf16/fp16)
+ 5b. stem_kernels  the stem's convolution alone, each way of stem_kernels.py (cuDNN fp32
+                3D and 2D, TF32, the split stems): s/pair, TFLOP/s, error against float64
  6. stem        experiment: bf16/fp16 with the stem in fp32 (default), TF32 or bf16/fp16:
                 pairs/min and |dq| (the fp32 stem may take a third of the network's time)
  7. fastpath    fused convolution stages, the zero-padded stem and the TF32 stem, alone
@@ -71,6 +73,7 @@ import torch
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 sys.path[:0] = [str(HERE), str(HERE.parent)]
+import stem_kernels as stem_kernels_mod  # noqa: E402
 from bench_cgvqm import (  # noqa: E402
     conv_flops,
     conv_peak_of,
@@ -86,11 +89,13 @@ from bench_cgvqm import (  # noqa: E402
 )
 from bench_dataset import dataset, run_batched, run_upstream  # noqa: E402
 from bench_precision import parse_config  # noqa: E402
+from stem_kernels import stem_conv  # noqa: E402
 from upstream_as_run import UpstreamAsRun  # noqa: E402
 
 from cgvqm_core import CGVQM  # noqa: E402
 from cgvqm_core.features import FeatureNet  # noqa: E402
 from cgvqm_core.hub import Backbone, random_backbone  # noqa: E402
+from cgvqm_core.patch_scorer import default_batch_size  # noqa: E402
 from cgvqm_core.stage_clock import StageClock  # noqa: E402
 
 TARGETS = {  # the issue's, on CUDA
@@ -307,6 +312,22 @@ def throughput(ss: Session) -> dict:
     return out
 
 
+def stem_kernels(ss: Session) -> dict:
+    """The stem's convolution alone, computed each way of :mod:`stem_kernels` on one pass
+    of the 3 s stimuli's patches (at the CUDA default batch): seconds per pair, TFLOP/s,
+    error against float64 and whether that is fp32's numbers within fp16's budget."""
+    frames, patch = ss.sizes.frames, ss.sizes.size3 // 4
+    batch = default_batch_size(ss.device, frames * patch * patch)
+    conv = stem_conv(ss.device)
+    res = stem_kernels_mod.measure(conv, batch, (frames, patch, patch, 3),
+                                   max(3, ss.sizes.repeats))
+    print(f"the stem alone, {batch} x {frames}x{patch}x{patch} per pass, s/pair for 3 s "
+          f"{ss.sizes.size3}x{ss.sizes.size3} with 4 tests per reference (fp16 needs "
+          f"<= {stem_kernels_mod.TARGET_S_PER_PAIR} s for 350 pairs/min):")
+    print("\n".join(stem_kernels_mod.report(res)))
+    return res
+
+
 def stem(ss: Session) -> dict:
     """bf16/fp16 with the stem in fp32 (the default), in TF32, or in the low precision:
     pairs/min on 3 s 1024x1024 (4 tests per reference) and |dq| against fp32."""
@@ -394,7 +415,7 @@ def fastpath(ss: Session) -> dict:
         peak = peak_for(ss, m.net.precision)
         share = 5 * f1 / bb_s / 1e9 / peak
         info = {k: v for k, v in m.net.precision_info.items()
-                if k in ("fused", "pad_stem", "tf32_stem", "split_stem", "fp32_stem",
+                if k in ("fused", "pad_stem", "tf32_stem", "split_stem", "stem_2d", "fp32_stem",
                          "differences")}
         out[config] = {"pairs_per_min": 60 / sec, "s_per_pair": sec, "peak_gpu_gb": gb,
                        "backbone_share": share, "backbone_s": bb_s,
@@ -677,7 +698,8 @@ def drift(ss: Session, precs: str | None = None, name: str = "bench_precision",
 # so that no timed section runs after it)
 PLAN: list[tuple[str, float, Callable[[Session], dict]]] = [
     ("parity", 20, parity), ("defaults", 25, defaults), ("paper_set", 20, paper_set),
-    ("shares", 35, shares), ("throughput", 60, throughput), ("stem", 40, stem),
+    ("shares", 35, shares), ("throughput", 60, throughput),
+    ("stem_kernels", 25, stem_kernels), ("stem", 40, stem),
     ("fastpath", 90, fastpath), ("fast_drift", 45, fast_drift),
     ("real_drift", 45, real_drift),
     ("breakdown", 60, breakdown), ("decoding", 25, decoding), ("drift", 45, drift),
@@ -840,6 +862,12 @@ def summary(ss: Session) -> list[str]:
     for k, (dq, where) in drift_worst(f.get("real_drift") or {}).items():
         row(f"{k}: |dq| on real content <= {t['dq_low']}", f"{dq:.3f} ({where})",
             dq <= t["dq_low"])
+    sk = f.get("stem_kernels")
+    best = stem_kernels_mod.fastest_exact(sk) if sk else None
+    limit = stem_kernels_mod.TARGET_S_PER_PAIR
+    row(f"stem alone with fp32's numbers: <= {limit} s/pair (fastest way)",
+        f"{sk[best]['s_per_pair']:.4f} s ({best})" if best else "-",
+        None if not best else sk[best]["s_per_pair"] <= limit)
     up = f.get("upstream_own", {}).get("cgvqm-2")
     row("against the authors' own run_cgvqm (files, per call)",
         f"x{up['auto']['x']:.2f}, |dq| {up['auto']['dq']:.1e}" if up else "-",

@@ -3,6 +3,8 @@ random batch-norm statistics), small synthetic videos, and the upstream weights 
 
 from __future__ import annotations
 
+import importlib
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +15,7 @@ from cgvqm_core.backbone import build_backbone
 from cgvqm_core.hub import Backbone, from_state_dict
 
 UPSTREAM = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "cgvqm_upstream"
+GPU_BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "gpu"
 
 
 def random_state_dict(seed: int = 123, arch: str = "r3d_18") -> dict[str, torch.Tensor]:
@@ -27,6 +30,16 @@ def random_state_dict(seed: int = 123, arch: str = "r3d_18") -> dict[str, torch.
         elif k.endswith("running_var") or (k.endswith(".weight") and v.ndim == 1):
             sd[k] = torch.rand(v.shape, generator=g) + 0.5
     return sd
+
+
+@pytest.fixture(scope="module")
+def session():
+    """benchmarks/gpu/session.py (and through it stem_kernels.py), imported as it runs."""
+    sys.path.insert(0, str(GPU_BENCH))
+    try:
+        yield importlib.import_module("session")
+    finally:
+        sys.path.remove(str(GPU_BENCH))
 
 
 @pytest.fixture(scope="session")

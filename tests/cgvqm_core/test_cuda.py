@@ -139,24 +139,33 @@ def test_fp16_on_cuda_takes_the_fast_path_by_default(pair, backbone):
     assert d["fused"] is True and d["pad_stem"] is True and d["tf32_stem"] is True
 
 
-@pytest.mark.parametrize("split", ["int", "3xtf32"])
-def test_a_split_stem_in_tf32_computes_the_fp32_stem(pair, backbone, split):
-    """cuDNN's TF32 kernels on the split operands: strict fp32's numbers (the 1e-4 of CPU
-    parity) where the plain TF32 stem moves them visibly; fused, in strict fp32."""
+#: the stem rewrites that keep fp32's numbers: split operands in TF32 kernels, and the stem
+#: as one conv2d over frames (in both layouts)
+EXACT_STEMS = {"split-int": {"split_stem": "int"}, "split-3xtf32": {"split_stem": "3xtf32"},
+               "2d": {"stem_2d": True}, "2d-channels-last": {"stem_2d": True,
+                                                             "channels_last": True}}
+
+
+@pytest.mark.parametrize("stem", EXACT_STEMS.values(), ids=EXACT_STEMS.keys())
+def test_a_rewritten_stem_on_cuda_computes_the_fp32_stem(pair, backbone, stem):
+    """cuDNN's TF32 kernels on the split operands, or its 2D kernels: strict fp32's numbers
+    (the 1e-4 of CPU parity), fused, in strict fp32; under fp16 within fp16's own rounding
+    of its exact-stem default."""
     ref, test = pair
     w = _random_weights("cgvqm-5", 1027, seed=50)
     exact = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision="fp32")
-    split_m = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision="fp32",
-                    split_stem=split)
-    a, b = exact.score(ref, test, fps=8), split_m.score(ref, test, fps=8)
-    d = split_m.provenance()["precision_detail"]
-    assert d["split_stem"] == split and d["fused"] is True and split_m.net._fused_proven
+    m = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision="fp32",
+              **stem)
+    a, b = exact.score(ref, test, fps=8), m.score(ref, test, fps=8)
+    d = m.provenance()["precision_detail"]
+    option = {k: v for k, v in stem.items() if k != "channels_last"}
+    assert all(d[k] == v for k, v in option.items())
+    assert d["fused"] is True and m.net._fused_proven
     for pool in ("max", "mean"):
         assert abs(a.quality(pool) - b.quality(pool)) <= 1e-4
     np.testing.assert_allclose(b.patch_errors, a.patch_errors, rtol=1e-4, atol=1e-6)
-    # fp16 with it: within fp16's own rounding of fp16's exact-stem default
     plain16 = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision="fp16")
-    split16 = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision="fp16",
-                    split_stem=split)
-    c, e = plain16.score(ref, test, fps=8), split16.score(ref, test, fps=8)
+    m16 = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision="fp16",
+                **option)
+    c, e = plain16.score(ref, test, fps=8), m16.score(ref, test, fps=8)
     assert abs(c.quality("max") - e.quality("max")) <= 5e-3

@@ -21,15 +21,6 @@ ROOT = Path(__file__).resolve().parents[2]
 GPU_DIR = ROOT / "benchmarks" / "gpu"
 
 
-@pytest.fixture(scope="module")
-def session():
-    sys.path.insert(0, str(GPU_DIR))
-    try:
-        yield importlib.import_module("session")
-    finally:
-        sys.path.remove(str(GPU_DIR))
-
-
 def _session(session, tmp_path: Path, budget: float):
     args = argparse.Namespace(rehearse=False, json=tmp_path / "s.json", device="cpu")
     ss = session.Session(args, session.Sizes.rehearsal(), ["fp32"], bb=None)
@@ -90,7 +81,7 @@ def test_summary_says_not_measured_for_what_did_not_run(session, tmp_path):
     ss = _session(session, tmp_path, 1.0)
     ss.precs = ["fp32", "bf16"]
     lines = session.summary(ss)
-    assert len(lines) == 7 and all(line.rstrip().endswith("not measured") for line in lines)
+    assert len(lines) == 8 and all(line.rstrip().endswith("not measured") for line in lines)
     assert session.many_gpus(ss)[0].startswith("many GPUs: not modelled")
 
 
@@ -114,9 +105,16 @@ def test_summary_judges_the_targets_from_the_figures(session, tmp_path):
                 "bf16": {"max_pool": {"max": 0.07}, "mean_pool": {"max": 0.03}},
                 "fp16": {"max_pool": {"max": 0.004}, "mean_pool": {"max": 0.003}}}}]}},
         "breakdown": {"decode_one_video_s": 0.8, "fp16": {"pairs_per_min": 200.0}},
+        "stem_kernels": {  # the TF32 stem is fastest, but not fp32's numbers
+            "fp32": {"s_per_pair": 0.10, "error_vs_fp64": 1e-7},
+            "fp32-2d": {"s_per_pair": 0.035, "error_vs_fp64": 1.5e-7},
+            "tf32-pad": {"s_per_pair": 0.02, "error_vs_fp64": 3e-4}},
     })
+    lines = session.summary(ss)
     verdict = {line.split("  ")[1].strip()[:12]: line.rstrip().rsplit(" ", 1)[-1]
-               for line in session.summary(ss)}
+               for line in lines}
+    assert verdict["stem alone w"] == "met"
+    assert "0.0350 s (fp32-2d)" in next(x for x in lines if "stem alone" in x)
     assert verdict["default on c"] == "met"  # x1.6 >= x1.5 at |dq| 2e-4
     assert verdict["default: pap"] == "MISSED"  # x2.4 < x2.5
     assert verdict["bf16: backbo"] == "met" and verdict["fp16: backbo"] == "MISSED"

@@ -22,7 +22,7 @@ from .fused_conv import fusable, fused_stage
 from .hub import Backbone
 from .precision import DTYPES, PRECISIONS, check, cudnn_tf32, fast_path, resolve, tf32_mode
 from .ref_delta import LevelPair, RefTape, difference_levels
-from .stem_input import FramesStem, SplitStem, pad_stem_conv, padded_channels, padded_input
+from .stem_input import StemRewrite
 from .unit_norm import EPS, unit_norm_fp32
 
 #: torchvision's Kinetics-400 normalisation (applied after scaling uint8 to [0, 1])
@@ -135,7 +135,7 @@ class FeatureNet:
         if self.split_stem:
             self.precision_info["split_stem"] = self.split_stem
         self._fused_proven = False
-        self._split: SplitStem | None = None  # made by _build when split_stem
+        self._stem: StemRewrite  # made by _build
         self._split_checked = False  # the int split's input checked once, on the first pass
         self.model = self._build(backbone, max(n_levels - 2, 0), self.fuse_bn)
         # made once: a tensor built from a list on CUDA is a blocking copy, which would
@@ -168,49 +168,32 @@ class FeatureNet:
             model = model.to(memory_format=torch.channels_last_3d)
         stem = model.stages()[0]
         plain_stem = isinstance(stem, nn.Sequential) and isinstance(stem[0], nn.Conv3d)
-        if self.split_stem and plain_stem:
-            self._split = SplitStem(self.split_stem, MEAN, STD, self.device)
-            stem[0] = self._split.conv(stem[0], self.channels_last)
-        elif self.split_stem:
-            raise CGVQMError(f"a split stem needs a plain 3D convolution as the stem; "
-                             f"{backbone.arch} has none")
-        if self.stem_2d:
-            if not plain_stem or stem[0].stride[0] != 1:
-                raise CGVQMError(f"a 2D stem needs a plain 3D convolution of temporal stride "
-                                 f"1 as the stem; {backbone.arch} has none")
-            channels = None  # or the taps' channels padded to 16-byte voxels
-            if self.pad_stem and self.channels_last:
-                unit = padded_channels(stem[0].weight.dtype)
-                channels = -(-stem[0].kernel_size[0] * stem[0].in_channels // unit) * unit
-            stem[0] = FramesStem(stem[0], self.channels_last, channels)
-            self.pad_stem = bool(channels)
-            if not self.pad_stem:
-                self.precision_info.pop("pad_stem", None)
-        elif self.pad_stem and plain_stem:
-            stem[0] = pad_stem_conv(stem[0], padded_channels(stem[0].weight.dtype),
-                                    self.channels_last)
-        else:
-            self.pad_stem = False
+        try:
+            self._stem = StemRewrite(stem[0] if plain_stem else None,
+                                     split=self.split_stem, two_d=self.stem_2d,
+                                     pad=self.pad_stem, channels_last=self.channels_last,
+                                     mean=MEAN, std=STD, device=self.device)
+        except ValueError as exc:
+            raise CGVQMError(f"{exc}; {backbone.arch} has none") from None
+        if self._stem.module is not None:
+            stem[0] = self._stem.module
+        self.pad_stem = self._stem.padded
+        if not self.pad_stem:
             self.precision_info.pop("pad_stem", None)
         for p in model.parameters():
             p.requires_grad_(False)
         return model
 
     def stem_input(self, x: torch.Tensor) -> torch.Tensor:
-        """What the stem convolves: ``x`` in the stem's dtype, zero-padded when ``pad_stem``,
-        split into TF32 numbers when ``split_stem``."""
-        dtype = self.stage_dtypes[0]
-        if self.split_stem:
-            try:
-                assert self._split is not None
-                out = self._split.input(x, self.channels_last, check=not self._split_checked)
-            except ValueError as exc:
-                raise CGVQMError(str(exc)) from None
-            self._split_checked = True
-            return out
-        if self.pad_stem and not self.stem_2d:  # (a 2D stem pads what it builds itself)
-            return padded_input(x, self.model.stem[0].in_channels, dtype, self.channels_last)
-        return x.to(dtype)
+        """What the stem convolves (:meth:`.stem_input.StemRewrite.input`): ``x`` in the
+        stem's dtype, zero-padded when ``pad_stem``, split into TF32 numbers when
+        ``split_stem``."""
+        try:
+            out = self._stem.input(x, self.stage_dtypes[0], check=not self._split_checked)
+        except ValueError as exc:
+            raise CGVQMError(str(exc)) from None
+        self._split_checked = True
+        return out
 
     def run_stage(self, i: int, stage: nn.Module, h: torch.Tensor) -> torch.Tensor:
         """Stage ``i`` (0 is the stem) on ``h``: fused when asked and possible, the stem in
@@ -249,7 +232,7 @@ class FeatureNet:
             yield x
             stages = self.model.stages()[: self.n_levels - 1]
             if self.dtype == torch.float32:
-                h = self.stem_input(x) if self.pad_stem or self.split_stem else x
+                h = self.stem_input(x) if self._stem.rewritten else x
                 for i, stage in enumerate(stages):
                     h = self.run_stage(i, stage, h)
                     yield h / torch.linalg.vector_norm(h, dim=1, keepdim=True).add_(EPS)

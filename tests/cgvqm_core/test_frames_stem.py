@@ -10,10 +10,10 @@ import torch
 
 from cgvqm_core import CGVQM
 from cgvqm_core.errors import CGVQMError
-from cgvqm_core.features import FeatureNet
+from cgvqm_core.features import MEAN, STD, FeatureNet
 from cgvqm_core.hub import random_backbone
 from cgvqm_core.precision import fast_path
-from cgvqm_core.stem_input import FramesStem, frames_as_channels
+from cgvqm_core.stem_input import FramesStem, StemRewrite, frames_as_channels
 
 from .test_parity import _random_weights
 
@@ -124,3 +124,29 @@ def test_2d_stem_rules(backbone):
     assert isinstance(two_d.model.stem[0], FramesStem)
     for a, b in zip(two_d.levels(x), FeatureNet(r21, 2).levels(x), strict=True):
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_the_stem_rewrite_pads_splits_or_leaves_the_convolution():
+    """StemRewrite alone: which module replaces the stem's convolution, and its input."""
+    conv = _stem().float()
+    kw = dict(channels_last=True, mean=MEAN, std=STD)
+    x = torch.randn(1, 3, 4, 12, 12).contiguous(memory_format=torch.channels_last_3d)
+    plain = StemRewrite(conv, split=None, two_d=False, pad=False, **kw)
+    assert plain.module is conv and not plain.rewritten and not plain.padded
+    padded = StemRewrite(conv, split=None, two_d=False, pad=True, **kw)
+    assert padded.padded and padded.rewritten and padded.module.in_channels == 4
+    assert padded.input(x, torch.float32).shape[1] == 4
+    two_d = StemRewrite(conv, split=None, two_d=True, pad=True, **kw)
+    assert two_d.padded and not two_d.rewritten  # it builds its own input
+    assert two_d.module.weight.shape[1] == 12
+    split = StemRewrite(conv, split="3xtf32", two_d=False, pad=True, **kw)
+    assert not split.padded and split.rewritten and split.input(x, torch.float32).shape[1] == 12
+    with torch.no_grad():
+        for r in (padded, two_d, split):
+            torch.testing.assert_close(r.module(r.input(x, torch.float32)), conv(x),
+                                       rtol=1e-5, atol=1e-5)
+    # a stem that is not a plain 3D convolution: padding is left out, the rest refused
+    assert StemRewrite(None, split=None, two_d=False, pad=True, **kw).module is None
+    for bad in (dict(split="int", two_d=False), dict(split=None, two_d=True)):
+        with pytest.raises(ValueError, match="plain 3D convolution"):
+            StemRewrite(None, pad=False, **bad, **kw)

@@ -298,9 +298,7 @@ class StemRewrite:
             return
         if self.split is not None:
             conv = self.split.conv(conv, channels_last)
-        if two_d:
-            if conv.stride[0] != 1:
-                raise ValueError("a 2D stem needs a stem of temporal stride 1")
+        if two_d:  # (FramesStem refuses a temporal stride other than 1)
             channels = None  # or the taps' channels padded to 16-byte voxels
             if pad and channels_last and self.split is None:
                 unit = padded_channels(conv.weight.dtype)

@@ -89,7 +89,6 @@ from bench_cgvqm import (  # noqa: E402
 )
 from bench_dataset import dataset, run_batched, run_upstream  # noqa: E402
 from bench_precision import parse_config  # noqa: E402
-from stem_kernels import stem_conv  # noqa: E402
 from upstream_as_run import UpstreamAsRun  # noqa: E402
 
 from cgvqm_core import CGVQM  # noqa: E402
@@ -318,8 +317,8 @@ def stem_kernels(ss: Session) -> dict:
     error against float64 and whether that is fp32's numbers within fp16's budget."""
     frames, patch = ss.sizes.frames, ss.sizes.size3 // 4
     batch = default_batch_size(ss.device, frames * patch * patch)
-    conv = stem_conv(ss.device)
-    res = stem_kernels_mod.measure(conv, batch, (frames, patch, patch, 3),
+    net = stem_kernels_mod.stem_net(ss.device)
+    res = stem_kernels_mod.measure(net, batch, (frames, patch, patch, 3),
                                    max(3, ss.sizes.repeats))
     print(f"the stem alone, {batch} x {frames}x{patch}x{patch} per pass, s/pair for 3 s "
           f"{ss.sizes.size3}x{ss.sizes.size3} with 4 tests per reference (fp16 needs "

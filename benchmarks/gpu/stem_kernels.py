@@ -38,7 +38,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from cgvqm_core.features import MEAN, STD
+from cgvqm_core.features import MEAN, STD, FeatureNet
 from cgvqm_core.hub import random_backbone
 from cgvqm_core.precision import cudnn_tf32
 from cgvqm_core.stem_input import FramesStem, SplitStem, pad_stem_conv, padded_input
@@ -56,33 +56,22 @@ TARGET_S_PER_PAIR = 0.04
 Stem = Callable[[torch.Tensor], torch.Tensor]
 
 
-def stem_conv(device: str, seed: int = 0) -> nn.Conv3d:
-    """The R3D-18 stem convolution of a random backbone with its batch norm folded in (the
-    values of the published weights do not change the timings)."""
-    sd = random_backbone(seed).state_dict
-    w = sd["stem.0.weight"].double()
-    bn = {k: sd[f"stem.1.{k}"].double() for k in ("weight", "bias", "running_mean",
-                                                 "running_var")}
-    scale = bn["weight"] / torch.sqrt(bn["running_var"] + 1e-5)
-    conv = nn.Conv3d(3, 64, (3, 7, 7), stride=(1, 2, 2), padding=(1, 3, 3), bias=True,
-                     device=device)
-    with torch.no_grad():
-        conv.weight.copy_((w * scale.view(-1, 1, 1, 1, 1)).float())
-        conv.bias.copy_((bn["bias"] - bn["running_mean"] * scale).float())
-    conv.requires_grad_(False)
-    return conv
+def stem_net(device: str, seed: int = 0) -> FeatureNet:
+    """A strict-fp32 network of a random backbone, batch norm folded, channels-last (the
+    values of the published weights do not change the timings): its stem convolution
+    (``model.stem[0]``) is what every kind computes, its :meth:`~FeatureNet.to_input` what
+    they take."""
+    return FeatureNet(random_backbone(seed), 2, device=device, precision="fp32",
+                      fuse_bn=True, channels_last=True)
 
 
-def pixels(shape: tuple[int, int, int, int], batch: int, device: str, seed: int = 0
+def pixels(net: FeatureNet, shape: tuple[int, int, int, int], batch: int, seed: int = 0
            ) -> torch.Tensor:
-    """``batch`` random uint8 videos of (frames, height, width, 3) normalised as the network
-    takes them: (B, 3, T, H, W) float32 in the channels-last layout."""
+    """``batch`` random uint8 videos of (frames, height, width, 3) as ``net`` takes them:
+    (B, 3, T, H, W) float32, normalised, channels-last."""
     g = torch.Generator().manual_seed(seed)
-    u8 = torch.randint(0, 256, (batch, *shape), generator=g, dtype=torch.uint8)
-    x = u8.to(device).permute(0, 4, 1, 2, 3).float().div_(255)
-    mean = torch.tensor(MEAN, device=device).view(1, 3, 1, 1, 1)
-    std = torch.tensor(STD, device=device).view(1, 3, 1, 1, 1)
-    return x.sub_(mean).div_(std)
+    return net.to_input(torch.randint(0, 256, (batch, *shape), generator=g,
+                                      dtype=torch.uint8))
 
 
 def make(kind: str, conv: nn.Conv3d) -> Stem:
@@ -139,18 +128,18 @@ def error(out: torch.Tensor, ref: torch.Tensor) -> float:
     return float((out.double().cpu() - ref).abs().max() / ref.abs().max())
 
 
-def measure(conv: nn.Conv3d, batch: int, shape: tuple[int, int, int, int], repeats: int,
+def measure(net: FeatureNet, batch: int, shape: tuple[int, int, int, int], repeats: int,
             check_shape: tuple[int, int, int, int] = (6, 64, 64, 3),
             kinds: tuple[str, ...] = KINDS,
             clock: Callable[[], float] = time.perf_counter) -> dict[str, dict]:
     """Each kind's best time per pass of ``batch`` videos of ``shape`` (T, H, W, 3), its
     seconds per pair (3 s 1024x1024, four tests per reference; :data:`PATCH_VIDEOS_PER_PAIR`)
     and TFLOP/s, and its error against float64 on a small input."""
-    dev = conv.weight.device
-    cuda = dev.type == "cuda"
-    small = pixels(check_shape, 1, str(dev), seed=1)
+    conv = net.model.stem[0]
+    cuda = net.device.type == "cuda"
+    small = pixels(net, check_shape, 1, seed=1)
     ref = exact(conv, small)
-    x = pixels(shape, batch, str(dev))
+    x = pixels(net, shape, batch)
     t, h, w = shape[:3]
     flops = 2 * batch * t * (h // 2) * (w // 2) * conv.weight.numel()
     saved = torch.backends.cudnn.benchmark
@@ -216,8 +205,7 @@ def main() -> int:
     ap.add_argument("--size", type=int, default=256, help="patch height and width")
     ap.add_argument("--repeats", type=int, default=5)
     a = ap.parse_args()
-    conv = stem_conv(a.device)
-    res = measure(conv, a.batch, (a.frames, a.size, a.size, 3), a.repeats)
+    res = measure(stem_net(a.device), a.batch, (a.frames, a.size, a.size, 3), a.repeats)
     print(f"stem alone, {a.batch} x {a.frames}x{a.size}x{a.size} per pass on {a.device}:")
     print("\n".join(report(res)))
     return 0

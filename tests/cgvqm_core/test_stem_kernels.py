@@ -18,15 +18,20 @@ def sk(session):
 
 
 @pytest.fixture(scope="module")
-def conv(sk):
-    c = sk.stem_conv("cpu", seed=3)
+def net(sk):
+    n = sk.stem_net("cpu", seed=3)
     with torch.no_grad():  # a bias that is not zero, so that every kind must add it
-        c.bias.copy_(torch.linspace(-0.5, 0.5, c.out_channels))
-    return c
+        n.model.stem[0].bias.copy_(torch.linspace(-0.5, 0.5, 64))
+    return n
 
 
-def test_every_kind_computes_the_float64_stem_to_fp32_precision(sk, conv):
-    x = sk.pixels((7, 30, 26, 3), 2, "cpu", seed=5)  # odd sizes: borders on every side
+@pytest.fixture(scope="module")
+def conv(net):
+    return net.model.stem[0]
+
+
+def test_every_kind_computes_the_float64_stem_to_fp32_precision(sk, net, conv):
+    x = sk.pixels(net, (7, 30, 26, 3), 2, seed=5)  # odd sizes: borders on every side
     ref = sk.exact(conv, x)
     assert ref.shape == (2, 64, 7, 15, 13)
     with torch.inference_mode():
@@ -38,9 +43,9 @@ def test_every_kind_computes_the_float64_stem_to_fp32_precision(sk, conv):
     assert sk.error(F.conv3d(x, conv.weight, None, conv.stride, conv.padding), ref) > 1e-3
 
 
-def test_measure_times_every_kind_and_the_report_says_which_keep_fp32s_numbers(sk, conv):
+def test_measure_times_every_kind_and_the_report_says_which_keep_fp32s_numbers(sk, net):
     ticks = iter(range(10_000))
-    res = sk.measure(conv, 2, (4, 16, 16, 3), 2, check_shape=(4, 16, 16, 3),
+    res = sk.measure(net, 2, (4, 16, 16, 3), 2, check_shape=(4, 16, 16, 3),
                      clock=lambda: float(next(ticks)))  # each timed call takes 1 "s"
     assert list(res) == list(sk.KINDS)
     for r in res.values():

@@ -162,7 +162,8 @@ OPTIONS = {"tf32stem": {"tf32_stem": True}, "lowstem": {"fp32_stem": False},
            "fused": {"fused": True}, "padstem": {"pad_stem": True},
            "exactstem": {"tf32_stem": False}, "nofused": {"fused": False},
            "nopad": {"pad_stem": False}, "splitstem": {"split_stem": "int"},
-           "split3stem": {"split_stem": "3xtf32"}, "stem2d": {"stem_2d": True}}
+           "split3stem": {"split_stem": "3xtf32"}, "stem2d": {"stem_2d": True},
+           "s2d": {"stem_2d": True, "stem_s2d": True}}
 
 
 def parse_config(label: str) -> tuple[str, dict]:
@@ -177,7 +178,7 @@ def parse_config(label: str) -> tuple[str, dict]:
             raise ValueError(f"unknown option +{o} in {label!r}; known: {', '.join(OPTIONS)}")
         kw.update(OPTIONS[o])
     if prec == "bf16" and any(kw.get(k) for k in ("fused", "pad_stem", "split_stem",
-                                                    "stem_2d")):
+                                                    "stem_2d", "stem_s2d")):
         kw["differences"] = False
     return prec, kw
 
@@ -194,7 +195,8 @@ def main() -> int:
                                          "bf16-plain is bf16 without carrying the tests as "
                                          "differences from their reference; +tf32stem, "
                                          "+lowstem, +fused, +padstem, +splitstem "
-                                         "(int), +split3stem (3xtf32), +stem2d (or +exactstem, "
+                                         "(int), +split3stem (3xtf32), +stem2d, +s2d (the 2D stem "
+                                         "over its stride phases) (or +exactstem, "
                                          "+nofused, +nopad) set GPU options, e.g. "
                                          "fp16+exactstem")
     ap.add_argument("--variants", default="cgvqm-2,cgvqm-5")

@@ -9,7 +9,7 @@ of the network in exact fp32.
 - TF32: both operands of the stem's convolution rounded to 10 mantissa bits (to nearest,
   ties away from zero, as the GPU converts them), products summed in fp32.
 - fp16: operands and output rounded to fp16, products summed in fp32.
-- split-int, split-3xtf32: the split stems of ``cgvqm_core.stem_input`` as they run (their
+- split-int, split-3xtf32: the split stems of ``cgvqm_core.stem.split`` as they run (their
   operands are TF32 numbers already, so a CPU computes what the GPU's TF32 kernel does, up
   to summation order).
 - fp64: the stem in float64, rounded once to fp32: the control, how far fp32's own stem
@@ -60,8 +60,8 @@ from bench_precision import manifest_set, pair_set, real_set, score_set, weights
 
 from cgvqm_core import CGVQM
 from cgvqm_core.hub import random_backbone
-from cgvqm_core.stem_input import SPLITS
-from cgvqm_core.stem_input import round_tf32 as tf32
+from cgvqm_core.stem import SPLITS
+from cgvqm_core.stem import round_tf32 as tf32
 
 H100_TF32_DQ = (2.23e-3, 1.95e-3)  # max, mean pooling; bench_cgvqm_cuda.txt
 

@@ -22,7 +22,7 @@ from .fused_conv import fusable, fused_stage
 from .hub import Backbone
 from .precision import DTYPES, PRECISIONS, check, cudnn_tf32, fast_path, resolve, tf32_mode
 from .ref_delta import LevelPair, RefTape, difference_levels
-from .stem_input import StemRewrite
+from .stem import StemRewrite
 from .unit_norm import EPS, unit_norm_fp32
 
 #: torchvision's Kinetics-400 normalisation (applied after scaling uint8 to [0, 1])
@@ -73,12 +73,14 @@ class FeatureNet:
     ``tf32_stem`` lets that fp32 stem use cuDNN's TF32 mode (CUDA). ``fused`` runs each
     convolution with its bias, residual and ReLU as one cuDNN call (:mod:`.fused_conv`;
     CUDA, batch norm folded). ``pad_stem`` gives the stem a 16-byte voxel by adding zero
-    input channels (:mod:`.stem_input`; meant for cuDNN). ``split_stem`` (``"int"`` or
-    ``"3xtf32"``, :mod:`.stem_input`) computes the fp32 stem as one TF32 convolution of
+    input channels (:mod:`.stem`; meant for cuDNN). ``split_stem`` (``"int"`` or
+    ``"3xtf32"``, :mod:`.stem`) computes the fp32 stem as one TF32 convolution of
     split operands, fp32's numbers to about 2^-22 (a candidate for fp16's speed, not yet
     timed on a GPU; asked for only). ``stem_2d`` computes the stem as one 2D convolution
-    over all frames with its temporal taps as channels (:class:`.stem_input.FramesStem`;
-    the same products, another kernel; asked for only, not yet timed on a GPU). None of
+    over all frames with its temporal taps as channels (:class:`.stem.FramesStem`;
+    the same products, another kernel; asked for only, not yet timed on a GPU); ``stem_s2d``
+    runs that 2D stem over its input's stride phases as channels (space-to-depth,
+    :class:`.stem.PhaseConv2d`; a 2D stem implied; asked for only). None of
     them changes the function beyond rounding; None (the default) picks what was measured
     fastest within the drift bound (:func:`.precision.fast_path`; figures in
     docs/performance.md); the TF32 stem, faster but further from fp32, only when asked for.
@@ -90,7 +92,7 @@ class FeatureNet:
                  cudnn_benchmark: bool = True, differences: bool | None = None,
                  tf32_stem: bool = False, fused: bool | None = None,
                  pad_stem: bool | None = None, split_stem: str | None = None,
-                 stem_2d: bool = False) -> None:
+                 stem_2d: bool = False, stem_s2d: bool = False) -> None:
         if not 1 <= n_levels <= 6:
             raise CGVQMError(f"n_levels must be 1..6, got {n_levels}")
         try:
@@ -125,11 +127,13 @@ class FeatureNet:
                          differences=self.differences, fuse_bn=self.fuse_bn,
                          tf32_stem=tf32_stem, fused=fused, pad_stem=pad_stem,
                          split_stem=split_stem, tf32_net=precision == "tf32",
-                         stem_2d=stem_2d)
+                         stem_2d=stem_2d, stem_s2d=stem_s2d)
         self.tf32_stem, self.fused, self.pad_stem = fast.tf32_stem, fast.fused, fast.pad_stem
         self.split_stem, self.stem_2d = fast.split_stem, fast.stem_2d
+        self.stem_s2d = fast.stem_s2d
         for key, on in (("tf32_stem", self.tf32_stem), ("fused", self.fused),
-                        ("pad_stem", self.pad_stem), ("stem_2d", self.stem_2d)):
+                        ("pad_stem", self.pad_stem), ("stem_2d", self.stem_2d),
+                        ("stem_s2d", self.stem_s2d)):
             if on:
                 self.precision_info[key] = True
         if self.split_stem:
@@ -172,7 +176,8 @@ class FeatureNet:
             self._stem = StemRewrite(stem[0] if plain_stem else None,
                                      split=self.split_stem, two_d=self.stem_2d,
                                      pad=self.pad_stem, channels_last=self.channels_last,
-                                     mean=MEAN, std=STD, device=self.device)
+                                     mean=MEAN, std=STD, device=self.device,
+                                     space_to_depth=self.stem_s2d)
         except ValueError as exc:
             raise CGVQMError(f"{exc}; {backbone.arch} has none") from None
         if self._stem.module is not None:
@@ -185,7 +190,7 @@ class FeatureNet:
         return model
 
     def stem_input(self, x: torch.Tensor) -> torch.Tensor:
-        """What the stem convolves (:meth:`.stem_input.StemRewrite.input`): ``x`` in the
+        """What the stem convolves (:meth:`.stem.StemRewrite.input`): ``x`` in the
         stem's dtype, zero-padded when ``pad_stem``, split into TF32 numbers when
         ``split_stem``."""
         try:

@@ -182,7 +182,7 @@ class CGVQM:
     the stem in fp32 under bf16/fp16, which removes most of the drift; ``differences``
     (default: on for bf16) carries each test's activations as exact differences from its
     reference's (:mod:`.ref_delta`), which removes most of the rest. ``tf32_stem``,
-    ``fused``, ``pad_stem``, ``split_stem`` and ``stem_2d`` are GPU speed-ups
+    ``fused``, ``pad_stem``, ``split_stem``, ``stem_2d`` and ``stem_s2d`` are GPU speed-ups
     (:class:`~.features.FeatureNet`).
     ``seamless=True`` runs patches with a halo so features do not depend on the patch grid
     (:mod:`.seamless`; not upstream-identical, marked ``mode: seamless``, no error maps).
@@ -217,6 +217,7 @@ class CGVQM:
         pad_stem: bool | None = None,
         split_stem: str | None = None,
         stem_2d: bool = False,
+        stem_s2d: bool = False,
     ) -> None:
         self.weights = resolve_weights(weights, variant, allow_download=allow_download)
         self.variant = self.weights.variant
@@ -235,7 +236,7 @@ class CGVQM:
                               cudnn_benchmark=cudnn_benchmark,
                               fp32_stem=fp32_stem, differences=differences,
                               tf32_stem=tf32_stem, fused=fused, pad_stem=pad_stem,
-                              split_stem=split_stem, stem_2d=stem_2d)
+                              split_stem=split_stem, stem_2d=stem_2d, stem_s2d=stem_s2d)
         self.scorer = PatchScorer(self.net, self.weights.level_weights(), self.weights.alpha,
                                   batch_size=batch_size)
         self._omega_abs = np.abs(self.weights.omega).astype(np.float64)

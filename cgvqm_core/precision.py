@@ -35,7 +35,7 @@ from pathlib import Path
 import torch
 
 from .errors import CGVQMError
-from .stem_input import SPLITS
+from .stem import SPLITS
 
 PRECISIONS = ("auto", "fp32", "tf32", "bf16", "fp16")
 AUTO = {"cpu": "fp32", "cuda": "tf32"}
@@ -206,12 +206,14 @@ class FastPath:
     pad_stem: bool  # a 16-byte stem voxel: faster in TF32, slower in true fp32
     split_stem: str | None = None  # fp32's stem from one TF32 convolution (not yet timed)
     stem_2d: bool = False  # the stem as one conv2d over frames (not yet timed)
+    stem_s2d: bool = False  # that conv2d over its stride phases (not yet timed)
 
 
 def fast_path(device: torch.device, dtype: torch.dtype, *, fp32_stem: bool, differences: bool,
               fuse_bn: bool, tf32_stem: bool, fused: bool | None,
               pad_stem: bool | None, split_stem: str | None = None,
-              tf32_net: bool = False, stem_2d: bool = False) -> FastPath:
+              tf32_net: bool = False, stem_2d: bool = False, stem_s2d: bool = False
+              ) -> FastPath:
     """The fast path for this device and precision; an explicit choice that cannot apply is
     refused with the reason.
 
@@ -222,15 +224,17 @@ def fast_path(device: torch.device, dtype: torch.dtype, *, fp32_stem: bool, diff
     0.068 (CGVQM-2) and 0.14 (CGVQM-5) on real content far below q = 0, over the 0.05 the
     reduced precisions keep to. Elsewhere none of them.
 
-    ``split_stem`` (:data:`.stem_input.SPLITS`) computes an fp32 stem (strict fp32's, or
+    ``split_stem`` (:data:`.stem.SPLITS`) computes an fp32 stem (strict fp32's, or
     bf16/fp16's) from one TF32 convolution of split operands, fp32's numbers to about 2^-22;
     only when asked for until its speed is measured on a GPU. It replaces the padded and the
     TF32 stem, and is refused for ``tf32_net`` (the tf32 precision keeps upstream's TF32 stem).
     On a CPU it computes the same numbers, slower (it is how the tests check it).
 
-    ``stem_2d`` runs the stem as one conv2d over all frames (:class:`.stem_input.FramesStem`),
+    ``stem_2d`` runs the stem as one conv2d over all frames (:class:`.stem.FramesStem`),
     in whatever precision the stem has, a split stem's too (its 8 or 12 channels times the
-    three temporal taps); only when asked for until it is timed on a GPU.
+    three temporal taps); only when asked for until it is timed on a GPU. ``stem_s2d`` (a 2D
+    stem implied) runs that conv2d as a stride-1 one over its input's stride phases
+    (space-to-depth, :class:`.stem.PhaseConv2d`): a 4x4 kernel over four times the channels.
     """
     cuda = device.type == "cuda"
     if tf32_stem and not (cuda and fp32_stem):
@@ -249,7 +253,7 @@ def fast_path(device: torch.device, dtype: torch.dtype, *, fp32_stem: bool, diff
             raise CGVQMError("a split stem computes an fp32 stem: use fp32, or bf16/fp16 with "
                              "the stem in fp32")
     asked = (("fused convolutions", fused), ("a padded stem", pad_stem),
-             ("a split stem", split_stem is not None), ("a 2D stem", stem_2d))
+             ("a split stem", split_stem is not None), ("a 2D stem", stem_2d or stem_s2d))
     for name, on in asked:
         if on and differences:
             raise CGVQMError(f"{name}: not for tests carried as differences (bf16's "
@@ -262,4 +266,5 @@ def fast_path(device: torch.device, dtype: torch.dtype, *, fp32_stem: bool, diff
     elif pad_stem is None:
         stem_fast = tf32_stem or (dtype != torch.float32 and not fp32_stem)
         pad_stem = cuda and not differences and stem_fast
-    return FastPath(bool(tf32_stem), bool(fused), bool(pad_stem), split_stem, bool(stem_2d))
+    return FastPath(bool(tf32_stem), bool(fused), bool(pad_stem), split_stem,
+                    bool(stem_2d or stem_s2d), bool(stem_s2d))

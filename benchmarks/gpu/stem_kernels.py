@@ -17,13 +17,18 @@ The candidates (each the stem's convolution with its bias, fp32 out):
   conv2d. The stem's temporal stride is 1, so output frame t sees input frames t-1, t, t+1:
   stacking them gives 9 channels and a 7x7 conv2d over all frames at once, the same
   products in another order (cuDNN's 2D kernels are tuned far more than its 3D ones;
-  :class:`cgvqm_core.stem_input.FramesStem`, ``stem_2d=True``): channels-last, padded
+  :class:`cgvqm_core.stem.FramesStem`, ``stem_2d=True``): channels-last, padded
   with zero channels to 12 (16-byte multiples), or contiguous;
+- ``fp32-s2d``, ``fp32-s2d-nchw``: that conv2d over its input's stride phases
+  (space-to-depth, :class:`cgvqm_core.stem.PhaseConv2d`, ``stem_s2d=True``): a 4x4 kernel
+  of stride 1 over 36 channels instead of a 7x7 one of stride 2 over 9, as ResNet-50's
+  stem is commonly rewritten for tensor cores; channels-last or contiguous;
 - ``tf32-pad``: the TF32 stem padded to 4 channels (``--fast-stem``; not fp32's numbers, the
   speed to beat);
-- ``split-int``, ``split-3xtf32``: the split stems of :mod:`cgvqm_core.stem_input` (fp32's
+- ``split-int``, ``split-3xtf32``: the split stems of :mod:`cgvqm_core.stem.split` (fp32's
   numbers from one TF32 convolution of 8 or 12 channels), the time to make their input
-  included; ``split-int-2d``: the int split as a 2D stem (24 channels).
+  included; ``split-int-2d``: the int split as a 2D stem (24 channels);
+  ``split-int-s2d``: that over its stride phases (96 channels).
 
     python benchmarks/gpu/stem_kernels.py --device cuda
 """
@@ -41,10 +46,11 @@ from torch import nn
 from cgvqm_core.features import MEAN, STD, FeatureNet
 from cgvqm_core.hub import random_backbone
 from cgvqm_core.precision import cudnn_tf32
-from cgvqm_core.stem_input import FramesStem, SplitStem, pad_stem_conv, padded_input
+from cgvqm_core.stem import FramesStem, SplitStem, pad_stem_conv, padded_input
 
-KINDS = ("fp32", "fp32-ncdhw", "fp32-2d", "fp32-2d-pad", "fp32-2d-nchw", "tf32-pad",
-         "split-int", "split-3xtf32", "split-int-2d")
+KINDS = ("fp32", "fp32-ncdhw", "fp32-2d", "fp32-2d-pad", "fp32-2d-nchw", "fp32-s2d",
+         "fp32-s2d-nchw", "tf32-pad", "split-int", "split-3xtf32", "split-int-2d",
+         "split-int-s2d")
 """The candidates, in the order they are timed."""
 
 #: patch videos (30 frames of 256x256) per pair of 3 s 1024x1024 stimuli with four tests per
@@ -87,10 +93,11 @@ def make(kind: str, conv: nn.Conv3d) -> Stem:
             with cudnn_tf32(False):
                 return F.conv3d(x, w, conv.bias, conv.stride, conv.padding)
         return plain
-    if kind.startswith("fp32-2d"):
-        cl = kind != "fp32-2d-nchw"
+    if kind.startswith(("fp32-2d", "fp32-s2d")):
+        cl = not kind.endswith("-nchw")
         taps = conv.kernel_size[0] * conv.in_channels  # 9; padded to a multiple of 4: 12
-        run2d = FramesStem(conv, cl, -(-taps // 4) * 4 if kind == "fp32-2d-pad" else None)
+        run2d = FramesStem(conv, cl, -(-taps // 4) * 4 if kind == "fp32-2d-pad" else None,
+                           space_to_depth=kind.startswith("fp32-s2d"))
 
         def two_d(x: torch.Tensor) -> torch.Tensor:
             with cudnn_tf32(False):
@@ -104,11 +111,11 @@ def make(kind: str, conv: nn.Conv3d) -> Stem:
                 return padded(padded_input(x, 4, torch.float32, True))
         return tf32
     if kind.startswith("split-"):
-        name = kind.removeprefix("split-").removesuffix("-2d")
+        name = kind.removeprefix("split-").removesuffix("-2d").removesuffix("-s2d")
         split = SplitStem(name, MEAN, STD, dev)
         sconv = split.conv(conv, True)
-        if kind.endswith("-2d"):
-            sconv = FramesStem(sconv, True)
+        if kind.endswith("2d"):
+            sconv = FramesStem(sconv, True, space_to_depth=kind.endswith("-s2d"))
 
         def split_run(x: torch.Tensor) -> torch.Tensor:
             with cudnn_tf32(True):

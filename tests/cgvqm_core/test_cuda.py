@@ -143,14 +143,16 @@ def test_fp16_on_cuda_takes_the_fast_path_by_default(pair, backbone):
 #: as one conv2d over frames (in both layouts)
 EXACT_STEMS = {"split-int": {"split_stem": "int"}, "split-3xtf32": {"split_stem": "3xtf32"},
                "2d": {"stem_2d": True}, "2d-channels-last": {"stem_2d": True,
-                                                             "channels_last": True}}
+                                                             "channels_last": True},
+               "s2d": {"stem_s2d": True},
+               "split-int-s2d": {"split_stem": "int", "stem_s2d": True}}
 
 
 @pytest.mark.parametrize("stem", EXACT_STEMS.values(), ids=EXACT_STEMS.keys())
 def test_a_rewritten_stem_on_cuda_computes_the_fp32_stem(pair, backbone, stem):
-    """cuDNN's TF32 kernels on the split operands, or its 2D kernels: strict fp32's numbers
-    (the 1e-4 of CPU parity), fused, in strict fp32; under fp16 within fp16's own rounding
-    of its exact-stem default."""
+    """cuDNN's TF32 kernels on the split operands, or its 2D kernels (over the stride phases
+    too): strict fp32's numbers (the 1e-4 of CPU parity), fused, in strict fp32; under fp16
+    within fp16's own rounding of its exact-stem default."""
     ref, test = pair
     w = _random_weights("cgvqm-5", 1027, seed=50)
     exact = CGVQM("cgvqm-5", weights=w, backbone=backbone, device="cuda", precision="fp32")

@@ -15,7 +15,7 @@ from cgvqm_core.errors import CGVQMError
 from cgvqm_core.features import FeatureNet, _fuse_batchnorm
 from cgvqm_core.fused_conv import REFERENCE, fusable, fused_stage
 from cgvqm_core.precision import fast_path
-from cgvqm_core.stem_input import pad_stem_conv, padded_channels, padded_input
+from cgvqm_core.stem import pad_stem_conv, padded_channels, padded_input
 from cgvqm_core.unit_norm import EPS, unit_norm_fp32
 
 from .conftest import random_state_dict

@@ -13,11 +13,17 @@ from cgvqm_core.errors import CGVQMError
 from cgvqm_core.features import MEAN, STD, FeatureNet
 from cgvqm_core.hub import random_backbone
 from cgvqm_core.precision import fast_path
-from cgvqm_core.stem_input import FramesStem, StemRewrite, frames_as_channels
+from cgvqm_core.stem import FramesStem, PhaseConv2d, StemRewrite, frames_as_channels
 
 from .test_parity import _random_weights
 
 CUDA = torch.device("cuda")
+
+
+def assert_same_levels(net_a: FeatureNet, net_b: FeatureNet, x: torch.Tensor) -> None:
+    """Both networks' level activations for ``x`` agree to fp32's summation noise."""
+    for a, b in zip(net_a.levels(x), net_b.levels(x), strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
 
 
 def _stem(kernel=(3, 7, 7), stride=(1, 2, 2), padding=(1, 3, 3), cin=3) -> torch.nn.Conv3d:
@@ -74,15 +80,20 @@ def test_a_temporally_strided_convolution_is_refused():
         FramesStem(_stem(stride=(2, 2, 2)), True)
 
 
-def test_scores_with_the_2d_stem_are_fp32_scores(vids, backbone):
+@pytest.mark.parametrize("option", ["stem_2d", "stem_s2d"])
+def test_scores_with_a_2d_stem_are_fp32_scores(vids, backbone, option):
+    """The 2D stem, and the 2D stem over its stride phases (space-to-depth)."""
     ref = vids.smooth(3, 10, 40, 36)
     test = vids.distort(ref, seed=5)
     w = _random_weights("cgvqm-5", 1027, seed=9)
     plain = CGVQM("cgvqm-5", weights=w, backbone=backbone).score(ref, test, fps=8)
     for cl in (True, False):
-        m = CGVQM("cgvqm-5", weights=w, backbone=backbone, stem_2d=True, channels_last=cl)
-        assert isinstance(m.net.model.stem[0], FramesStem)
-        assert m.provenance()["precision_detail"]["stem_2d"] is True
+        m = CGVQM("cgvqm-5", weights=w, backbone=backbone, channels_last=cl, **{option: True})
+        stem = m.net.model.stem[0]
+        assert isinstance(stem, FramesStem)
+        assert isinstance(stem.conv2d, PhaseConv2d) == (option == "stem_s2d")
+        detail = m.provenance()["precision_detail"]
+        assert detail["stem_2d"] is True and detail[option] is True
         res = m.score(ref, test, fps=8)
         assert np.abs(res.msd - plain.msd).max() < 1e-5 * np.abs(plain.msd).max()
         assert abs(res.q - plain.q) < 1e-4
@@ -104,26 +115,24 @@ def test_2d_stem_rules(backbone):
     assert (both.stem_2d, both.split_stem, both.pad_stem) == (True, "int", False)
     # the 16-byte padding of a 2D stem: the nine taps' channels to 12 in fp32
     net = FeatureNet(backbone, 3, stem_2d=True, pad_stem=True)
-    assert net.model.stem[0].weight.shape[1] == 12 and net.pad_stem
+    assert net.model.stem[0].in_channels == 12 and net.pad_stem
     flat = FeatureNet(backbone, 3, stem_2d=True, pad_stem=True, channels_last=False)
-    assert flat.model.stem[0].weight.shape[1] == 9 and not flat.pad_stem
+    assert flat.model.stem[0].in_channels == 9 and not flat.pad_stem
     assert "pad_stem" not in flat.precision_info
     x = torch.randn(1, 3, 4, 16, 16)
-    for a, b in zip(net.levels(x), flat.levels(x), strict=True):
-        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
-    # a split stem as a 2D stem: the split's 8 channels times 3 taps, fp32's numbers still
+    assert_same_levels(net, flat, x)
+    # a split stem as a 2D stem: the split's 8 channels times 3 taps (times 4 stride phases
+    # with space-to-depth), fp32's numbers still
     pixels = torch.randint(0, 256, (1, 4, 16, 16, 3), dtype=torch.uint8)
-    split2d = FeatureNet(backbone, 3, split_stem="int", stem_2d=True)
-    assert split2d.model.stem[0].weight.shape[1] == 24
-    px = split2d.to_input(pixels)
-    for a, b in zip(split2d.levels(px), flat.levels(px), strict=True):
-        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+    for option, channels in (("stem_2d", 24), ("stem_s2d", 96)):
+        split2d = FeatureNet(backbone, 3, split_stem="int", **{option: True})
+        assert split2d.model.stem[0].in_channels == channels
+        assert_same_levels(split2d, flat, split2d.to_input(pixels))
     # R(2+1)D's stem starts with a (1, 7, 7) convolution: one tap, a conv2d per frame
     r21 = random_backbone(0, arch="r2plus1d_18")
     two_d = FeatureNet(r21, 2, stem_2d=True)
     assert isinstance(two_d.model.stem[0], FramesStem)
-    for a, b in zip(two_d.levels(x), FeatureNet(r21, 2).levels(x), strict=True):
-        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+    assert_same_levels(two_d, FeatureNet(r21, 2), x)
 
 
 def test_the_stem_rewrite_pads_splits_or_leaves_the_convolution():
@@ -138,7 +147,7 @@ def test_the_stem_rewrite_pads_splits_or_leaves_the_convolution():
     assert padded.input(x, torch.float32).shape[1] == 4
     two_d = StemRewrite(conv, split=None, two_d=True, pad=True, **kw)
     assert two_d.padded and not two_d.rewritten  # it builds its own input
-    assert two_d.module.weight.shape[1] == 12
+    assert two_d.module.in_channels == 12
     split = StemRewrite(conv, split="3xtf32", two_d=False, pad=True, **kw)
     assert not split.padded and split.rewritten and split.input(x, torch.float32).shape[1] == 12
     with torch.no_grad():

@@ -69,6 +69,43 @@ def test_sections_run_in_order_are_skipped_when_short_and_cut_at_the_deadline(
     time.sleep(0.05)
 
 
+def test_what_a_section_measured_before_the_deadline_is_kept(session, tmp_path, monkeypatch):
+    """fastpath's way: figures filled into :meth:`Session.partial` as they come."""
+    def measuring(ss):
+        out = ss.partial("measuring")
+        for config in ("first", "second"):
+            out[config] = {"pairs_per_min": 1.0}
+            ss.save()
+            time.sleep(0.6)  # the second waits past the 1 s deadline
+        return out
+
+    monkeypatch.setattr(session, "PLAN", [("measuring", 0, measuring)])
+    session.run_plan(_session(session, tmp_path, 1.0), None)
+    saved = json.loads((tmp_path / "s.json").read_text())
+    assert saved["sections"]["measuring"]["status"] == "cut at the deadline"
+    assert saved["measuring"] == {"first": {"pairs_per_min": 1.0},
+                                  "second": {"pairs_per_min": 1.0}}
+
+
+def test_configuration_labels_become_cgvqm_arguments(session):
+    import inspect
+
+    from cgvqm_core import CGVQM
+
+    parse = session.parse_config
+    assert parse("fp16+splitstem+s2d") == ("fp16", {"split_stem": "int", "stem_2d": True,
+                                                    "stem_s2d": True})
+    assert parse("bf16+s2d")[1]["differences"] is False  # a 2D stem: no differences
+    assert parse("bf16-plain") == ("bf16", {"differences": False})
+    with pytest.raises(ValueError, match=r"unknown option \+phases"):
+        parse("fp16+phases")
+    # every label the sessions use names arguments CGVQM takes
+    known = set(inspect.signature(CGVQM).parameters)
+    bench = sys.modules[session.parse_config.__module__]
+    for option in bench.OPTIONS.values():
+        assert set(option) <= known, option
+
+
 def test_only_runs_the_named_sections(session, tmp_path, monkeypatch):
     ran: list[str] = []
     monkeypatch.setattr(session, "PLAN", [

@@ -13,7 +13,7 @@ from cgvqm_core import CGVQM
 from cgvqm_core.errors import CGVQMError
 from cgvqm_core.features import MEAN, STD, FeatureNet
 from cgvqm_core.precision import fast_path
-from cgvqm_core.stem_input import SPLITS, SplitStem, round_tf32
+from cgvqm_core.stem import SPLITS, SplitStem, round_tf32
 
 from .test_fast_paths import _folded
 from .test_parity import _random_weights

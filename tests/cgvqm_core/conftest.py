@@ -42,6 +42,12 @@ def session():
         sys.path.remove(str(GPU_BENCH))
 
 
+@pytest.fixture(scope="module")
+def targets(session):
+    """benchmarks/gpu/targets.py: the issue's targets and the session's verdicts on them."""
+    return sys.modules["targets"]
+
+
 @pytest.fixture(scope="session")
 def state_dict() -> dict[str, torch.Tensor]:
     return random_state_dict()

@@ -114,15 +114,15 @@ def test_only_runs_the_named_sections(session, tmp_path, monkeypatch):
     assert ran == ["a", "c"]  # the plan's order, not the request's
 
 
-def test_summary_says_not_measured_for_what_did_not_run(session, tmp_path):
+def test_summary_says_not_measured_for_what_did_not_run(session, targets, tmp_path):
     ss = _session(session, tmp_path, 1.0)
     ss.precs = ["fp32", "bf16"]
-    lines = session.summary(ss)
+    lines = targets.summary(ss)
     assert len(lines) == 8 and all(line.rstrip().endswith("not measured") for line in lines)
-    assert session.many_gpus(ss)[0].startswith("many GPUs: not modelled")
+    assert targets.many_gpus(ss)[0].startswith("many GPUs: not modelled")
 
 
-def test_summary_judges_the_targets_from_the_figures(session, tmp_path):
+def test_summary_judges_the_targets_from_the_figures(session, targets, tmp_path):
     ss = _session(session, tmp_path, 1.0)
     ss.precs = ["fp32", "tf32", "bf16", "fp16"]
     ss.fig.update({
@@ -147,7 +147,7 @@ def test_summary_judges_the_targets_from_the_figures(session, tmp_path):
             "fp32-2d": {"s_per_pair": 0.035, "error_vs_fp64": 1.5e-7},
             "tf32-pad": {"s_per_pair": 0.02, "error_vs_fp64": 3e-4}},
     })
-    lines = session.summary(ss)
+    lines = targets.summary(ss)
     verdict = {line.split("  ")[1].strip()[:12]: line.rstrip().rsplit(" ", 1)[-1]
                for line in lines}
     assert verdict["stem alone w"] == "met"
@@ -157,8 +157,8 @@ def test_summary_judges_the_targets_from_the_figures(session, tmp_path):
     assert verdict["bf16: backbo"] == "met" and verdict["fp16: backbo"] == "MISSED"
     assert verdict["bf16/fp16: >"] == "met"  # 351 from fp16
     assert verdict["bf16: |dq| a"] == "MISSED" and verdict["fp16: |dq| a"] == "met"
-    assert session.drift_worst(ss.fig["drift"])["bf16"] == (0.07, "cgvqm-5, max pooling")
-    model = session.many_gpus(ss)[0]
+    assert targets.drift_worst(ss.fig["drift"])["bf16"] == (0.07, "cgvqm-5, max pooling")
+    model = targets.many_gpus(ss)[0]
     # one GPU reads files at 200 pairs/min (351 from memory); a pair decodes 1.25 videos =
     # 1.0 s of a core
     assert "N x 200 pairs/min" in model and "351 from memory" in model
@@ -173,17 +173,17 @@ def test_summary_judges_the_targets_from_the_figures(session, tmp_path):
     ss.fig["fast_drift"] = {"figures": {"results": [{"variant": "cgvqm-5", "other": {
         "fp16": {"max_pool": {"max": 0.03}, "mean_pool": {"max": 0.01}},
         "bf16+x": {"max_pool": {"max": 0.08}, "mean_pool": {"max": 0.01}}}}]}}
-    model = session.many_gpus(ss)[0]
+    model = targets.many_gpus(ss)[0]
     assert "380 from memory" in model and "measured at 300 pairs/min" in model
     assert "N <= 1.5 GPUs" in model  # 300 / 200
-    rows = [line for line in session.summary(ss) if "fast paths" in line]
+    rows = [line for line in targets.summary(ss) if "fast paths" in line]
     assert "380 (fp16)" in rows[0] and rows[0].endswith("met")
     assert "70 % (fp16)" in rows[1] and rows[1].endswith("met")
     # real content has the last word: over the bound there, a fast path no longer counts
     ss.fig["real_drift"] = {"figures": {"results": [{"variant": "cgvqm-2", "other": {
         "fp16": {"max_pool": {"max": 0.07}, "mean_pool": {"max": 0.01}}}}]}}
-    assert session.fast_within_bound(ss.fig) == {}
-    rows = [line for line in session.summary(ss) if "real content" in line]
+    assert targets.fast_within_bound(ss.fig) == {}
+    rows = [line for line in targets.summary(ss) if "real content" in line]
     assert len(rows) == 1 and "fp16" in rows[0] and rows[0].endswith("MISSED")
 
 

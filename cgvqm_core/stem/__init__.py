@@ -11,6 +11,8 @@ rewrite here is a new stem convolution and the input it takes:
 - :mod:`.phases`: a strided 2D convolution as a stride-1 one over its input's stride phases
   (space-to-depth), for a 2D stem;
 - :mod:`.rewrite`: which of them a network runs (:class:`StemRewrite`).
+
+:mod:`.windows` makes their inputs: strided windows of the input, zeros around them.
 """
 
 from .frames import FramesStem, frames_as_channels

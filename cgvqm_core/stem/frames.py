@@ -14,7 +14,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .phases import PhaseConv2d
+from .phases import PhaseConv2d, phase_grid
+from .windows import copy_spans, span
 
 
 def frames_as_channels(x: torch.Tensor, taps: int, pad: int, channels_last: bool,
@@ -41,16 +42,49 @@ def frames_as_channels(x: torch.Tensor, taps: int, pad: int, channels_last: bool
         out = torch.empty((b, t_out, taps, c, h, w), dtype=x.dtype, device=x.device)
         src = x.transpose(1, 2)  # (B, T, C, H, W)
         dst = [out[:, :, k] for k in range(taps)]
-    for k, d in enumerate(dst):
-        # output frames j with a source frame j - pad + k inside the clip
-        lo, hi = max(0, pad - k), max(0, min(t_out, t + pad - k))
-        d[:, :lo].zero_()
-        d[:, hi:].zero_()
-        if hi > lo:
-            d[:, lo:hi].copy_(src[:, lo - pad + k: hi - pad + k])
+    for k, d in enumerate(dst):  # output frame j reads input frame j - pad + k
+        copy_spans(d, src, [span(t, t_out, k - pad, 1)])
     if channels_last:
         return out.view(b * t_out, h, w, n).permute(0, 3, 1, 2)
     return out.view(b * t_out, n, h, w)
+
+
+def frames_phases_as_channels(x: torch.Tensor, taps: int, pad: int,
+                              stride: tuple[int, int], padding: tuple[int, int],
+                              kernel: tuple[int, int], channels_last: bool,
+                              channels: int | None = None) -> torch.Tensor:
+    """:func:`frames_as_channels` then :func:`.phases.phases_as_channels` in one copy of
+    ``x``: (B*T', sh*sw*taps*C, H2, W2), channel ((i*sw + j)*taps + k)*C + c holding
+    channel c of input frame t - ``pad`` + k at padded pixel (sh*a + i, sw*b + j)."""
+    b, c, t, h, w = x.shape
+    (sh, sw), (ph, pw) = stride, padding
+    t_out = t + 2 * pad - taps + 1
+    if t_out < 1:
+        raise ValueError(f"{t} frames are fewer than {taps} taps with {pad} padding")
+    h2, w2 = phase_grid(h, kernel[0], sh, ph), phase_grid(w, kernel[1], sw, pw)
+    blocks = sh * sw * taps
+    n = channels or blocks * c
+    if n < blocks * c or (n != blocks * c and not channels_last):
+        raise ValueError(f"{blocks * c} channels cannot be padded to {n}"
+                         + ("" if channels_last else " in the contiguous layout"))
+    src = x.permute(0, 2, 3, 4, 1)  # (B, T, H, W, C), as every block's view
+    if channels_last:
+        out = torch.empty((b, t_out, h2, w2, n), dtype=x.dtype, device=x.device)
+        out[..., blocks * c:].zero_()
+        dst = [out[..., q * c: (q + 1) * c] for q in range(blocks)]
+    else:
+        out = torch.empty((b, t_out, blocks, c, h2, w2), dtype=x.dtype, device=x.device)
+        dst = [out[:, :, q].permute(0, 1, 3, 4, 2) for q in range(blocks)]
+    for i in range(sh):
+        rows = span(h, h2, i - ph, sh)
+        for j in range(sw):
+            cols = span(w, w2, j - pw, sw)
+            for k in range(taps):
+                copy_spans(dst[(i * sw + j) * taps + k], src,
+                           [span(t, t_out, k - pad, 1), rows, cols])
+    if channels_last:
+        return out.view(b * t_out, h2, w2, n).permute(0, 3, 1, 2)
+    return out.view(b * t_out, n, h2, w2)
 
 
 class FramesStem(nn.Module):
@@ -58,7 +92,7 @@ class FramesStem(nn.Module):
     its temporal taps as input channels (``channels`` pads them with zeros, channels-last
     only). Same function, same products, in another order. ``space_to_depth`` runs that 2D
     convolution over its input's stride phases (:class:`.phases.PhaseConv2d`; ``channels``
-    then pads the phases' channels)."""
+    then pads the phases' channels), frames and phases made in one copy."""
 
     def __init__(self, conv: nn.Conv3d, channels_last: bool, channels: int | None = None,
                  *, space_to_depth: bool = False) -> None:
@@ -99,7 +133,13 @@ class FramesStem(nn.Module):
         return self.conv2d.weight.shape[1]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        frames = frames_as_channels(x.to(self.conv2d.weight.dtype), self.taps, self.pad,
-                                    self.channels_last, self.frame_channels)
-        y = self.conv2d(frames)
+        x = x.to(self.conv2d.weight.dtype)
+        if isinstance(self.conv2d, PhaseConv2d):  # frames and phases in one copy
+            p = self.conv2d
+            y = p.convolve(frames_phases_as_channels(
+                x, self.taps, self.pad, p.stride, p.padding, p.kernel, self.channels_last,
+                self.in_channels))
+        else:
+            y = self.conv2d(frames_as_channels(x, self.taps, self.pad, self.channels_last,
+                                               self.frame_channels))
         return y.unflatten(0, (x.shape[0], -1)).transpose(1, 2)  # (B, O, T', H', W')

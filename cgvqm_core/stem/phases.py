@@ -17,13 +17,16 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from .windows import copy_spans, span
 
-def _grid(size: int, kernel: int, stride: int, pad: int) -> tuple[int, int]:
-    """(outputs, phase-grid length) along one dimension."""
+
+def phase_grid(size: int, kernel: int, stride: int, pad: int) -> int:
+    """Phase-grid length along one axis: what a stride-1 kernel of ceil(``kernel`` /
+    ``stride``) taps needs to give the strided convolution's outputs."""
     out = (size + 2 * pad - kernel) // stride + 1
     if out < 1:
         raise ValueError(f"a kernel of {kernel} with padding {pad} does not fit {size} pixels")
-    return out, out + -(-kernel // stride) - 1
+    return out + -(-kernel // stride) - 1
 
 
 def phases_as_channels(x: torch.Tensor, stride: tuple[int, int], padding: tuple[int, int],
@@ -35,8 +38,7 @@ def phases_as_channels(x: torch.Tensor, stride: tuple[int, int], padding: tuple[
     zero channels up to ``channels`` (channels-last only). One copy of ``x``."""
     n, c, h, w = x.shape
     (sh, sw), (ph, pw) = stride, padding
-    _, h2 = _grid(h, kernel[0], sh, ph)
-    _, w2 = _grid(w, kernel[1], sw, pw)
+    h2, w2 = phase_grid(h, kernel[0], sh, ph), phase_grid(w, kernel[1], sw, pw)
     k = channels or sh * sw * c
     if k < sh * sw * c or (k != sh * sw * c and not channels_last):
         raise ValueError(f"{sh * sw * c} channels cannot be padded to {k}"
@@ -49,22 +51,10 @@ def phases_as_channels(x: torch.Tensor, stride: tuple[int, int], padding: tuple[
         out = torch.empty((n, sh * sw, c, h2, w2), dtype=x.dtype, device=x.device)
         phases = [out[:, p].permute(0, 2, 3, 1) for p in range(sh * sw)]
     src = x.permute(0, 2, 3, 1)  # (N, H, W, C), as every phase view
-    for i in range(sh):
-        # phase rows a read padded row sh*a + i, image row sh*a + i - ph
-        a_lo = min(h2, max(0, -(-(ph - i) // sh)))
-        a_hi = max(a_lo, min(h2, (h - 1 + ph - i) // sh + 1))
+    for i in range(sh):  # phase row a reads padded row sh*a + i, image row sh*a + i - ph
+        rows = span(h, h2, i - ph, sh)
         for j in range(sw):
-            b_lo = min(w2, max(0, -(-(pw - j) // sw)))
-            b_hi = max(b_lo, min(w2, (w - 1 + pw - j) // sw + 1))
-            d = phases[i * sw + j]  # (N, H2, W2, C)
-            d[:, :a_lo].zero_()
-            d[:, a_hi:].zero_()
-            d[:, a_lo:a_hi, :b_lo].zero_()
-            d[:, a_lo:a_hi, b_hi:].zero_()
-            if a_hi > a_lo and b_hi > b_lo:
-                r0, c0 = sh * a_lo + i - ph, sw * b_lo + j - pw
-                d[:, a_lo:a_hi, b_lo:b_hi].copy_(
-                    src[:, r0: r0 + sh * (a_hi - a_lo): sh, c0: c0 + sw * (b_hi - b_lo): sw])
+            copy_spans(phases[i * sw + j], src, [rows, span(w, w2, j - pw, sw)])
     if channels_last:
         return out.permute(0, 3, 1, 2)
     return out.view(n, sh * sw * c, h2, w2)
@@ -106,7 +96,12 @@ class PhaseConv2d(nn.Module):
         self.kernel = tuple(weight.shape[2:])
         self.channels_last = channels_last
 
+    def convolve(self, phases: torch.Tensor) -> torch.Tensor:
+        """The stride-1 convolution over ``phases`` made already (as
+        :func:`phases_as_channels` makes them)."""
+        return F.conv2d(phases, self.weight, self.bias)
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        ph = phases_as_channels(x.to(self.weight.dtype), self.stride, self.padding,
-                                self.kernel, self.channels_last, self.weight.shape[1])
-        return F.conv2d(ph, self.weight, self.bias)
+        return self.convolve(phases_as_channels(x.to(self.weight.dtype), self.stride,
+                                                self.padding, self.kernel,
+                                                self.channels_last, self.weight.shape[1]))

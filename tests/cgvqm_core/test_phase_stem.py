@@ -16,6 +16,8 @@ from cgvqm_core.features import MEAN, STD, FeatureNet
 from cgvqm_core.hub import random_backbone
 from cgvqm_core.precision import fast_path
 from cgvqm_core.stem import FramesStem, PhaseConv2d, StemRewrite, phase_weight, phases_as_channels
+from cgvqm_core.stem.frames import frames_as_channels, frames_phases_as_channels
+from cgvqm_core.stem.windows import span
 
 from .test_frames_stem import assert_same_levels
 
@@ -80,6 +82,32 @@ def test_the_phase_weight_moves_each_tap_to_its_phase():
         u, v = 2 * a + i, 2 * b + j
         want = w[o, c, u, v] if u < 7 and v < 7 else 0.0
         assert p[o, (i * 2 + j) * 3 + c, a, b] == want
+
+
+def test_a_span_is_the_rows_inside_the_source():
+    """Against a brute-force list of the destination rows whose source row exists."""
+    for size, out, offset, step in itertools.product(range(1, 9), range(8), range(-7, 8),
+                                                     (1, 2, 3)):
+        lo, hi, start, st = span(size, out, offset, step)
+        inside = [a for a in range(out) if 0 <= step * a + offset < size]
+        assert (lo, hi) == ((inside[0], inside[-1] + 1) if inside else (lo, lo))
+        assert st == step and (not inside or start == step * lo + offset)
+
+
+@pytest.mark.parametrize("taps,pad", [(3, 1), (1, 0), (2, 0)])
+def test_frames_and_phases_in_one_copy_are_the_two_copies(taps, pad):
+    x = torch.randn(2, 3, 5, 11, 8)
+    for cl, channels in ((True, None), (True, 40), (False, None)):
+        xs = x.contiguous(memory_format=torch.channels_last_3d) if cl else x
+        want = phases_as_channels(frames_as_channels(xs, taps, pad, cl), (2, 2), (3, 3),
+                                  (7, 7), cl)
+        got = frames_phases_as_channels(xs, taps, pad, (2, 2), (3, 3), (7, 7), cl, channels)
+        assert torch.equal(got[:, : want.shape[1]], want), (cl, channels)
+        assert not got[:, want.shape[1]:].any()
+        if cl:
+            assert got.is_contiguous(memory_format=torch.channels_last)
+    with pytest.raises(ValueError, match="fewer than"):
+        frames_phases_as_channels(x[:, :, :1], 3, 0, (2, 2), (3, 3), (7, 7), True)
 
 
 @pytest.mark.parametrize("frames", [1, 2, 7])

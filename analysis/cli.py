@@ -7,7 +7,7 @@ import logging
 import sys
 from pathlib import Path
 
-from stimuli_manifests.cli_runner import run_command
+from stimuli_manifests.cli_runner import OneLineParser, run_command
 
 from .errors import AnalysisError
 from .exports import write_dmos_csv, write_exports
@@ -52,7 +52,7 @@ def _inputs(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="cgvq-analyze",
         description="Ratings to reliability, outlier raters, DMOS, human ceiling and metric "
                     "validation.")

@@ -14,7 +14,7 @@ import logging
 import sys
 from types import ModuleType
 
-from stimuli_manifests.cli_runner import run_command
+from stimuli_manifests.cli_runner import OneLineParser, run_command
 
 from .study_commands import COMMANDS
 
@@ -31,7 +31,7 @@ def _command_modules() -> list[ModuleType]:
 
 
 def build_parser() -> tuple[argparse.ArgumentParser, dict[str, ModuleType]]:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="cgvq-study",
         description="Run a video-quality rating study and prepare its stimuli.",
     )

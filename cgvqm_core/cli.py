@@ -16,7 +16,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from stimuli_manifests.cli_runner import run_command
+from stimuli_manifests.cli_runner import OneLineParser, run_command
 
 from .errors import CGVQMError
 from .metric import quality_label
@@ -94,7 +94,7 @@ def _add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = Fal
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="cgvqm",
+    parser = OneLineParser(prog="cgvqm",
                                      description="Score videos with the CGVQM metric.")
     parser.add_argument("--version", action="version", version=f"cgvqm {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")

@@ -9,8 +9,10 @@ optional library that is not installed, or an operating-system error on a path t
 
 from __future__ import annotations
 
+import argparse
 import sys
 from collections.abc import Callable
+from typing import NoReturn
 
 from .errors import ToolkitError
 from .extras import explain_missing
@@ -22,6 +24,17 @@ EXIT_INTERRUPTED = 130
 def one_line(message: object) -> str:
     """The message folded onto one line (newlines and runs of blanks become one space)."""
     return " ".join(str(message).split())
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse's parser, but a usage error is one line on stderr (exit 2) like every other
+    user error, pointing at ``--help`` rather than printing the usage block. Subcommand
+    parsers made by :meth:`add_subparsers` are of this class too."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)",
+              file=sys.stderr)
+        sys.exit(EXIT_USER_ERROR)
 
 
 def _os_error_text(exc: OSError) -> str:

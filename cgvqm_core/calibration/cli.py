@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from stimuli_manifests import StimuliError
+from stimuli_manifests.cli_runner import OneLineParser
 
 from ..errors import CGVQMError
 from ..ray_options import add_ray_arguments, ray_settings
@@ -230,7 +231,7 @@ def _print_outcome(outcome: CalibrationOutcome, args: argparse.Namespace) -> Non
 
 def main(argv: list[str] | None = None) -> int:
     """Stand-alone entry (``python -m cgvqm_core.calibration.cli``) until hooked into cgvqm."""
-    parser = argparse.ArgumentParser(prog="cgvqm")
+    parser = OneLineParser(prog="cgvqm")
     sub = parser.add_subparsers(dest="command", required=True)
     register(sub)
     return run(parser.parse_args(argv))

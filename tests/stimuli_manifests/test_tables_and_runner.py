@@ -8,7 +8,7 @@ import errno
 import pytest
 
 from stimuli_manifests import tables
-from stimuli_manifests.cli_runner import run_command
+from stimuli_manifests.cli_runner import OneLineParser, run_command
 from stimuli_manifests.errors import MissingExtraError, TableError, ToolkitError
 from stimuli_manifests.extras import explain_missing
 
@@ -75,6 +75,24 @@ def test_runner_turns_user_errors_into_one_line_and_exit_2(capsys):
     assert run_command("prog sub", bad) == 2
     err = capsys.readouterr().err
     assert err == "prog sub: error: first line second line\n"
+
+
+def test_usage_errors_are_one_line_too_in_subcommands(capsys):
+    parser = OneLineParser(prog="tool")
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    run = sub.add_parser("run")
+    run.add_argument("--pool", choices=["max", "mean"])
+    run.add_argument("--steps", type=int)
+    for argv, why in ((["run", "--pool", "median"], "invalid choice: 'median'"),
+                      (["run", "--steps", "x"], "invalid int value: 'x'"),
+                      (["fly"], "invalid choice: 'fly'"), ([], "required: cmd")):
+        with pytest.raises(SystemExit) as exit_:
+            parser.parse_args(argv)
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and why in err, err
+        assert err.startswith("tool") and err.rstrip().endswith("--help)")
+    assert parser.parse_args(["run", "--pool", "max"]).pool == "max"
 
 
 def test_runner_reports_os_errors_on_user_paths(capsys):

@@ -324,6 +324,10 @@ def manifest_units(manifest: str | Path, metrics: Sequence[str], options: Metric
     """One work unit per reference, after checking every input's sha256."""
     loaded = _load(manifest, root)
     stimuli = loaded.manifest.stimuli(include_hidden_references=include_references)
+    if not stimuli:
+        raise CGVQMError(f"{manifest}: lists no test videos to score (no conditions"
+                         + ("" if include_references else "; hidden references are scored "
+                            "only with --include-references") + ")")
     by_ref: dict[str, list[Any]] = {}
     for s in stimuli:
         by_ref.setdefault(s.reference, []).append(s)

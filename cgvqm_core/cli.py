@@ -174,6 +174,9 @@ def _check_options(args: argparse.Namespace) -> None:
     if args.random_backbone is not None:
         check_seed(args.random_backbone, "--random-backbone SEED")
     check_rate(getattr(args, "fps", None), "--fps")
+    png = getattr(args, "emap_png", None)
+    if png and Path(png).exists() and not Path(png).is_dir():
+        raise CGVQMError(f"--emap-png {png}: is a file; give a folder for the error-map PNGs")
     if getattr(args, "fast_stem", False) and not (
             args.precision == "fp16" and str(args.device).startswith("cuda")):
         raise CGVQMError("--fast-stem applies to --precision fp16 on --device cuda only "
@@ -220,7 +223,10 @@ def _learned(args: argparse.Namespace) -> dict[str, Any]:
         if not eq or part.strip().lower() not in PARTS:
             raise CGVQMError(f"--learned-sha256 {spec!r}: give PART=HEX with PART one of "
                              f"{', '.join(PARTS)}")
-        sha[part.strip().lower()] = value.strip()
+        value = value.strip().lower()
+        if len(value) != 64 or any(ch not in "0123456789abcdef" for ch in value):
+            raise CGVQMError(f"--learned-sha256 {spec!r}: the sha256 is 64 hexadecimal digits")
+        sha[part.strip().lower()] = value
     return {"learned_weights": files, "learned_dirs": tuple(dirs), "learned_sha256": sha}
 
 
@@ -337,6 +343,9 @@ def _cmd_score(args: argparse.Namespace) -> int:
             raise CGVQMError(f"--timing is offered for CGVQM only, not {name}")
         return _cmd_score_peer(args, name)
     (metric,) = _metrics(args, [name])
+    if (args.metric or args.variant) and metric.variant != name:
+        raise CGVQMError(f"--weights {args.weights} holds {metric.variant} weights, but {name} "
+                         f"was asked for: drop --variant/--metric, or give {name} weights")
     clock = StageClock(metric.net.device) if args.timing else None
     res = metric.score(args.ref, args.test, pool=args.pool, fps=args.fps,
                        allow_resample=args.allow_resample, emap=args.emap or False,
@@ -414,6 +423,9 @@ def _cmd_weights(args: argparse.Namespace) -> int:
 
     action = args.weights_command
     if action == "fetch":
+        if not args.no_backbone and args.backbone_file and not Path(
+                args.backbone_file).expanduser().is_file():  # before anything is copied
+            raise CGVQMError(f"--backbone-file {args.backbone_file}: no such file")
         for v in weights.VARIANTS:
             path = weights.fetch_upstream(v, source_dir=args.source)
             print(f"{v}: {path} (sha256 verified)")
@@ -425,11 +437,11 @@ def _cmd_weights(args: argparse.Namespace) -> int:
         paths = [Path(p) for p in args.paths] or [
             *(weights.cache_dir() / v.file_name for v in weights.VARIANTS.values()),
             hub.hub_checkpoint_path()]
-        bad = 0
+        bad: list[str] = []
         for p in paths:
             if not p.is_file():
-                print(f"{p}: missing")
-                bad += 1
+                print(f"{p}: {'a folder, not a file' if p.is_dir() else 'missing'}")
+                bad.append(str(p))
                 continue
             if p.suffix == ".pth":
                 bb = hub.load_backbone_file(p)
@@ -438,7 +450,9 @@ def _cmd_weights(args: argparse.Namespace) -> int:
                 w = weights.resolve_weights(p)
                 print(f"{p}: ok ({w.variant}, {w.kind}, sha256 {w.sha256})")
         if bad:
-            raise CGVQMError(f"{bad} file(s) missing; run `cgvqm weights fetch` (see --help)")
+            raise CGVQMError(f"{len(bad)} file(s) missing ({', '.join(bad[:3])}"
+                             f"{', ...' if len(bad) > 3 else ''}); run `cgvqm weights fetch` "
+                             "(see --help)")
         return 0
     if action == "info":
         if args.path:

@@ -87,15 +87,25 @@ def check_state_dict(sd: Mapping[str, torch.Tensor], arch: str, origin: str) -> 
 def load_backbone_file(path: str | Path, arch: str = "r3d_18") -> Backbone:
     """Read a state dict file (tensors only; no code is executed) and check its keys."""
     path = Path(path).expanduser()
+    if path.is_dir():
+        raise CGVQMError(f"{path}: is a folder; give the backbone's state dict file "
+                         f"({BACKBONE_FILE})")
     if not path.is_file():
         raise CGVQMError(f"{path}: no such backbone file; {_offline_message('file missing')}")
+    if path.stat().st_size == 0:
+        raise CGVQMError(f"{path}: the backbone file is empty (an interrupted copy?); copy "
+                         f"{BACKBONE_FILE} again")
     try:
         try:
             sd = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
         except RuntimeError:
             sd = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:
-        raise CGVQMError(f"{path}: not a readable PyTorch state dict ({exc})") from None
+        # torch's own text suggests weights_only=False, which would run the file's code
+        why = ("not a file of tensors only" if "weights_only" in str(exc)
+               else (str(exc).splitlines() or [type(exc).__name__])[0][:200])
+        raise CGVQMError(f"{path}: not a readable PyTorch state dict ({why}); give "
+                         f"the R3D-18 file {BACKBONE_FILE}") from None
     if isinstance(sd, Mapping) and "state_dict" in sd and isinstance(sd["state_dict"], Mapping):
         sd = sd["state_dict"]
     if not isinstance(sd, Mapping):

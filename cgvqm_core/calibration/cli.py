@@ -6,13 +6,14 @@ Hooked into ``cgvqm_core.cli`` with ``register(subparsers)`` and ``run(args)``.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from stimuli_manifests import StimuliError
-from stimuli_manifests.cli_runner import OneLineParser
+from stimuli_manifests.cli_runner import OneLineParser, one_line
 
 from ..errors import CGVQMError
 from ..ray_options import add_ray_arguments, ray_settings
@@ -124,6 +125,21 @@ def _check(args: argparse.Namespace) -> None:
         raise CGVQMError("--repeats must be at least 1")
     if not 0.0 < args.val_ratio < 1.0:
         raise CGVQMError("--val-ratio must be between 0 and 1 (exclusive)")
+    if args.seed < 0:
+        raise CGVQMError(f"--seed {args.seed}: must be 0 or more")
+    for name, value, low in (("--lr-omega", args.lr_omega, "positive"),
+                             ("--lr-alpha", args.lr_alpha, "0 or more"),
+                             ("--alpha-init", args.alpha_init, "positive")):
+        ok = math.isfinite(value) and (value >= 0 if low == "0 or more" else value > 0)
+        if not ok:
+            raise CGVQMError(f"{name} {value:g}: must be a finite number, {low}")
+    out = Path(args.out)
+    if out.suffix.lower() != ".json":
+        raise CGVQMError(f"--out {out}: the weights file is JSON; give a name ending in .json")
+    if out.is_dir():
+        raise CGVQMError(f"--out {out}: is a folder; give a file name ending in .json")
+    if not out.parent.is_dir():
+        raise CGVQMError(f"--out {out}: folder {out.parent} does not exist")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -131,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         return _run(args)
     except (CGVQMError, StimuliError) as exc:
-        print(f"cgvqm: error: {exc}", file=sys.stderr)
+        print(f"cgvqm: error: {one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("cgvqm: interrupted; features computed so far are cached, rerun to continue",
@@ -198,6 +214,11 @@ def _warn_random(source: FeatureSource) -> None:
               file=sys.stderr)
 
 
+def _num(x: float | None) -> str:
+    """A correlation to 3 decimals, or "undefined" (None: constant scores or too few)."""
+    return "undefined" if x is None else f"{x:.3f}"
+
+
 def _print_outcome(outcome: CalibrationOutcome, args: argparse.Namespace) -> None:
     from .validation import format_summary
 
@@ -220,8 +241,8 @@ def _print_outcome(outcome: CalibrationOutcome, args: argparse.Namespace) -> Non
           f"{ff['best_step']}; alpha refitted to {outcome.weights.alpha:.6g}")
     for d, c in ff["correlations_on_fitted_videos"].items():
         extra = f", RMSE after anchoring {c['rmse_anchored']:.2f}" if "rmse_anchored" in c else ""
-        print(f"  {d}: on its own fitted videos (optimistic) PLCC {c['plcc']:.3f}, "
-              f"SRCC {c['srcc']:.3f}, KRCC {c['krcc']:.3f}{extra}")
+        print(f"  {d}: on its own fitted videos (optimistic) PLCC {_num(c['plcc'])}, "
+              f"SRCC {_num(c['srcc'])}, KRCC {_num(c['krcc'])}{extra}")
     if prov.get("warning"):
         print(f"warning: {prov['warning']}")
     print(f"wrote {outcome.path} (use: cgvqm score --weights {outcome.path} ...)")

@@ -48,7 +48,13 @@ def read_dmos_csv(path: str | Path) -> pd.DataFrame:
     if df["stimulus"].duplicated().any():
         dup = df.loc[df["stimulus"].duplicated(), "stimulus"].tolist()[:5]
         raise CGVQMError(f"{path}: stimulus id(s) listed twice: {', '.join(dup)}")
-    df["dmos"] = pd.to_numeric(df["dmos"], errors="coerce")
+    numbers = pd.to_numeric(df["dmos"], errors="coerce")
+    bad = df.loc[numbers.isna() & df["dmos"].notna(), ["stimulus", "dmos"]]
+    if len(bad):
+        shown = ", ".join(f"{s}: {d!r}" for s, d in bad.head(3).itertuples(index=False))
+        raise CGVQMError(f"{path}: {len(bad)} DMOS value(s) are not numbers ({shown}); "
+                         "leave a value empty to leave its video out")
+    df["dmos"] = numbers
     return df
 
 
@@ -107,6 +113,11 @@ def load_dataset(spec: DatasetSpec, *, dmos_scale: str = "quality",
     if len(rows) < 3:
         raise CGVQMError(f"dataset {spec.name}: {len(rows)} usable rated video(s); calibration "
                          "needs at least 3 (and more than one scene)")
+    targets = [r["target"] for r in rows]
+    if max(targets) == min(targets):
+        raise CGVQMError(f"dataset {spec.name}: every usable DMOS of {spec.dmos_csv} is "
+                         f"{targets[0]:g} (clipped to 0..100), so no correlation with it is "
+                         "defined; calibrate on scores that vary")
     return pd.DataFrame(rows)
 
 

@@ -233,3 +233,70 @@ def test_fast_stem_outside_fp16_on_cuda_is_refused(capsys, npy_pair, extra):
     """--fast-stem changes only fp16 on CUDA; anywhere else it would do nothing, silently."""
     rc, _, err = _run(capsys, *_score_args(npy_pair, "--fast-stem", *extra))
     _refused(rc, err, "--fast-stem", "fp16", "cuda")
+
+
+# -- what the probe of every subcommand found (2026-11-27) ---------------------------------
+
+def _no_warnings(err: str) -> str:
+    """stderr without the warnings a random backbone and uniform weights print."""
+    return "\n".join(x for x in err.splitlines() if not x.startswith("cgvqm: WARNING"))
+
+
+def test_weights_of_another_variant_than_the_one_asked_for_are_refused(capsys, tmp_path,
+                                                                      npy_pair):
+    from cgvqm_core.weights import save_weights, uniform_weights
+
+    five = save_weights(tmp_path / "five.json", uniform_weights("cgvqm-5"))
+    args = [a for a in _score_args(npy_pair) if a != "uniform"]
+    args[args.index("--weights") + 1:args.index("--weights") + 1] = [five]
+    rc, out, err = _run(capsys, *args, "--variant", "cgvqm-2")
+    _refused(rc, _no_warnings(err), "holds cgvqm-5", "cgvqm-2 was asked for")
+    assert out == ""
+    rc, out, err = _run(capsys, *args)  # no variant named: the file's is used
+    assert rc == 0 and "cgvqm-5 q =" in out, err
+
+
+def test_backbone_files_that_are_no_state_dict_are_named_so(capsys, tmp_path, npy_pair):
+    empty, garbage = tmp_path / "empty.pth", tmp_path / "garbage.pth"
+    empty.write_bytes(b"")
+    garbage.write_bytes(np.random.default_rng(0).bytes(3000))
+    for path, why in ((tmp_path, "is a folder"), (empty, "the backbone file is empty"),
+                      (garbage, "not a file of tensors only")):
+        args = [a for a in _score_args(npy_pair) if a not in ("--random-backbone", 0)]
+        rc, _, err = _run(capsys, *args, "--backbone", path)
+        line = _refused(rc, _no_warnings(err), why)
+        assert "weights_only" not in line  # torch's advice to run the file's code is dropped
+
+
+def test_an_error_map_folder_that_is_a_file_and_a_bad_sha256_are_refused(capsys, tmp_path,
+                                                                          npy_pair):
+    (tmp_path / "maps.txt").write_text("not a folder")
+    rc, _, err = _run(capsys, *_score_args(npy_pair, "--emap-png", tmp_path / "maps.txt"))
+    _refused(rc, err, "--emap-png", "is a file")
+    rc, _, err = _run(capsys, *_score_args(npy_pair, "--metric", "psnr",
+                                           "--learned-sha256", "vgg16=zz"))
+    _refused(rc, err, "--learned-sha256", "64 hexadecimal digits")
+
+
+def test_a_manifest_without_test_videos_is_refused(capsys, tmp_path, vids):
+    manifest = _manifest(tmp_path, vids, test_frames=N_REF)
+    doc = json.loads(manifest.read_text())
+    doc["conditions"] = []
+    manifest.write_text(json.dumps(doc))
+    rc, _, err = _run(capsys, "batch", "--manifest", manifest, "--out", tmp_path / "s.csv",
+                      "--random-backbone", 0, "--weights", "uniform")
+    _refused(rc, _no_warnings(err), "lists no test videos", "--include-references")
+    assert not (tmp_path / "s.csv").exists()
+
+
+def test_weights_verify_and_fetch_name_the_missing_file(capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("CGVQM_CACHE", str(tmp_path / "cache"))
+    rc, out, err = _run(capsys, "weights", "verify", tmp_path / "nope.pickle", tmp_path)
+    line = _refused(rc, err, "2 file(s) missing", str(tmp_path / "nope.pickle"))
+    assert "a folder, not a file" in out and "run `cgvqm weights fetch`" in line
+    src = tmp_path / "src"
+    src.mkdir()
+    rc, _, err = _run(capsys, "weights", "fetch", "--from", src, "--backbone-file",
+                      tmp_path / "nope.pth")
+    _refused(rc, err, "--backbone-file", "no such file")
+    assert not (tmp_path / "cache").exists()  # nothing copied before the refusal

@@ -120,6 +120,34 @@ def test_user_errors_exit_2_with_one_line(study, tmp_path, capsys):
     assert "no such DMOS file" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("extra,why", [
+    (["--seed", "-1"], "--seed -1: must be 0 or more"),
+    (["--lr-omega", "-1"], "--lr-omega -1: must be a finite number, positive"),
+    (["--lr-alpha", "nan"], "--lr-alpha nan: must be a finite number, 0 or more"),
+    (["--alpha-init", "inf"], "--alpha-init inf: must be a finite number, positive"),
+    (["--alpha-init", "0"], "--alpha-init 0: must be a finite number, positive"),
+])
+def test_fit_settings_out_of_range_are_refused_before_any_work(study, tmp_path, capsys,
+                                                               extra, why):
+    assert calib_cli.main(_args(study, tmp_path, *extra)) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and why in err[0], err
+    assert not (tmp_path / "cache").exists() and not (tmp_path / "w.json").exists()
+
+
+def test_the_weights_file_must_be_a_json_file_in_an_existing_folder(study, tmp_path, capsys):
+    (tmp_path / "folder.json").mkdir()
+    for out, why in ((tmp_path / "w.txt", "ending in .json"),
+                     (tmp_path / "folder.json", "is a folder"),
+                     (tmp_path / "no" / "w.json", "does not exist")):
+        args = _args(study, tmp_path)
+        args[args.index("--out") + 1] = str(out)
+        assert calib_cli.main(args) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and why in err[0], err
+    assert not list(tmp_path.glob("*.part"))
+
+
 def test_the_cgvqm_command_has_the_calibrate_subcommand(capsys):
     from cgvqm_core.cli import main as cgvqm_main
 

@@ -66,6 +66,20 @@ def test_unknown_stimuli_and_missing_values(tmp_path, caplog):
     assert "without a DMOS" in caplog.text
 
 
+def test_non_numeric_and_constant_dmos_are_refused(tmp_path):
+    spec = write_study(tmp_path, [("SRC01_HRC01", "SRC01", "abc"), ("SRC01_HRC02", "SRC01", 40),
+                                  ("SRC02_HRC01", "SRC02", 60), ("SRC02_HRC02", "SRC02", 70)])
+    with pytest.raises(CGVQMError, match=r"1 DMOS value\(s\) are not numbers \(SRC01_HRC01: "
+                                         r"'abc'\)"):
+        load_dataset(spec)
+    # no correlation with constant scores (after clipping to 0..100, as the fit sees them)
+    for high in (50.0, 130.0):
+        rows = [(f"{r}_HRC0{k}", r, high) for r in ("SRC01", "SRC02") for k in (1, 2)]
+        spec = write_study(tmp_path, rows)
+        with pytest.raises(CGVQMError, match=f"every usable DMOS .* is {min(high, 100):g}"):
+            load_dataset(spec)
+
+
 def test_dataset_argument_parsing(tmp_path):
     s = DatasetSpec.parse("mine=study/manifest.json:out/dmos.csv")
     assert (s.name, str(s.manifest), str(s.dmos_csv)) == ("mine", "study/manifest.json",

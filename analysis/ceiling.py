@@ -18,7 +18,7 @@ import numpy as np
 from scipy import optimize, stats
 
 from .data import RatingSet
-from .errors import AnalysisError
+from .errors import AnalysisError, check_resamples
 from .stats import all_columns_masked, percentile_interval
 
 log = logging.getLogger(__name__)
@@ -64,6 +64,7 @@ def _dmos_from_sums(rs: RatingSet, s: np.ndarray, c: np.ndarray) -> np.ndarray:
 
 def split_half(rs: RatingSet, n_splits: int = 1000, seed: int = 0) -> SplitHalf:
     """Human ceiling by ``n_splits`` random half splits of the raters (vectorised)."""
+    n_splits = check_resamples(n_splits, "n_splits")
     if rs.n_raters < 4:
         raise AnalysisError(f"split-half ceiling needs at least 4 raters, have {rs.n_raters}")
     rng = np.random.default_rng(seed)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from stimuli_manifests.cli_runner import OneLineParser, run_command
 
-from .errors import AnalysisError
+from .errors import MAX_RESAMPLES, AnalysisError, check_resamples
 from .exports import write_dmos_csv, write_exports
 from .inputs import load_ratings
 from .metrics import load_metric_scores
@@ -45,9 +45,10 @@ def _inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0,
                    help="seed of bootstraps and splits, a whole number >= 0 (0)")
     p.add_argument("--bootstrap", type=int, default=1000, metavar="N",
-                   help="bootstrap resamples (1000)")
+                   help=f"bootstrap resamples, 1 to {MAX_RESAMPLES} (1000)")
     p.add_argument("--splits", type=int, default=1000, metavar="N",
-                   help="random split-halves for the human ceiling (1000)")
+                   help=f"random split-halves for the human ceiling, 1 to {MAX_RESAMPLES} "
+                        "(1000)")
     p.add_argument("-v", "--verbose", action="store_true", help="log progress details")
 
 
@@ -111,9 +112,25 @@ def _say(lines: list[str], what: str) -> None:
         print(f"... and {len(lines) - MAX_LINES} more {what} line(s)", file=sys.stderr)
 
 
+def _read_notes(path: str | None) -> str | None:
+    """The text of ``--notes`` (read before any work, so a bad file fails fast)."""
+    if not path:
+        return None
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise AnalysisError(f"cannot read --notes file {path} ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        byte = exc.object[exc.start]
+        raise AnalysisError(f"--notes file {path} is not UTF-8 text (byte 0x{byte:02x} at "
+                            f"offset {exc.start}); give a plain-text file saved as UTF-8") \
+            from None
+
+
 def _run(args: argparse.Namespace) -> int:
-    if args.bootstrap < 1 or args.splits < 1:
-        raise AnalysisError("--bootstrap and --splits must be at least 1")
+    check_resamples(args.bootstrap, "--bootstrap")
+    check_resamples(args.splits, "--splits")
+    notes = _read_notes(getattr(args, "notes", None))
     config = AnalysisConfig(model=args.model, outliers=args.outliers, alpha=args.alpha,
                             seed=args.seed, n_boot=args.bootstrap, n_splits=args.splits,
                             min_completeness=args.min_completeness,
@@ -140,13 +157,6 @@ def _run(args: argparse.Namespace) -> int:
     metrics = None
     if getattr(args, "metric", None):
         metrics = load_metric_scores(args.metric)
-    notes = None
-    if getattr(args, "notes", None):
-        try:
-            notes = Path(args.notes).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise AnalysisError(f"cannot read --notes file {args.notes} ({exc.strerror})") \
-                from None
     analysis = run_analysis(rs, config, metrics, progress=sys.stderr.isatty())
     _say([str(x) for x in analysis.exclusions if x not in rs.exclusions], "excluded")
     if analysis.scores.fallback:

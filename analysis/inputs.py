@@ -101,6 +101,17 @@ def _frame_from_sessions(
             panel_from_sessions(selection.used, loaded.manifest.panel))
 
 
+def _cell_text(value: object) -> str:
+    """A cell as plain text for a message: ``nan``, ``inf``, ``3.5``, ``'abc'`` (never a
+    numpy repr such as ``np.float64(nan)``)."""
+    if isinstance(value, str):
+        return repr(value)
+    try:
+        return f"{float(value):g}"  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return repr(str(value))
+
+
 def _problem(row: pd.Series, message: str) -> InputProblem:
     return InputProblem(str(row["_source"]), int(row["_row"]), message)
 
@@ -128,6 +139,9 @@ def ratings_from_frame(
     manifest = loaded.manifest
     scale = manifest.scale
     problems = list(problems)
+    if frame.empty:
+        raise AnalysisError(f"the ratings table {source or '<ratings>'} has no rows (a header "
+                            "only); give a table with at least one rating per row")
     if "_source" not in frame.columns:
         frame = frame.assign(_source=source or "<ratings>", _row=np.arange(len(frame)) + 2)
     if "_rank" not in frame.columns:
@@ -154,8 +168,8 @@ def ratings_from_frame(
     keep = np.ones(len(frame), dtype=bool)
     checks = (
         (no_part, lambda i: "no participant id; row left out"),
-        (not_num, lambda i: f"rating {frame['rating'].iloc[i]!r} is missing or not a number; "
-         "row left out"),
+        (not_num, lambda i: f"rating {_cell_text(frame['rating'].iloc[i])} is missing or not a "
+         "number; row left out"),
         (outside, lambda i: f"rating {values[i]:g} is outside the scale "
          f"[{scale.min:g}, {scale.max:g}]; row left out"),
         (unknown, lambda i: f"stimulus {stim[i]!r} is not in the manifest; row left out"),
@@ -192,10 +206,9 @@ def ratings_from_frame(
                                  "(this row left out)"))
     good = good.loc[~dup]
     if good.empty:
-        raise AnalysisError(
-            "no valid ratings left after checking the input against the manifest (first "
-            "problems: " + "; ".join(str(p) for p in problems[:3]) + ")"
-        )
+        first = "; ".join(str(p) for p in problems[:3])
+        raise AnalysisError("no valid ratings left after checking the input against the "
+                            "manifest" + (f" (first problems: {first})" if first else ""))
 
     rated = set(good["stimulus"])
     order = [s for s in stimuli if s.id in rated]

@@ -27,6 +27,7 @@ import numpy as np
 from scipy import stats
 
 from .data import RatingSet
+from .errors import check_resamples
 
 
 @dataclass
@@ -105,6 +106,7 @@ class RaterBootstrap:
 def rater_bootstrap(rs: RatingSet, weights: RaterWeights, n_boot: int = 1000,
                     seed: int = 0) -> RaterBootstrap:
     """Resample raters with replacement ``n_boot`` times (seeded) and recompute DMOS."""
+    n_boot = check_resamples(n_boot, "n_boot")
     rng = np.random.default_rng([seed, 11])
     n_raters = rs.n_raters
     picks = rng.integers(0, n_raters, size=(n_boot, n_raters))

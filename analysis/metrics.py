@@ -173,6 +173,43 @@ def _read_scores_csv(path: Path) -> pd.DataFrame:
     return f
 
 
+def _rows_text(rows: list[int]) -> str:
+    """Line numbers as short ranges: ``2-17``, ``2, 5, 9-11``."""
+    spans: list[list[int]] = []
+    for r in sorted(rows):
+        if spans and r == spans[-1][1] + 1:
+            spans[-1][1] = r
+        else:
+            spans.append([r, r])
+    text = [f"{a}-{b}" if b > a else f"{a}" for a, b in spans]
+    return ", ".join(text[:6]) + (", ..." if len(text) > 6 else "")
+
+
+def _shown(value: object) -> str | None:
+    """A score cell as the user wrote it (``'abc'``, ``inf``); None when empty or NaN."""
+    if isinstance(value, str):
+        return repr(value.strip()) if value.strip() else None
+    try:
+        number = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return repr(str(value))
+    return None if np.isnan(number) else f"{number:g}"
+
+
+def _no_numeric_score(rows: pd.DataFrame, raw: pd.Series) -> str:
+    """Why no row of the score files is usable: the 'score' column of every row is empty, NaN
+    or not a number (file, lines and an example value)."""
+    parts = []
+    for source, group in rows.groupby("_source", sort=False):
+        shown = [s for s in map(_shown, raw.loc[group.index]) if s is not None]
+        example = f"e.g. {shown[0]}" if shown else "empty or NaN"
+        parts.append(f"metric scores file {source}: column 'score' is not a finite number in "
+                     f"every row (lines {_rows_text(group['_row'].astype(int).tolist())}; "
+                     f"{example})")
+    return "; ".join(parts) + "; every score must be a number (rerun the scorer, or fix " \
+        "those rows)"
+
+
 def load_metric_scores(paths: list[str | Path]) -> MetricScores:
     """Read metric score CSVs (``cgvq-scores/1``); bad rows are reported and left out."""
     problems: list[InputProblem] = []
@@ -184,6 +221,7 @@ def load_metric_scores(paths: list[str | Path]) -> MetricScores:
         name = both[both > 1].index[0]
         raise AnalysisError(f"metric {name!r} is marked both higher-better and lower-better; "
                             "one metric has one direction")
+    raw = f["score"]
     f["score"] = pd.to_numeric(f["score"], errors="coerce")
     bad = ~np.isfinite(f["score"].to_numpy(dtype=float))
     # an empty score with the scorer's note is a metric that does not apply (too small a
@@ -201,6 +239,9 @@ def load_metric_scores(paths: list[str | Path]) -> MetricScores:
     not_applicable = {m: f"{why} ({n} stimul{'us' if n == 1 else 'i'} without a score)"
                       for m, (n, why) in counts.items()}
     flags = provenance_flags(f)
+    broken = bad & ~f["metric"].isin(list(counts)).to_numpy()
+    if broken.any() and bad.all():
+        raise AnalysisError(_no_numeric_score(f[broken], raw[broken]))
     f = f[~bad]
     dup = f.duplicated(["metric", "stimulus"], keep="first")
     for _, row in f[dup].iterrows():
@@ -351,6 +392,7 @@ def validate_metrics(
     fitted: dict[str, _Fitted] = {}
     refs: dict[str, dict[str, float]] = {}
     rows, method_rows = [], []
+    skipped: list[str] = []  # why a metric was not evaluated, for the error when none was
     for name in scores.metrics:
         m = scores.frame[scores.frame["metric"] == name]
         known = m["stimulus"].isin(dmos["stimulus"].astype(str))
@@ -360,8 +402,12 @@ def validate_metrics(
                                          "left out"))
         m = m[m["stimulus"].isin(sid)]
         if len(m) < 3:
-            problems.append(InputProblem(name, None, f"{name}: only {len(m)} stimuli with DMOS; "
-                                         "metric not evaluated"))
+            why = (f"no stimulus id of its {int(known.size)} score row(s) is in the DMOS table "
+                   "(no shared stimuli)" if not known.any() else
+                   f"only {len(m)} stimul{'us' if len(m) == 1 else 'i'} shared with the DMOS "
+                   "table (hidden references aside); a correlation needs at least 3")
+            problems.append(InputProblem(name, None, f"{name}: {why}; metric not evaluated"))
+            skipped.append(f"{name}: {why}")
             continue
         pos = sid.get_indexer(m["stimulus"].astype(str))
         order = np.argsort(pos)
@@ -390,8 +436,7 @@ def validate_metrics(
         rows.append(row)
         method_rows += _per_method(f, ci, y_ref_all[pos], methods_all[pos])
     if not rows:
-        raise AnalysisError("no metric could be compared with DMOS (no shared stimuli); check "
-                            "that the score CSV's stimulus ids match the manifest")
+        raise AnalysisError(_nothing_compared(skipped, scores.not_applicable))
     table = pd.DataFrame(rows)
     if ceiling:
         human = {"metric": "human ceiling (split-half)", "direction": "", "n": len(target),
@@ -422,6 +467,21 @@ def validate_metrics(
                             dict(scores.flags), alpha, comparisons, williams,
                             {n: f.boot for n, f in fitted.items()}, refs,
                             dict(scores.not_applicable))
+
+
+def _nothing_compared(skipped: list[str], not_applicable: dict[str, str]) -> str:
+    """The error when no metric could be compared with DMOS, saying why for each metric."""
+    why = skipped + [f"{m}: does not apply ({n})" for m, n in not_applicable.items()]
+    if not why:
+        return "no metric could be compared with DMOS: the score CSVs hold no usable score row"
+    advice = [text for found, text in (
+        (any("no shared stimuli" in w for w in skipped),
+         "check that the score CSV's stimulus ids match the manifest"),
+        (any("a correlation needs" in w for w in skipped),
+         "score at least 3 of the rated stimuli"),
+        (not skipped, "score stimuli the metric applies to")) if found]
+    return "no metric could be compared with DMOS: " + "; ".join(why[:3]) + \
+        (f"; ... and {len(why) - 3} more" if len(why) > 3 else "") + "; " + "; ".join(advice)
 
 
 def _fit_one(name: str, pos: np.ndarray, q: np.ndarray, y_all: np.ndarray,

@@ -13,7 +13,7 @@ from tqdm.auto import tqdm
 
 from .ceiling import CiCurve, SplitHalf, ci_width_curve, split_half
 from .data import Exclusion, InputProblem, RatingSet
-from .errors import AnalysisError
+from .errors import AnalysisError, check_resamples
 from .metrics import MetricScores, MetricValidation, validate_metrics
 from .panel import PanelSummary, drop_failed_vision, summarise_panel, vision_column
 from .quality import drop_incomplete, quality_table
@@ -47,9 +47,7 @@ class AnalysisConfig:
                 self.seed < 0:
             raise AnalysisError(f"seed must be a whole number >= 0, got {self.seed!r}")
         for name in ("n_boot", "n_splits", "ci_draws"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, np.integer)) or value < 1:
-                raise AnalysisError(f"{name} must be a whole number >= 1, got {value!r}")
+            setattr(self, name, check_resamples(getattr(self, name), name))
         c = self.min_completeness
         if not isinstance(c, (int, float)) or not math.isfinite(c) or not 0 <= c <= 1:
             raise AnalysisError(f"min-completeness must lie in [0, 1] (e.g. 0.5), got {c!r}")

@@ -82,6 +82,9 @@ def session_files(paths: Sequence[str | Path]) -> Iterator[tuple[list, list[Inpu
                 raise AnalysisError(f"no session files (*.sqlite) in {where}")
             notes.append(InputProblem(str(where), prob.row, prob.message))
         if not sources:
+            if notes:  # say what is wrong with what was given (a damaged zip, say)
+                raise AnalysisError("no readable session file in " + ", ".join(map(str, paths))
+                                    + ": " + "; ".join(str(n) for n in notes[:3]))
             raise AnalysisError("no session files (*.sqlite) in " + ", ".join(map(str, paths)))
         yield sources, notes
 

@@ -13,16 +13,42 @@ import hashlib
 import re
 import tempfile
 import zipfile
+import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .errors import StudyError
 from .records import SessionProblem
 
 CHECKSUM_MEMBER = "SHA256SUMS"
 SESSION_SUFFIX = ".sqlite"
 MAX_MEMBER_BYTES = 1 << 30  # far above any real session file
 _SIDE_SUFFIXES = ("-wal", "-shm", "-journal", ".creating")
+#: what reading a damaged zip raises: a bad member header or CRC (BadZipFile), a broken
+#: deflate stream (zlib.error), a member cut short (EOFError), a member that is encrypted or
+#: packed with a method this Python lacks (RuntimeError, NotImplementedError)
+ZIP_READ_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, RuntimeError,
+                   NotImplementedError)
+_ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06", b"PK\x07\x08")
+_ASK_AGAIN = "ask for the file again (a fresh 'cgvq-study export')"
+
+
+def damaged_zip_message(detail: str) -> str:
+    """The problem text of an exported zip that cannot be read (``detail``: what failed)."""
+    return f"damaged zip: {detail}; {_ASK_AGAIN}"
+
+
+def _looks_like_zip(path: Path) -> bool:
+    """A file named ``*.zip`` or starting like one, though :func:`zipfile.is_zipfile` found no
+    end-of-archive record in it (a zip cut short in transit)."""
+    if path.suffix.lower() == ".zip":
+        return True
+    try:
+        with open(path, "rb") as f:
+            return f.read(4) in _ZIP_MAGIC
+    except OSError:
+        return False
 
 
 @dataclass
@@ -46,29 +72,39 @@ def _is_session_name(name: str) -> bool:
     return name.endswith(SESSION_SUFFIX) and not name.endswith(_SIDE_SUFFIXES)
 
 
-def _read_sums(zf: zipfile.ZipFile) -> dict[str, str] | None:
+def _read_sums(zf: zipfile.ZipFile, path: Path) -> dict[str, str] | None:
     if CHECKSUM_MEMBER not in zf.namelist():
         return None
+    try:
+        data = zf.read(CHECKSUM_MEMBER)
+    except ZIP_READ_ERRORS as exc:
+        raise StudyError(f"{path}: " + damaged_zip_message(
+            f"member {CHECKSUM_MEMBER} cannot be read ({exc})")) from None
     sums = {}
-    for line in zf.read(CHECKSUM_MEMBER).decode("utf-8", "replace").splitlines():
+    for line in data.decode("utf-8", "replace").splitlines():
         digest, _, name = line.partition("  ")
         if name.strip():
             sums[name.strip()] = digest.strip().lower()
     return sums
 
 
-def _copy_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, dest: Path) -> str:
-    """Copy one member to ``dest`` (size-capped); returns its sha256."""
+def _copy_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, dest: Path, path: Path) -> str:
+    """Copy one member of the zip ``path`` to ``dest`` (size-capped); returns its sha256.
+    A member that cannot be decompressed is a :class:`StudyError` naming the zip."""
     digest = hashlib.sha256()
     written = 0
-    with zf.open(info) as src, open(dest, "wb") as out:
-        while chunk := src.read(1 << 20):
-            written += len(chunk)
-            if written > MAX_MEMBER_BYTES:
-                raise ValueError(f"member {info.filename} is larger than "
-                                 f"{MAX_MEMBER_BYTES >> 20} MiB")
-            digest.update(chunk)
-            out.write(chunk)
+    try:
+        with zf.open(info) as src, open(dest, "wb") as out:
+            while chunk := src.read(1 << 20):
+                written += len(chunk)
+                if written > MAX_MEMBER_BYTES:
+                    raise ValueError(f"member {info.filename} is larger than "
+                                     f"{MAX_MEMBER_BYTES >> 20} MiB")
+                digest.update(chunk)
+                out.write(chunk)
+    except ZIP_READ_ERRORS as exc:
+        raise StudyError(f"{path}: " + damaged_zip_message(
+            f"member {info.filename} cannot be decompressed ({exc})")) from None
     return digest.hexdigest()
 
 
@@ -76,7 +112,9 @@ def _from_zip(path: Path, workdir: Path, counter: Iterator[int]
               ) -> tuple[list[SessionSource], list[SessionProblem]]:
     try:
         zf = zipfile.ZipFile(path)
-    except (zipfile.BadZipFile, OSError) as exc:
+    except (*ZIP_READ_ERRORS, ValueError) as exc:
+        return [], [SessionProblem(path, None, damaged_zip_message(f"not a readable zip ({exc})"))]
+    except OSError as exc:
         return [], [SessionProblem(path, None, f"not a readable zip ({exc})")]
     sources: list[SessionSource] = []
     problems: list[SessionProblem] = []
@@ -85,14 +123,20 @@ def _from_zip(path: Path, workdir: Path, counter: Iterator[int]
         if not members:
             return [], [SessionProblem(path, None, "holds no session file (*.sqlite); send "
                                        "the zip made by 'cgvq-study export'")]
-        sums = _read_sums(zf)
+        try:
+            sums = _read_sums(zf, path)
+        except StudyError as exc:
+            return [], [SessionProblem(path, None, str(exc).removeprefix(f"{path}: "))]
         for info in members:
             safe = re.sub(r"[^A-Za-z0-9._-]", "_", Path(info.filename).name)
             dest = workdir / f"{next(counter):04d}_{safe}"
             origin = f"{path}:{info.filename}"
             try:
-                digest = _copy_member(zf, info, dest)
-            except (ValueError, zipfile.BadZipFile, OSError) as exc:
+                digest = _copy_member(zf, info, dest, path)
+            except StudyError as exc:
+                problems.append(SessionProblem(path, None, str(exc).removeprefix(f"{path}: ")))
+                continue
+            except (ValueError, OSError) as exc:
                 problems.append(SessionProblem(path, None, f"{info.filename}: {exc}"))
                 continue
             source = SessionSource(dest, origin, container=path, member=info.filename)
@@ -137,6 +181,10 @@ def session_sources(paths: Iterable[str | Path]
                     more, bad = _from_zip(c, workdir, counter)
                     sources += more
                     problems += bad
+                elif _looks_like_zip(c):  # not a SQLite file to try: name the zip's damage
+                    problems.append(SessionProblem(c, None, damaged_zip_message(
+                        "not a readable zip (truncated or damaged: it has no end-of-archive "
+                        "record)")))
                 else:
                     sources.append(SessionSource(c, str(c)))
         yield sources, problems

@@ -22,7 +22,7 @@ from .reader import SessionRecord, read_header, read_session, record_from
 from .records import SessionInfo, SessionProblem
 from .replica import tables_match_outbox
 from .schema import open_existing, wal_pending_bytes
-from .sources import CHECKSUM_MEMBER, MAX_MEMBER_BYTES, SESSION_SUFFIX
+from .sources import CHECKSUM_MEMBER, MAX_MEMBER_BYTES, SESSION_SUFFIX, ZIP_READ_ERRORS
 
 #: the ratings CSV an export writes beside ``<stem>.sqlite`` (older exports: ``ratings.csv``
 #: beside ``session.sqlite``)
@@ -177,7 +177,10 @@ def export_member_problems(zf: zipfile.ZipFile) -> list[str]:
         return [*problems, f"no {CHECKSUM_MEMBER} in the zip, so none of its members can be "
                            "checked against the export"]
     sums: dict[str, str] = {}
-    text = zf.read(CHECKSUM_MEMBER).decode("utf-8", "replace")
+    try:
+        text = zf.read(CHECKSUM_MEMBER).decode("utf-8", "replace")
+    except ZIP_READ_ERRORS as exc:
+        return [*problems, f"{CHECKSUM_MEMBER}: unreadable, the zip is damaged ({exc})"]
     for n, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
@@ -197,7 +200,7 @@ def export_member_problems(zf: zipfile.ZipFile) -> list[str]:
             continue
         try:
             actual = _member_sha256(zf, info)
-        except (ValueError, zipfile.BadZipFile, OSError) as exc:
+        except (ValueError, OSError, *ZIP_READ_ERRORS) as exc:
             problems.append(f"{name}: unreadable ({exc})")
             continue
         if actual != sums[name]:
@@ -223,7 +226,7 @@ def ratings_csv_problem(zf: zipfile.ZipFile, member: str, session_copy: Path) ->
         text = zf.read(info).decode("utf-8")
     except UnicodeDecodeError:
         return f"{name} is not UTF-8 text"
-    except (zipfile.BadZipFile, OSError) as exc:
+    except (OSError, *ZIP_READ_ERRORS) as exc:
         return f"{name}: unreadable ({exc})"
     try:
         rows = read_session(session_copy).ratings
@@ -245,7 +248,7 @@ def check_export_copy(report: VerifyReport, zip_path: Path, member: str,
         with zipfile.ZipFile(zip_path) as zf:
             found = export_member_problems(zf)
             csv_problem = ratings_csv_problem(zf, member, session_copy)
-    except (zipfile.BadZipFile, OSError) as exc:
+    except (OSError, ValueError, *ZIP_READ_ERRORS) as exc:
         found, csv_problem = [f"not a readable zip ({exc})"], None
     missing_csv = f"{ratings_csv_name(member)} is listed in {CHECKSUM_MEMBER} but missing"
     if csv_problem is not None and not (csv_problem.startswith("holds no ratings CSV")

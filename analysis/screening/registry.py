@@ -65,6 +65,11 @@ def screen_raters(rs: RatingSet, method: str = DEFAULT_METHOD, *,
     if rule is None:
         raise AnalysisError(f"unknown outlier method {method!r}; use one of "
                             f"{', '.join(method_names())}")
+    if rs.n_raters < 2:  # no screening rule (``none`` included) can help here
+        who = f" ({rs.raters[0]})" if rs.n_raters == 1 else ""
+        raise AnalysisError(f"only {rs.n_raters} rater{who} in the ratings to analyse; DMOS, "
+                            "reliability and screening need at least 2 raters: add the other "
+                            "participants' session files or ratings")
     sub, text = balanced_subset(rs)
     result = rule.run(sub, alpha)
     result.subset = text

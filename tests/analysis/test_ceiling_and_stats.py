@@ -7,7 +7,10 @@ import pytest
 from scipy import stats
 
 from analysis.ceiling import ci_width_curve, split_half
+from analysis.errors import AnalysisError
 from analysis.inputs import ratings_from_frame
+from analysis.intervals import estimator_weights, rater_bootstrap
+from analysis.scores import fit_scores
 from analysis.stats import (
     kendall_columns,
     pearson_columns,
@@ -41,6 +44,19 @@ def _panel(noise: float, bias: float = 0.0, seed: int = 4):
     st = synthetic_study(n_scenes=6, methods=("blur", "noise"), levels=3, n_raters=12,
                          noise_sd=noise, bias_sd=bias, seed=seed)
     return ratings_from_frame(st.ratings, st.manifest)
+
+
+@pytest.mark.parametrize("count", [0, -3, 100_001, 10**11])
+def test_resample_counts_out_of_range_are_refused_before_allocating(count: int) -> None:
+    """10**11 split-halves used to die with MemoryError (a traceback); any count outside
+    1..100000 is a one-line AnalysisError naming the argument, before any array is made."""
+    rs = _panel(1.0)
+    with pytest.raises(AnalysisError, match=r"n_splits must be a whole number from 1 to "
+                                            rf"100000, got {count}$"):
+        split_half(rs, n_splits=count, seed=0)
+    weights = estimator_weights(rs, fit_scores(rs, "mos", n_boot=5))
+    with pytest.raises(AnalysisError, match=r"n_boot must be a whole number from 1 to 100000"):
+        rater_bootstrap(rs, weights, count, seed=0)
 
 
 def test_ceiling_is_one_for_noiseless_raters() -> None:

@@ -153,6 +153,42 @@ def test_user_errors_exit_2_with_one_line(argv, says, files, capsys, tmp_path,
     assert says in err[0] and "Traceback" not in err[0]
 
 
+@pytest.mark.parametrize(("command", "option", "value"), [
+    ("dmos", "--bootstrap", "1000000000000"),
+    ("reliability", "--splits", "100000000000"),
+    ("report", "--bootstrap", "0"),
+    ("compare", "--splits", "100001"),
+])
+def test_resample_options_have_a_range(command, option, value, files, tmp_path: Path,
+                                       capsys) -> None:
+    """--bootstrap 10**12 and --splits 10**11 used to end in a MemoryError traceback."""
+    out = tmp_path / "out"
+    argv = [command, "--manifest", str(files["manifest"]), "--ratings", str(files["ratings"]),
+            option, value]
+    argv += {"dmos": ["--out", str(out / "d.csv")], "report": ["--out", str(out)],
+             "compare": ["--metric", str(files["metric"])]}.get(command, [])
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"cgvq-analyze: error: {option} must be a whole number from 1 to 100000, "
+                   f"got {value}"]
+    assert not out.exists()
+
+
+def test_notes_that_are_not_utf8_are_refused_before_any_work(files, tmp_path: Path,
+                                                             capsys) -> None:
+    notes = tmp_path / "clip.mp4"
+    notes.write_bytes(b"\xc3\x28\x00\x00\x00\x18ftypmp42" + bytes(range(256)))
+    out = tmp_path / "report"
+    assert main(["report", "--manifest", str(files["manifest"]), "--ratings",
+                 str(files["ratings"]), "--notes", str(notes), "--bootstrap", "10",
+                 "--splits", "10", "--out", str(out)]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("cgvq-analyze: error: --notes file "), err
+    assert str(notes) in err[0] and "is not UTF-8 text" in err[0]
+    assert captured.out == "" and not out.exists()
+
+
 @pytest.mark.parametrize(("name", "text", "says"), [
     ("huge.py", "ref_videos = [{'content_id': 0, 'path': 'a'}]\n"
                 "dis_videos = [{'content_id': 0, 'path': 'b', 'os': [1.0] * 10000000000}]\n",

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import shutil
+import struct
 import zipfile
 from pathlib import Path
 
@@ -173,3 +174,42 @@ def test_a_zip_member_altered_in_transit_is_refused(panel, tmp_path: Path) -> No
     (x,) = [x for x in rs.exclusions if x.kind == "refused session"]
     assert "P01.sqlite" in x.who and "checksum mismatch" in x.reason
     assert "P01" not in rs.raters and "P02" in rs.raters
+
+
+def _damage_member(archive: Path, member: str) -> None:
+    """Overwrite 16 bytes in the middle of ``member``'s compressed data (a zip damaged in
+    transit: a broken deflate stream or a CRC mismatch)."""
+    with zipfile.ZipFile(archive) as zf:
+        info = zf.getinfo(member)
+    data = bytearray(archive.read_bytes())
+    name_len, extra_len = struct.unpack("<HH", data[info.header_offset + 26:
+                                                    info.header_offset + 30])
+    at = info.header_offset + 30 + name_len + extra_len + info.compress_size // 2
+    data[at:at + 16] = b"\xff" * 16
+    archive.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("damage", ["member", "truncated"])
+def test_a_damaged_zip_is_one_line_exit_2_and_writes_nothing(damage, panel, tmp_path: Path,
+                                                             capsys) -> None:
+    """A zip damaged inside a member used to escape as a zlib.error traceback (exit 1), a
+    truncated one was called 'not a readable SQLite session file'."""
+    _, mpath, _, folder = panel
+    archive = tmp_path / "P01_export.zip"
+    with zipfile.ZipFile(archive, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        zf.write(folder / "P01.sqlite", "P01.sqlite")
+    if damage == "member":
+        _damage_member(archive, "P01.sqlite")
+    else:
+        archive.write_bytes(archive.read_bytes()[:300])
+    out = tmp_path / "dmos.csv"
+    assert main(["dmos", "--sessions", str(archive), "--manifest", str(mpath),
+                 "--bootstrap", "10", "--splits", "10", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("cgvq-analyze: error: "), err
+    assert f"{archive}: damaged zip" in err[0] and "SQLite" not in err[0]
+    assert not out.exists()
+    # beside readable sessions the damaged zip is left out and named, never used silently
+    rs = load_ratings(mpath, sessions=[archive, *sorted(folder.glob("P0[2-5].sqlite"))])
+    assert "P01" not in rs.raters
+    assert any(p.source == str(archive) and "damaged zip" in p.message for p in rs.problems)

@@ -70,6 +70,32 @@ def test_csv_errors(tmp_path: Path) -> None:
         load_ratings(manifest)
 
 
+def test_a_header_only_csv_says_the_table_has_no_rows(tmp_path: Path) -> None:
+    st = _small()
+    manifest = save_manifest(st.manifest.manifest, tmp_path / "manifest.json")
+    header = tmp_path / "header.csv"
+    st.ratings.head(0).to_csv(header, index=False)
+    with pytest.raises(AnalysisError, match=r"ratings table .*header\.csv has no rows") as err:
+        load_ratings(manifest, ratings_csv=header)
+    assert "first problems" not in str(err.value)
+
+
+def test_nan_ratings_are_shown_as_plain_numbers(tmp_path: Path) -> None:
+    st = _small()
+    manifest = save_manifest(st.manifest.manifest, tmp_path / "manifest.json")
+    csv = tmp_path / "nan.csv"
+    st.ratings.head(3).assign(rating=[np.nan, np.inf, np.nan]).to_csv(csv, index=False)
+    with pytest.raises(AnalysisError, match="no valid ratings left") as err:
+        load_ratings(manifest, ratings_csv=csv)
+    text = str(err.value)
+    assert "np.float64" not in text and "rating nan is missing or not a number" in text
+    assert "rating inf is missing" in text
+    words = tmp_path / "words.csv"
+    st.ratings.head(1).assign(rating=["abc"]).to_csv(words, index=False)
+    with pytest.raises(AnalysisError, match="rating 'abc' is missing or not a number"):
+        load_ratings(manifest, ratings_csv=words)
+
+
 def test_lower_is_better_scale_is_mirrored() -> None:
     st = _small()
     m = st.manifest.manifest.model_copy(deep=True)

@@ -203,6 +203,34 @@ def test_metric_csv_errors(tmp_path: Path) -> None:
         validate_metrics(d, MetricScores(other), n_boot=10)
 
 
+@pytest.mark.parametrize(("value", "says"), [("abc", "e.g. 'abc'"), ("nan", "empty or NaN"),
+                                             ("", "empty or NaN")])
+def test_scores_that_are_not_numbers_are_named_not_called_unshared(value, says,
+                                                                    tmp_path: Path) -> None:
+    """Stimulus ids that match, but no numeric score: the message names the file, the column
+    and the lines (it used to say 'no shared stimuli')."""
+    d = _dmos(6)
+    path = tmp_path / "scores.csv"
+    _scores(d, "psnr", [value] * 6).to_csv(path, index=False)
+    with pytest.raises(AnalysisError) as err:
+        load_metric_scores([path])
+    text = str(err.value)
+    assert f"metric scores file {path}: column 'score' is not a finite number" in text
+    assert "lines 2-7" in text and says in text and "shared" not in text
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_too_few_shared_stimuli_says_how_many(n: int, tmp_path: Path) -> None:
+    d = _dmos(10)
+    path = tmp_path / "scores.csv"
+    _scores(d.head(n), "psnr", np.arange(n, dtype=float)).to_csv(path, index=False)
+    with pytest.raises(AnalysisError) as err:
+        validate_metrics(d, load_metric_scores([path]), n_boot=10)
+    text = str(err.value)
+    assert f"psnr: only {n} stimul" in text and "a correlation needs at least 3" in text
+    assert "no shared stimuli" not in text
+
+
 # -- validation ----------------------------------------------------------------------------
 def test_validation_statistics_direction_and_significance() -> None:
     d = _dmos()

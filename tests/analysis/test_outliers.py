@@ -5,10 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from analysis.cli import main
+from analysis.errors import AnalysisError
 from analysis.inputs import ratings_from_frame
 from analysis.screening import screen_raters
 from analysis.screening.grubbs import grubbs_critical, grubbs_statistic
 from analysis.synthetic import synthetic_study
+from stimuli_manifests import save_manifest
 
 
 @pytest.mark.parametrize(("n", "table"), [(3, 1.155), (4, 1.481), (5, 1.715), (7, 2.020),
@@ -48,6 +51,26 @@ def test_clean_panel_keeps_everyone() -> None:
     rs = ratings_from_frame(st.ratings, st.manifest)
     assert screen_raters(rs, "grubbs").removed == []
     assert screen_raters(rs, "none").kept == list(range(12))
+
+
+@pytest.mark.parametrize("method", ["none", "grubbs", "p913"])
+def test_a_single_rater_is_not_told_to_use_outliers_none(method, tmp_path, capsys) -> None:
+    """One rater: no screening rule can help, so the message says what is missing (more
+    raters) and never advises '--outliers none' (which may be what was given)."""
+    st = synthetic_study(n_scenes=3, levels=2, n_raters=4, noise_sd=4, seed=2)
+    one = st.ratings[st.ratings["participant"] == "P02"]
+    with pytest.raises(AnalysisError, match=r"only 1 rater \(P02\) in the ratings") as err:
+        screen_raters(ratings_from_frame(one, st.manifest), method)
+    assert "--outliers" not in str(err.value) and "at least 2 raters" in str(err.value)
+    ratings = tmp_path / "one.csv"
+    one.to_csv(ratings, index=False)
+    manifest = save_manifest(st.manifest.manifest, tmp_path / "manifest.json")
+    out = tmp_path / "d.csv"
+    assert main(["dmos", "--manifest", str(manifest), "--ratings", str(ratings), "--outliers",
+                 method, "--bootstrap", "10", "--splits", "10", "--out", str(out)]) == 2
+    err_lines = capsys.readouterr().err.strip().splitlines()
+    assert len(err_lines) == 1 and "only 1 rater (P02)" in err_lines[0], err_lines
+    assert "use --outliers none" not in err_lines[0] and not out.exists()
 
 
 def test_two_random_raters_are_both_removed() -> None:

@@ -1,21 +1,27 @@
 """The session file is safe to send back: the .sqlite alone holds every committed rating
 (ratings left in a WAL side file are flagged), bad ids and folders create nothing, a withdrawal
-closes the file, and reads beside the writer see one snapshot."""
+closes the file, reads beside the writer see one snapshot, and a zip damaged in transit is
+named as a damaged zip (never a traceback)."""
 
 from __future__ import annotations
 
+import hashlib
+import random
 import shutil
 import signal
+import struct
 import subprocess
 import sys
 import threading
+import zipfile
+import zlib
 from pathlib import Path
 
 import pytest
 from support.sessions import bare_session, plain_result
 
 from cgvq_cli.study_cli import main
-from session_store import SessionStore, read_session, verify_session
+from session_store import SessionStore, read_session, session_sources, verify_session
 from session_store.errors import StudyError
 from study_app.export import export_session, verify_many
 
@@ -134,3 +140,81 @@ def test_reading_while_the_app_writes_never_reports_tampering(tmp_path):
     assert problems == []
     assert len(set(seen)) > 10  # the reads really overlapped the writes
     assert seen == sorted(seen)
+
+
+# -- exported zips damaged in transit ------------------------------------------------------
+def _overwrite_inside(archive: Path, member: str, where: float) -> None:
+    """Overwrite 16 bytes of ``member``'s compressed data, ``where`` (0..1) into it."""
+    with zipfile.ZipFile(archive) as zf:
+        info = zf.getinfo(member)
+    data = bytearray(archive.read_bytes())
+    name_len, extra_len = struct.unpack("<HH", data[info.header_offset + 26:
+                                                    info.header_offset + 30])
+    at = info.header_offset + 30 + name_len + extra_len + int(info.compress_size * where)
+    data[at:at + 16] = b"\xff" * 16
+    archive.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize(("method", "raw_error"), [(zipfile.ZIP_DEFLATED, zlib.error),
+                                                   (zipfile.ZIP_STORED, zipfile.BadZipFile)])
+def test_a_damaged_zip_member_is_named_as_a_damaged_zip(tmp_path, capsys, method, raw_error):
+    """A deflate stream broken inside (zlib.error) or a stored member with a CRC mismatch
+    (BadZipFile): the zip is reported damaged by name, by the library and by
+    'cgvq-study verify' (exit 2)."""
+    member = "P01_abc.sqlite"
+    payload = b"SQLite format 3\x00" + bytes(random.Random(0).randrange(16)
+                                             for _ in range(20000))
+    archive = tmp_path / "P01_abc.zip"
+    with zipfile.ZipFile(archive, "w", compression=method) as zf:
+        zf.writestr(member, payload)
+        zf.writestr("SHA256SUMS", f"{hashlib.sha256(payload).hexdigest()}  {member}\n")
+    _overwrite_inside(archive, member, 0.1)
+    with zipfile.ZipFile(archive) as zf, pytest.raises(raw_error):
+        zf.read(member)  # what used to escape as a traceback
+    with session_sources([archive]) as (sources, problems):
+        assert sources == []
+        (problem,) = problems
+        assert problem.path == archive
+        assert problem.message.startswith("damaged zip: member P01_abc.sqlite cannot be "
+                                          "decompressed (")
+        assert "ask for the file again" in problem.message
+    (report,) = verify_many([archive])
+    assert report.state == "damaged" and report.exit_code == 2
+    assert main(["verify", str(archive)]) == 2
+    captured = capsys.readouterr()
+    assert "damaged zip" in captured.out + captured.err
+    assert "Traceback" not in captured.err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["P01_abc.zip"]  # nothing left behind
+
+
+def test_a_truncated_export_is_a_damaged_zip_not_a_bad_sqlite_file(tmp_path, capsys):
+    path = tmp_path / "P01.sqlite"
+    with bare_session(path) as store:
+        store.record(0, plain_result(5.0))
+    archive = export_session(path, tmp_path / "out")
+    archive.write_bytes(archive.read_bytes()[:300])  # cut short in transit
+    with session_sources([archive]) as (sources, problems):
+        assert sources == []
+        (problem,) = problems
+        assert "damaged zip" in problem.message and "truncated" in problem.message
+    assert main(["verify", str(archive)]) == 2
+    captured = capsys.readouterr()
+    text = captured.out + captured.err
+    assert "damaged zip" in text and "SQLite" not in text
+    assert "Traceback" not in captured.err
+
+
+def test_a_damaged_ratings_csv_in_an_export_is_damage_of_the_copy(tmp_path, capsys):
+    path = tmp_path / "P01.sqlite"
+    with bare_session(path) as store:
+        for i in range(6):
+            store.record(i, plain_result(10.0 * i))
+    archive = export_session(path, tmp_path / "out")
+    with zipfile.ZipFile(archive) as zf:
+        csv_member = next(n for n in zf.namelist() if n.endswith("_ratings.csv"))
+    _overwrite_inside(archive, csv_member, 0.5)
+    (report,) = verify_many([archive])
+    assert report.state == "damaged"
+    assert any(csv_member in p.message and "unreadable" in p.message for p in report.problems)
+    assert main(["verify", str(archive)]) == 2
+    assert "Traceback" not in capsys.readouterr().err

@@ -75,6 +75,8 @@ __all__ = ["RunOptions", "RunOutcome", "needs_requeue", "run_study"]
 
 log = logging.getLogger(__name__)
 
+MAX_SEED = 2**63 - 1  # the session file stores the seed as a signed 64-bit integer
+
 
 @dataclass
 class RunOptions:
@@ -123,6 +125,10 @@ class RunOptions:
                 raise StudyError("--refresh-hz sets the pacing rate of the pilot mode without "
                                  "vsync; add --pilot-no-vsync (with vsync the refresh rate is "
                                  "measured)")
+        if self.seed is not None and not 0 <= self.seed <= MAX_SEED:
+            raise StudyError(f"--seed must be a whole number from 0 to {MAX_SEED}, got "
+                             f"{self.seed}; leave it out to derive the seed from the study and "
+                             "participant")
         if self.practice < 0:
             raise StudyError(f"--practice must be 0 or more, got {self.practice}")
         if self.break_every < 0:

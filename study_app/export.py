@@ -10,6 +10,7 @@ bare session file.
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import sqlite3
 import tempfile
@@ -59,18 +60,79 @@ def export_name(path: str | Path) -> str:
     return f"{info.participant}_{session}"
 
 
+def export_target(out: str | Path | None, stem: str) -> Path:
+    """Where :func:`export_session` writes: ``out`` if it names a .zip, else
+    ``<out>/<stem>.zip`` for a folder (the current one by default). Refuses (StudyError)
+    a path with another extension, and an existing file that is not an export of the same
+    session (a zip this command wrote may be replaced by a newer export)."""
+    if out is None:
+        out = Path.cwd()
+    out = Path(out)
+    if not out.is_dir():
+        if out.exists() and out.suffix.lower() != ".zip":
+            raise StudyError(f"--out {out} is an existing file, not a .zip or a folder; give a "
+                             "new .zip path or a folder")
+        if out.suffix and out.suffix.lower() != ".zip":
+            raise StudyError(f"--out {out}: an export is a .zip file; give a path ending in "
+                             ".zip, or a folder (without an extension) to write "
+                             f"{stem}.zip into")
+    if out.is_dir() or out.suffix.lower() != ".zip":  # a folder, made if need be
+        out = out / f"{stem}.zip"
+    for parent in (out.parent, *out.parent.parents):
+        if parent.exists():
+            if not parent.is_dir():
+                raise StudyError(f"--out {out}: {parent} is a file, not a folder")
+            break
+    if out.is_dir():
+        raise StudyError(f"--out {out} is a folder; give a new .zip path")
+    if out.exists() and not _is_export_of(out, stem):
+        raise StudyError(f"--out {out} exists and is not an export of this session; choose "
+                         "another --out (an existing file is replaced only by a newer export "
+                         "of the same session)")
+    return out
+
+
+def _is_export_of(path: Path, stem: str) -> bool:
+    """Whether ``path`` is a zip :func:`export_session` wrote for the session ``stem``."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = set(zf.namelist())
+    except (zipfile.BadZipFile, OSError):
+        return False
+    return names == {f"{stem}.sqlite", f"{stem}{CSV_SUFFIX}", CHECKSUM_MEMBER}
+
+
+def check_ratings_csv_target(out: str | Path) -> Path:
+    """``--csv OUT`` before anything is written: a new file, or a ratings CSV written before
+    (its header is the tidy ratings CSV's), never some other file."""
+    from stimuli_manifests.tables import RATINGS
+
+    out = Path(out)
+    if out.is_dir():
+        raise StudyError(f"--csv {out} is a folder; give the path of a CSV file")
+    for parent in out.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise StudyError(f"--csv {out}: {parent} is a file, not a folder")
+            break
+    if out.exists():
+        try:
+            with open(out, newline="", encoding="utf-8-sig") as fh:
+                header = next(csv.reader(fh), [])
+        except (OSError, UnicodeDecodeError, csv.Error):
+            header = []
+        if header != list(RATINGS.header(())):
+            raise StudyError(f"--csv {out} exists and is not a ratings CSV; choose another "
+                             "--csv (only a ratings CSV written before is replaced)")
+    return out
+
+
 def export_session(path: str | Path, out: str | Path | None = None) -> Path:
     """Write ``<participant>_<session>.zip`` (session copy, ratings CSV, SHA256SUMS) to
     ``out``: a path ending in .zip, or a folder (made if needed; default the current one)."""
     path = Path(path)
     stem = export_name(path)
-    if out is None:
-        out = Path.cwd() / f"{stem}.zip"
-    out = Path(out)
-    if out.is_dir() or out.suffix.lower() != ".zip":  # a folder, made if need be
-        out = out / f"{stem}.zip"
-    if out.parent.exists() and not out.parent.is_dir():
-        raise StudyError(f"--out {out}: {out.parent} is a file, not a folder")
+    out = export_target(out, stem)
     out.parent.mkdir(parents=True, exist_ok=True)
     member = f"{stem}.sqlite"
     with tempfile.TemporaryDirectory() as tmp:

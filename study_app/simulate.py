@@ -81,6 +81,10 @@ START_TIME = datetime(2026, 1, 1, 9, 0, 0, tzinfo=UTC)
 """Simulated sessions carry fixed, made-up times so that their contents follow the seed."""
 
 
+MAX_RATERS = 10_000
+"""Most raters one simulation makes (each is a session file; with a server, a thread)."""
+
+
 @dataclass(frozen=True)
 class SimulationOptions:
     """The panel to simulate (standard deviations on the 0..100 scale)."""
@@ -98,8 +102,8 @@ class SimulationOptions:
     colour_failures: int = 0  # raters who fail the colour check (when the panel screens)
 
     def check(self) -> None:
-        if self.raters < 1:
-            raise StudyError(f"--raters {self.raters}: simulate at least one rater")
+        if not 1 <= self.raters <= MAX_RATERS:
+            raise StudyError(f"--raters {self.raters}: simulate from 1 to {MAX_RATERS} raters")
         if not 0 <= self.outliers <= self.raters:
             raise StudyError(
                 f"--outliers {self.outliers}: choose between 0 and the number of raters "

@@ -55,6 +55,10 @@ def check_study(study: Study, *, progress: bool = False) -> StudyCheck:
     out.warnings += report.warnings
     stimuli = m.stimuli()
     out.n_stimuli = len(stimuli)
+    if not m.conditions:
+        out.errors.append("the manifest lists no test conditions, only references: a study "
+                          "rates test videos against their references; add conditions to "
+                          "manifest.json (or build the folder with cgvq-study init)")
     out.n_trials = len(stimuli) * m.protocol.repetitions
     if len(stimuli) < 2 and m.protocol.repetitions > 1:
         out.errors.append("with one stimulus and repetitions > 1 the same stimulus would be "

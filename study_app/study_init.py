@@ -12,6 +12,7 @@ with the player because "can the player show it" is the player's rule (see
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -96,6 +97,12 @@ def init_study(opts: InitOptions) -> InitResult:
             f"matching {opts.reference_pattern!r} or {opts.test_pattern!r}")
         raise StudyError(f"no videos {how} in {opts.folder}")
     result.problems += result.mapping.problems
+    if not any(v.role == "test" for v in result.mapping.videos):
+        how = (f"list them with role 'test' in {opts.mapping_csv}" if opts.mapping_csv else
+               f"name them to match --pattern {opts.test_pattern!r}")
+        result.problems.append(Problem(
+            "no test videos", str(opts.folder),
+            f"only references were found; a study needs at least one test video: {how}"))
     result.warnings += [f"{p}: matches no pattern, left out" for p in result.mapping.unmatched]
     paths = [folder / v.path for v in result.mapping.videos]
     result.probes = probe_files(paths, progress=opts.progress)
@@ -106,15 +113,22 @@ def init_study(opts: InitOptions) -> InitResult:
     study_id = opts.study_id or (previous.study_id if previous else _default_study_id(out))
     if previous is not None and not opts.force:
         _refuse_if_sessions_would_break(previous, placements, out)
+    created = [p for p in (out, *out.parents) if not p.exists()]  # removed again on failure
     out.mkdir(parents=True, exist_ok=True)
-    shas = materialise(placements, out, previous, progress=opts.progress)
-    if opts.transcode is not None:
-        result.study_probes = probe_files([out / p.study_path for p in placements],
-                                          progress=opts.progress, desc="probing copies")
-        _speed_problems(result, {p.video.stimulus_id: out / p.study_path for p in placements},
-                        result.study_probes, transcoded=True)
-        if result.problems:
-            return result
+    try:
+        shas = materialise(placements, out, previous, progress=opts.progress)
+        if opts.transcode is not None:
+            result.study_probes = probe_files([out / p.study_path for p in placements],
+                                              progress=opts.progress, desc="probing copies")
+            _speed_problems(result, {p.video.stimulus_id: out / p.study_path
+                                     for p in placements},
+                            result.study_probes, transcoded=True)
+    except BaseException:
+        _remove_created(created)
+        raise
+    if result.problems:
+        _remove_created(created)
+        return result
     manifest = build_manifest(placements, shas, study_id=study_id, previous=previous,
                               display=display)
     result.changes = compare(previous, manifest)
@@ -157,6 +171,17 @@ def _map(opts: InitOptions, folder: Path, out: Path) -> FolderMapping:
 def _default_study_id(out: Path) -> str:
     name = "".join(c if c.isalnum() or c in "_-." else "-" for c in out.name).strip("-.")
     return name if name and is_valid_id(name) else "study"
+
+
+def _remove_created(created: list[Path]) -> None:
+    """Remove the folders this run created (deepest first), with what it wrote into them."""
+    if created:
+        shutil.rmtree(created[0], ignore_errors=True)
+        for folder in created[1:]:
+            try:
+                folder.rmdir()
+            except OSError:
+                break
 
 
 def _video_problems(result: InitResult, folder: Path, display: DisplayRequirements, *,

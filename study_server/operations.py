@@ -3,16 +3,18 @@ participants, back the database up (also while serving), withdraw a participant.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import os
 import re
+import shutil
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
 from session_store.errors import StudyError
 from session_store.ids import check_participant_id
-from session_store.invite import Invite, check_server_url, read_invites
+from session_store.invite import INVITE_SUFFIX, Invite, check_server_url, read_invites
 from session_store.records import utc_now
 from session_store.study_folder import SESSIONS_DIR, load_study
 
@@ -31,39 +33,93 @@ def _next_ids(existing: list[str], prefix: str, n: int) -> list[str]:
     return [f"{prefix}{k:0{width}d}" for k in range(start, start + n)]
 
 
+MAX_INVITES = 10_000
+"""Most participants one ``invite`` call creates (run it again for more)."""
+
+
 def invite(study: str | Path, n: int, out_csv: str | Path, *, prefix: str = "P",
            server: str = "http://127.0.0.1:8000", files_dir: str | Path | None = None
            ) -> list[Invite]:
     """Create ``n`` participants with random tokens (only their sha256 is stored) and write
-    ``participant,token,server,command`` rows to ``out_csv`` (mode 0600)."""
+    ``participant,token,server,command`` rows to ``out_csv`` (mode 0600), and with
+    ``files_dir`` one invite file per participant. Every input is checked before anything is
+    written; a failure removes what this call wrote and registers nobody."""
     if n < 1:
         raise StudyError(f"--n {n}: invite at least one participant")
+    if n > MAX_INVITES:
+        raise StudyError(f"--n {n}: invite from 1 to {MAX_INVITES} participants at a time "
+                         "(run invite again for more)")
     check_participant_id(f"{prefix}1")
     server = check_server_url(server)
     folder = load_study(study).folder
     out = Path(out_csv)
+    if out.is_dir():
+        raise StudyError(f"--out {out} is a folder; give the path of a new CSV file, e.g. "
+                         f"{out / 'invites.csv'}")
     if out.exists():
-        raise StudyError(f"{out} exists already (it holds earlier tokens); choose another --out")
-    with ServerStore(state_path(folder)) as store:
-        ids = _next_ids(store.participant_ids(), prefix, n)
-        invites = [Invite(server, pid, new_token()) for pid in ids]
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(out, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-        try:
+        raise StudyError(f"--out {out} exists already (it may hold earlier tokens); choose "
+                         "another --out")
+    _check_can_create(out.parent, "--out")
+    files = Path(files_dir) if files_dir is not None else None
+    if files is not None:
+        if files.exists() and not files.is_dir():
+            raise StudyError(f"--files {files} is a file; give a folder for the invite files")
+        _check_can_create(files, "--files")
+    state_dir = folder / STATE_DIR
+    fresh = not state_dir.exists()
+    written: list[Path] = []
+    made: list[Path] = []
+    try:
+        with ServerStore(state_path(folder)) as store:
+            ids = _next_ids(store.participant_ids(), prefix, n)
+            invites = [Invite(server, pid, new_token()) for pid in ids]
+            if files is not None:
+                clash = [files / f"{i.participant}{INVITE_SUFFIX}" for i in invites]
+                clash = [p for p in clash if p.exists()]
+                if clash:
+                    raise StudyError(f"--files {files} holds invite files already (e.g. "
+                                     f"{clash[0].name}); choose another --files folder")
+            made += _make_folder(out.parent)
+            fd = os.open(out, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            written.append(out)
             with os.fdopen(fd, "w", newline="", encoding="utf-8") as fh:
                 writer = csv.writer(fh)
                 writer.writerow(INVITE_COLUMNS)
                 for inv in invites:
                     writer.writerow([inv.participant, inv.token, inv.server, inv.command()])
+            if files is not None:
+                made += _make_folder(files)
+                for inv in invites:
+                    written.append(files / f"{inv.participant}{INVITE_SUFFIX}")
+                    inv.write(files)
             store.add_participants([(i.participant, token_sha256(i.token)) for i in invites],
                                    utc_now())
-        except BaseException:
-            out.unlink(missing_ok=True)
-            raise
-    if files_dir is not None:
-        for inv in invites:
-            inv.write(files_dir)
+    except BaseException:
+        for path in written:
+            path.unlink(missing_ok=True)
+        for path in reversed(made):
+            with contextlib.suppress(OSError):
+                path.rmdir()
+        if fresh:
+            shutil.rmtree(state_dir, ignore_errors=True)
+        raise
     return invites
+
+
+def _check_can_create(folder: Path, flag: str) -> None:
+    """Refuse a folder path whose nearest existing part is a file (before writing)."""
+    for part in (folder, *folder.parents):
+        if part.exists():
+            if not part.is_dir():
+                raise StudyError(f"{flag}: {part} is a file, not a folder")
+            return
+
+
+def _make_folder(folder: Path) -> list[Path]:
+    """Create ``folder`` and its missing parents; the ones created, outermost first."""
+    missing = [p for p in (folder, *folder.parents) if not p.exists()]
+    folder.mkdir(parents=True, exist_ok=True)
+    return list(reversed(missing))
 
 
 def backup(study: str | Path, out: str | Path | None = None) -> Path:

@@ -4,6 +4,7 @@ rate limits, the admin token and the statistics worker."""
 from __future__ import annotations
 
 import logging
+import shutil
 import threading
 from dataclasses import dataclass
 from typing import Any
@@ -77,13 +78,26 @@ class ServerState:
 
     @classmethod
     def open(cls, config: ServerConfig) -> ServerState:
-        store = ServerStore(state_path(config.study))
+        """Open (or create) the study's server state. The study folder and its manifest are
+        checked first: a failure creates nothing, and a ``server/`` folder made by this call
+        is removed again."""
+        if config.study.is_file():
+            raise StudyError(f"{config.study} is a file; give the study folder that holds "
+                             f"{MANIFEST_NAME}")
+        load_study(config.study)  # a readable study folder with a valid manifest, first
+        state_dir = config.study / STATE_DIR
+        fresh = not state_dir.exists()
+        store = None
         try:
+            store = ServerStore(state_path(config.study))
             hashes = FileHashes()
             current = prepare_versions(config, store, hashes)
-            token, created = auth.admin_token(config.study / STATE_DIR)
+            token, created = auth.admin_token(state_dir)
         except BaseException:
-            store.close()
+            if store is not None:
+                store.close()
+            if fresh:
+                shutil.rmtree(state_dir, ignore_errors=True)
             raise
         return cls(config, store, current, hashes, token, created)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 NAME = "check"
@@ -14,11 +15,12 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from session_store.errors import StudyError
     from session_store.study_folder import load_study
     from study_app.study_check import check_study
 
     study = load_study(args.study)
-    result = check_study(study, progress=True)
+    result = check_study(study, progress=sys.stderr.isatty())
     m = study.manifest
     design = (f"{result.n_stimuli} stimuli x {m.protocol.repetitions} repetitions = "
               f"{result.n_trials} trials" if m.protocol.allocation == "full" else
@@ -48,4 +50,6 @@ def run(args: argparse.Namespace) -> int:
         print("OK: the study folder is ready")
         return 0
     print(f"{len(result.errors)} error(s): fix them before sending the study out")
-    return 2
+    sys.stdout.flush()
+    raise StudyError(f"{args.study} is not ready: {len(result.errors)} error(s) (listed on "
+                     f"stdout), e.g. {result.errors[0]}")

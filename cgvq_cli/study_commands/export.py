@@ -20,9 +20,26 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from session_store import read_session, verify_session, write_ratings_csv
-    from study_app.export import export_session
+    from session_store.errors import StudyError
+    from study_app.export import (
+        check_ratings_csv_target,
+        export_name,
+        export_session,
+        export_target,
+    )
 
+    if args.session.is_dir():
+        found = sorted(args.session.glob("*.sqlite"))
+        raise StudyError(
+            f"{args.session} is a folder; export takes one session file, e.g. {found[0]}"
+            if found else f"{args.session} is a folder and holds no session file (*.sqlite); "
+            "give the participant's session file (<participant>.sqlite)")
+    if not args.session.exists():
+        raise StudyError(f"session file not found: {args.session}")
     report = verify_session(args.session)
+    export_target(args.out, export_name(args.session))  # every target checked before writing
+    if args.csv is not None:
+        check_ratings_csv_target(args.csv)
     out = export_session(args.session, args.out)
     if args.csv is not None:
         rows = read_session(args.session).ratings

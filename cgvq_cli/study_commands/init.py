@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 NAME = "init"
@@ -74,6 +75,7 @@ def _display(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
+    from session_store.errors import StudyError
     from study_app.study_init import InitOptions, init_study
 
     from .init_tables import print_changes, print_probe_table, print_problems, print_warnings
@@ -81,14 +83,16 @@ def run(args: argparse.Namespace) -> int:
     opts = InitOptions(folder=args.folder, out=args.out, mapping_csv=args.mapping,
                        test_pattern=args.pattern, reference_pattern=args.reference_pattern,
                        study_id=args.study_id, transcode=args.transcode,
-                       display=_display(args), force=args.force, progress=True)
+                       display=_display(args), force=args.force,
+                       progress=sys.stderr.isatty())  # no bar in the one-line error of a pipe
     result = init_study(opts)
     print_probe_table(result, opts.folder)
     print_warnings(result.warnings)
     if not result.ok:
         print_problems(result.problems)
         print(f"{len(result.problems)} problem(s): nothing was written to {args.out}; fix them "
-              "and run init again")
-        return 2
+              "and run init again", flush=True)
+        raise StudyError(f"{len(result.problems)} problem(s) (listed on stdout), e.g. "
+                         f"{result.problems[0]}; nothing was written to {args.out}")
     print_changes(result, args.out)
     return 0

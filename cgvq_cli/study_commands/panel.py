@@ -20,7 +20,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="with --add-templates: no colour-vision check")
     parser.add_argument("--acuity", action="store_true",
                         help="with --add-templates: also the contrast/acuity check")
-    parser.add_argument("--on-fail", choices=("end", "flag", "record"), default="flag",
+    parser.add_argument("--on-fail", choices=("end", "flag", "record"), default=None,
                         help="with --add-templates: what a failed vision check does (default "
                              "flag: the session goes on, the rater is flagged)")
 
@@ -31,6 +31,15 @@ def run(args: argparse.Namespace) -> int:
     from stimuli_manifests import parse_manifest, save_manifest
     from stimuli_manifests.panel_templates import default_panel
 
+    if not args.add_templates:
+        given = [flag for flag, on in (("--no-colour-check", args.no_colour_check),
+                                       ("--acuity", args.acuity),
+                                       ("--on-fail", args.on_fail is not None)) if on]
+        if given:
+            raise StudyError(f"{' and '.join(given)} {'needs' if len(given) == 1 else 'need'} "
+                             "--add-templates (it sets what the templates write); add it, or edit "
+                             "the panel block in manifest.json")
+    on_fail = args.on_fail or "flag"
     study = load_study(args.study)
     manifest = study.manifest
     if args.add_templates:
@@ -41,9 +50,9 @@ def run(args: argparse.Namespace) -> int:
             raise StudyError("the study already holds session files; adding questionnaires "
                              "changes its manifest under them: use a new study folder")
         block = default_panel(colour_check=not args.no_colour_check)
-        if args.acuity or args.no_colour_check or args.on_fail != "flag":
+        if args.acuity or args.no_colour_check or on_fail != "flag":
             block["vision_screening"] = {"colour": not args.no_colour_check,
-                                         "acuity": bool(args.acuity), "on_fail": args.on_fail}
+                                         "acuity": bool(args.acuity), "on_fail": on_fail}
             if not args.acuity and args.no_colour_check:
                 del block["vision_screening"]
         data = manifest.model_dump(mode="json", exclude_none=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -60,8 +61,14 @@ def run(args: argparse.Namespace) -> int:
     from study_server.serve import Listen, serve
     from study_server.stopping import StoppingTarget
 
-    if args.stats_every <= 0 or args.rate <= 0 or args.burst < 1:
-        raise StudyError("--stats-every and --rate must be positive and --burst at least 1")
+    for flag, value in (("--stats-every", args.stats_every), ("--rate", args.rate)):
+        if not (math.isfinite(value) and value > 0):
+            raise StudyError(f"{flag} must be a positive number, got {value:g}")
+    if not (math.isfinite(args.burst) and args.burst >= 1):
+        raise StudyError(f"--burst must be a number of at least 1, got {args.burst:g}")
+    if args.target_raters is not None and args.target_raters < 1:
+        raise StudyError(f"--target-raters must be at least 1 (leave it out to want everyone "
+                         f"invited), got {args.target_raters}")
     config = ServerConfig(study=args.study, new_version=args.new_version,
                           stats_every_s=args.stats_every, target_raters=args.target_raters,
                           rate_per_s=args.rate, burst=args.burst,

@@ -4,6 +4,7 @@ optionally uploading to a study server as they rate (through the app's upload cl
 from __future__ import annotations
 
 import argparse
+import math
 import re
 
 NAME = "simulate"
@@ -64,6 +65,12 @@ def run(args: argparse.Namespace) -> int:
         raise StudyError(f"--seed {args.seed}: use a non-negative integer")
     if (args.server is None) != (args.invites is None):
         raise StudyError("--server and --invites go together")
+    for flag, value in (("--pace", args.pace), ("--stagger", args.stagger)):
+        if not (math.isfinite(value) and value >= 0):
+            raise StudyError(f"{flag} must be a number of seconds, 0 or more, got {value:g}")
+    if not (math.isfinite(args.upload_timeout) and args.upload_timeout > 0):
+        raise StudyError(f"--upload-timeout must be a positive number of seconds, got "
+                         f"{args.upload_timeout:g}")
     opts = SimulationOptions(raters=args.raters, outliers=args.outliers,
                              outlier_kind=args.outlier_kind, seed=args.seed,
                              repetitions=args.repetitions,
@@ -73,8 +80,8 @@ def run(args: argparse.Namespace) -> int:
         from session_store.invite import read_invites
 
         invites = read_invites(args.invites)
-        if args.pace < 0 or args.stagger < 0:
-            raise StudyError("--pace and --stagger must not be negative")
+        opts.check()
+        _check_server(args.server, invites[0] if invites else None)
         upload = UploadOptions(server=args.server,
                                tokens={i.participant: i.token for i in invites},
                                pace_s=args.pace, stagger_s=args.stagger,
@@ -90,5 +97,29 @@ def run(args: argparse.Namespace) -> int:
           f"{len(result.upload)} sessions arrived completely")
     for pid, st in missing.items():
         print(f"  {pid}: {st.acked_seq} of {st.local_seq} entries arrived ({st.state}: "
-              f"{st.error})")
-    return 1 if missing else 0
+              f"{st.error})", flush=True)
+    if missing:
+        raise StudyError(f"{len(missing)} of {len(result.upload)} sessions did not arrive "
+                         f"completely at {args.server} within --upload-timeout "
+                         f"{args.upload_timeout:g} s (see the report on stdout); the session files "
+                         f"are in {args.out}")
+    return 0
+
+
+def _check_server(server: str, first) -> None:
+    """Before anything is written: the server answers, and knows the first invited token."""
+    from session_store.protocol import participant_path
+    from study_app.remote.http import ServerClient, ServerRefused, ServerUnavailable
+
+    if first is None:
+        return  # read_invites refuses an empty file; nothing to ask
+    client = ServerClient(server, first.token)
+    try:
+        client.json("GET", participant_path(first.participant, "study"))
+    except ServerUnavailable as exc:
+        raise ServerUnavailable(f"--server: {exc}; start it (cgvq-study serve) or check the "
+                                "address") from None
+    except ServerRefused as exc:
+        raise ServerRefused(f"--server {server} refused invited participant "
+                            f"{first.participant} ({exc}); use the invites CSV of this server",
+                            exc.status, exc.detail) from None

@@ -4,6 +4,7 @@ exported zip also every member against SHA256SUMS and the ratings CSV against th
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 NAME = "verify"
@@ -19,6 +20,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from session_store.errors import StudyError
     from study_app.export import verify_many
 
     reports = verify_many(args.paths)
@@ -43,4 +45,28 @@ def run(args: argparse.Namespace) -> int:
                   for s in ("complete", "incomplete", "withdrawn", "damaged")}
         print(f"{len(reports)} session files: " + ", ".join(f"{n} {s}" for s, n in
                                                              counts.items() if n))
-    return max((r.exit_code for r in reports), default=2)
+    code = max((r.exit_code for r in reports), default=2)
+    if code == 2:  # the verdict stays on stdout; the failure gets its one line on stderr
+        sys.stdout.flush()
+        raise StudyError(_failure_line(reports))
+    return code
+
+
+def _failure_line(reports) -> str:
+    """One line for stderr: the first damaged or unusable input and how many there were."""
+    damaged = [r for r in reports if r.state == "damaged"]
+    if not damaged:
+        return "no session file was given (see the report on stdout)"
+    first = damaged[0]
+    problem = first.problems[0].message if first.problems else "damaged"
+    if not first.path.exists():
+        what = (f"{first.path} not found; give a session file (.sqlite), an exported .zip or "
+                "a folder of them")
+    elif first.path.is_dir():
+        what = f"the folder {first.path} holds no session file (*.sqlite) or exported zip"
+    else:
+        what = problem if problem.startswith(str(first.path)) else f"{first.path}: {problem}"
+    if len(reports) > 1:
+        return (f"{len(damaged)} of {len(reports)} inputs are damaged or unreadable, e.g. "
+                f"{what} (see the report on stdout)")
+    return f"{what} (see the report on stdout)"

@@ -32,11 +32,18 @@ from stimuli_manifests import (
     write_video,
 )
 
+from ..preflight import available_memory_bytes
 from .color import to_display
 from .denoise import atrous_denoise
 from .interpolate import interpolate_frames
 from .methods import DEFAULT_SCENES, INTERPOLATED_FPS, METHODS
-from .renderer import GBuffer, SceneRenderer, available_scenes, create_context
+from .renderer import (
+    GBuffer,
+    SceneRenderer,
+    available_scenes,
+    create_context,
+    max_render_size,
+)
 from .splats import splat_sequence
 from .upscale import TemporalUpscaler, jitter_sequence
 from .vrs import vrs_sequence
@@ -45,6 +52,12 @@ log = logging.getLogger(__name__)
 
 VIDEO_DIR = "videos"
 MANIFEST_NAME = "manifest.json"
+PARTIAL_DIR = ".synth-partial"
+"""Where a run renders before it moves the finished study into place (removed on failure)."""
+MIN_SIZE = 16
+MAX_SIZE = 8192
+"""Frame sizes in pixels: the renderer's eight float32 attachments and the study's screens."""
+MAX_SECONDS = 60.0
 SPLAT_KEYFRAME_SECONDS = 0.25
 
 
@@ -64,15 +77,19 @@ class SynthOptions:
 
     def check(self) -> None:
         """Raise StudyError for options that cannot work, saying what to change."""
-        if self.width < 16 or self.height < 16 or self.width % 8 or self.height % 8:
+        if (not MIN_SIZE <= self.width <= MAX_SIZE or not MIN_SIZE <= self.height <= MAX_SIZE
+                or self.width % 8 or self.height % 8):
             raise StudyError(
-                f"size {self.width}x{self.height}: width and height must be multiples of 8, "
-                "at least 16"
+                f"--size {self.width}x{self.height}: width and height must be multiples of 8, "
+                f"at least {MIN_SIZE} and at most {MAX_SIZE}"
             )
         if self.fps not in (30, 60):
             raise StudyError(f"--fps {self.fps}: choose 30 or 60")
         if not math.isfinite(self.seconds):
             raise StudyError(f"--seconds {self.seconds}: give a finite number of seconds, e.g. 1")
+        if self.seconds > MAX_SECONDS:
+            raise StudyError(f"--seconds {self.seconds:g} is too long for a rating stimulus: "
+                             f"give at most {MAX_SECONDS:g} seconds")
         frames = self.seconds * self.fps
         if self.seconds <= 0 or abs(frames - round(frames)) > 1e-6 or round(frames) < 2:
             raise StudyError(
@@ -80,7 +97,12 @@ class SynthOptions:
                 "frames, at least 2"
             )
         if not self.scenes:
-            raise StudyError("no scenes selected")
+            raise StudyError("no scenes selected; give --scenes, e.g. "
+                             f"--scenes {','.join(DEFAULT_SCENES)}")
+        repeated = sorted({s for s in self.scenes if self.scenes.count(s) > 1})
+        if repeated:
+            raise StudyError(f"--scenes names {', '.join(repeated)} more than once; give each "
+                             "scene once")
         unknown = [s for s in self.scenes if s not in available_scenes()]
         if unknown:
             raise StudyError(
@@ -88,7 +110,8 @@ class SynthOptions:
                 f"{', '.join(available_scenes())}"
             )
         if not self.methods:
-            raise StudyError("no methods selected")
+            raise StudyError(f"no methods selected; give --methods all or some of "
+                             f"{', '.join(METHODS)}")
         bad = [m for m in self.methods if m not in METHODS]
         if bad:
             raise StudyError(
@@ -223,70 +246,127 @@ def synthesize(out_dir: str | Path, opts: SynthOptions, *, overwrite: bool = Fal
                progress: bool = True) -> Path:
     """Render the stimuli of ``opts`` into the study folder ``out_dir``; returns the manifest.
 
-    The folder gets ``manifest.json`` and ``videos/<scene>/*.mkv`` (FFV1, lossless).
-    Long on purpose: one GL context renders every scene and level in a fixed order, so the same
-    seed gives the same bytes; the loop and the manifest entries it writes stay together.
+    The folder gets ``manifest.json`` and ``videos/<scene>/*.mkv`` (FFV1, lossless). Options
+    are checked (sizes, duration, memory, the GL driver's limits) before anything is created;
+    the study is rendered into ``PARTIAL_DIR`` inside ``out_dir`` and moved into place only when
+    it is complete, so a failure leaves no half-made study (and keeps one being overwritten).
     """
     opts.check()
     out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise StudyError(f"--out {out} is a file; give a folder for the study")
     manifest_path = out / MANIFEST_NAME
     video_root = out / VIDEO_DIR
-    if manifest_path.exists() or video_root.exists():
-        if not overwrite:
-            raise StudyError(
-                f"{out} already holds a study ({MANIFEST_NAME} or {VIDEO_DIR}/); choose another "
-                "--out or pass --overwrite"
-            )
-        shutil.rmtree(video_root, ignore_errors=True)
-        manifest_path.unlink(missing_ok=True)
-    video_root.mkdir(parents=True, exist_ok=True)
-
+    if (manifest_path.exists() or video_root.exists()) and not overwrite:
+        raise StudyError(
+            f"{out} already holds a study ({MANIFEST_NAME} or {VIDEO_DIR}/); choose another "
+            "--out or pass --overwrite"
+        )
     need = opts.memory_estimate()
+    available = available_memory_bytes()
+    if available is not None and need > available:
+        raise StudyError(
+            f"rendering would hold about {need / 1024**3:.1f} GiB of frames per scene but only "
+            f"{available / 1024**3:.1f} GiB of memory is available; use a smaller --size or "
+            "--seconds"
+        )
     if need > 2 * 1024**3:
         log.warning("rendering holds about %.1f GiB of frames per scene; use a smaller --size "
                     "or --seconds if memory runs out", need / 1024**3)
     ctx = create_context()
+    try:
+        limit = max_render_size(ctx)
+        if limit is not None and max(opts.width, opts.height) > limit:
+            raise StudyError(
+                f"--size {opts.width}x{opts.height}: this OpenGL driver renders at most "
+                f"{limit}x{limit} pixels; choose a smaller --size"
+            )
+        created = [p for p in (out, *out.parents) if not p.exists()]
+        partial = out / PARTIAL_DIR
+        shutil.rmtree(partial, ignore_errors=True)  # left by a run that was killed
+        try:
+            (partial / VIDEO_DIR).mkdir(parents=True)
+            _build(ctx, opts, partial, progress)
+        except BaseException:
+            shutil.rmtree(partial, ignore_errors=True)
+            for folder in created:  # deepest first; only the folders this run made
+                try:
+                    folder.rmdir()
+                except OSError:
+                    break
+            raise
+    finally:
+        ctx.release()
+    if overwrite:
+        shutil.rmtree(video_root, ignore_errors=True)
+        manifest_path.unlink(missing_ok=True)
+    (partial / VIDEO_DIR).rename(video_root)
+    (partial / MANIFEST_NAME).rename(manifest_path)
+    partial.rmdir()
+    log.info("wrote the study to %s", out)
+    return manifest_path
+
+
+def _build(ctx, opts: SynthOptions, folder: Path, progress: bool) -> None:
+    """Render every scene and level into ``folder`` (``videos/`` and the manifest). A GL or
+    memory failure becomes a StudyError that says what to change."""
+    import moderngl
+
+    try:
+        _render_all(ctx, opts, folder, progress)
+    except moderngl.Error as exc:
+        raise StudyError(
+            f"rendering {opts.width}x{opts.height} frames failed in the OpenGL driver "
+            f"({' '.join(str(exc).split())}); choose a smaller --size"
+        ) from None
+    except MemoryError:
+        raise StudyError(
+            f"ran out of memory rendering {opts.width}x{opts.height} frames for "
+            f"{opts.seconds:g} s; use a smaller --size or --seconds"
+        ) from None
+
+
+def _render_all(ctx, opts: SynthOptions, folder: Path, progress: bool) -> None:
+    manifest_path = folder / MANIFEST_NAME
+    video_root = folder / VIDEO_DIR
     conditions_per_scene = sum(len(METHODS[m].levels) for m in opts.methods)
     total = len(opts.scenes) * (_frames_to_render(opts) + conditions_per_scene)
     references: list[Reference] = []
     conditions: list[Condition] = []
     interp = "frame_interpolation" in opts.methods and opts.fps != INTERPOLATED_FPS
-    try:
-        with tqdm(total=total, desc="synth", unit="step", disable=not progress) as bar:
-            for s_idx, scene in enumerate(opts.scenes):
-                scene_seed = _seed_for(opts.seed, s_idx) & 0xFFFFFFFF
-                bar.set_postfix_str(f"{scene}: rendering")
-                frames = _render_scene(ctx, opts, scene, scene_seed, lambda: bar.update(1))
-                base_ref = SceneRef(len(references) + 1, scene, opts.fps,
-                                    frames.ref60[0 : opts.frames_60 : opts.base_step])
-                refs = {opts.fps: base_ref}
-                if interp:
-                    refs[INTERPOLATED_FPS] = SceneRef(len(references) + 2, scene,
-                                                      INTERPOLATED_FPS,
-                                                      frames.ref60[: opts.frames_60])
-                for ref in refs.values():
-                    rel = f"{scene}/reference_{ref.fps}fps.mkv"
-                    _write(video_root / rel, ref.frames, ref.fps)
-                    references.append(Reference(
-                        id=ref.id, path=rel, scene=scene, fps=ref.fps, width=opts.width,
-                        height=opts.height, frames=len(ref.frames),
-                        metadata={"renderer": "16 jittered samples per pixel, expected lighting"},
+    with tqdm(total=total, desc="synth", unit="step", disable=not progress) as bar:
+        for s_idx, scene in enumerate(opts.scenes):
+            scene_seed = _seed_for(opts.seed, s_idx) & 0xFFFFFFFF
+            bar.set_postfix_str(f"{scene}: rendering")
+            frames = _render_scene(ctx, opts, scene, scene_seed, lambda: bar.update(1))
+            base_ref = SceneRef(len(references) + 1, scene, opts.fps,
+                                frames.ref60[0 : opts.frames_60 : opts.base_step])
+            refs = {opts.fps: base_ref}
+            if interp:
+                refs[INTERPOLATED_FPS] = SceneRef(len(references) + 2, scene,
+                                                  INTERPOLATED_FPS,
+                                                  frames.ref60[: opts.frames_60])
+            for ref in refs.values():
+                rel = f"{scene}/reference_{ref.fps}fps.mkv"
+                _write(video_root / rel, ref.frames, ref.fps)
+                references.append(Reference(
+                    id=ref.id, path=rel, scene=scene, fps=ref.fps, width=opts.width,
+                    height=opts.height, frames=len(ref.frames),
+                    metadata={"renderer": "16 jittered samples per pixel, expected lighting"},
+                ))
+            for method in opts.methods:
+                for lv in METHODS[method].levels:
+                    bar.set_postfix_str(f"{scene}: {method} L{lv.level}")
+                    imgs, fps = _condition_frames(ctx, opts, scene, s_idx, scene_seed,
+                                                  frames, method, lv.value)
+                    rel = f"{scene}/{method}_L{lv.level}.mkv"
+                    _write(video_root / rel, imgs, fps)
+                    conditions.append(Condition(
+                        reference=refs[fps].id, path=rel, method=method, level=lv.level,
+                        setting=lv.setting,
+                        metadata={"parameter": lv.value, "fps": fps, "scene": scene},
                     ))
-                for method in opts.methods:
-                    for lv in METHODS[method].levels:
-                        bar.set_postfix_str(f"{scene}: {method} L{lv.level}")
-                        imgs, fps = _condition_frames(ctx, opts, scene, s_idx, scene_seed,
-                                                      frames, method, lv.value)
-                        rel = f"{scene}/{method}_L{lv.level}.mkv"
-                        _write(video_root / rel, imgs, fps)
-                        conditions.append(Condition(
-                            reference=refs[fps].id, path=rel, method=method, level=lv.level,
-                            setting=lv.setting,
-                            metadata={"parameter": lv.value, "fps": fps, "scene": scene},
-                        ))
-                        bar.update(1)
-    finally:
-        ctx.release()
+                    bar.update(1)
 
     manifest = Manifest(
         study_id=opts.study_id,
@@ -312,8 +392,7 @@ def synthesize(out_dir: str | Path, opts: SynthOptions, *, overwrite: bool = Fal
     save_manifest(manifest, manifest_path)
     loaded = load_manifest(manifest_path)
     save_manifest(fill_checksums(loaded, progress=progress), manifest_path)
-    log.info("wrote %d references and %d conditions to %s", len(references), len(conditions), out)
-    return manifest_path
+    log.info("wrote %d references and %d conditions", len(references), len(conditions))
 
 
 @dataclass

@@ -75,9 +75,11 @@ INTERPOLATED_FPS = 60
 
 def parse_methods(text: str | None) -> list[str]:
     """Comma-separated family names (or ``all``) -> list in the canonical order."""
-    if text is None or text.strip().lower() in ("", "all"):
+    if text is None or text.strip().lower() == "all":
         return list(METHODS)
     wanted = [t.strip() for t in text.split(",") if t.strip()]
+    if not wanted:
+        raise StudyError(f"--methods is empty; give 'all' or some of {', '.join(METHODS)}")
     unknown = [w for w in wanted if w not in METHODS]
     if unknown:
         raise StudyError(

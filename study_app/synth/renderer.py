@@ -51,6 +51,19 @@ def create_context():  # -> moderngl.Context
         ) from None
 
 
+def max_render_size(ctx) -> int | None:
+    """The largest width or height the context can render into (texture, renderbuffer and
+    viewport limits), or None when the driver does not say."""
+    limits = []
+    for key in ("GL_MAX_TEXTURE_SIZE", "GL_MAX_RENDERBUFFER_SIZE", "GL_MAX_VIEWPORT_DIMS"):
+        value = ctx.info.get(key)
+        if isinstance(value, (tuple, list)):
+            limits.extend(int(v) for v in value)
+        elif isinstance(value, int):
+            limits.append(value)
+    return min(limits) if limits else None
+
+
 @dataclass(frozen=True)
 class SampledFrame:
     """Pass 0: the reference, Monte Carlo estimates by spp and the sample-averaged albedo."""
@@ -93,10 +106,20 @@ class SceneRenderer:
         except Exception as exc:
             raise StudyError(f"scene {scene!r}: shader does not compile: {exc}") from None
         self.vao = ctx.vertex_array(self.program, [])
-        self.textures = [
-            ctx.texture((self.width, self.height), 4, dtype="f4") for _ in range(N_ATTACHMENTS)
-        ]
-        self.fbo = ctx.framebuffer(color_attachments=self.textures)
+        self.textures = []
+        try:
+            for _ in range(N_ATTACHMENTS):
+                self.textures.append(ctx.texture((self.width, self.height), 4, dtype="f4"))
+            self.fbo = ctx.framebuffer(color_attachments=self.textures)
+        except Exception as exc:
+            for tex in self.textures:
+                tex.release()
+            self.vao.release()
+            self.program.release()
+            raise StudyError(
+                f"the OpenGL driver cannot render {self.width}x{self.height} frames "
+                f"({' '.join(str(exc).split())}); choose a smaller --size"
+            ) from None
         self._set("u_res", (float(self.width), float(self.height)))
         self._set("u_seed", int(seed) & 0xFFFFFFFF)
 

@@ -39,3 +39,14 @@ def test_templates_are_not_added_under_sessions(tmp_path, capsys):
     assert main(["panel", str(study), "--add-templates"]) == 2
     assert "already holds session files" in capsys.readouterr().err
     assert load_manifest(study / "manifest.json").manifest.panel is None
+
+
+def test_template_options_without_add_templates_are_refused(tmp_path, capsys):
+    study = make_study(tmp_path / "study")
+    before = (study / "manifest.json").read_bytes()
+    for args in (["--acuity"], ["--on-fail", "end"], ["--no-colour-check"],
+                 ["--on-fail", "flag"]):
+        assert main(["panel", str(study), *args]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "--add-templates" in err and args[0] in err, err
+    assert (study / "manifest.json").read_bytes() == before

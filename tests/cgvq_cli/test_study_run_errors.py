@@ -63,3 +63,10 @@ def test_invalid_window_sizes(tiny_study, capsys, size, words):
 def test_invalid_options(tiny_study, capsys, args, words):
     err = _refused(capsys, tiny_study, "--participant", "P01", *args)
     assert words in err
+
+
+@pytest.mark.parametrize("seed", ["-1", str(2**63)])
+def test_seed_out_of_range(tiny_study, capsys, seed):
+    err = _refused(capsys, tiny_study, "--participant", "P01", "--pilot-no-vsync",
+                   "--seed", seed)
+    assert "--seed must be a whole number from 0" in err

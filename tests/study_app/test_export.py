@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import zipfile
 
+import pytest
 from support.sessions import bare_session, plain_result
 from support.tamper import edit_database
 
@@ -87,3 +88,55 @@ def test_export_refuses_files_edited_into_bad_ids_or_bad_json(tmp_path, capsys):
     assert err.count("\n") == 1 and "settings is not valid JSON" in err
     assert main(["verify", str(path2)]) == 2
     capsys.readouterr()
+
+
+@pytest.mark.parametrize("what, says", [
+    ("missing", "not found"),
+    ("empty folder", "holds no session file"),
+    ("text file", "not a readable SQLite session file"),
+    ("truncated", "not a readable SQLite session file"),
+])
+def test_verify_of_unusable_input_also_says_so_on_stderr(tmp_path, capsys, what, says):
+    good = tmp_path / "P01.sqlite"
+    with bare_session(good, "P01", n=2) as store:
+        store.record(0, plain_result(1.0))
+    target = tmp_path / "input"
+    if what == "empty folder":
+        target.mkdir()
+    elif what == "text file":
+        target.write_text("just some text\n")
+    elif what == "truncated":
+        target.write_bytes(good.read_bytes()[:2048])
+    code = main(["verify", str(target)])
+    out, err = capsys.readouterr()
+    assert code == 2
+    assert "DAMAGED" in out  # the verdict stays on stdout
+    assert err.count("\n") == 1 and err.startswith("cgvq-study verify: error:"), err
+    assert says in err
+
+
+def test_export_refuses_outputs_it_would_clobber_or_misname(tmp_path, capsys):
+    session = tmp_path / "P01.sqlite"
+    with bare_session(session, "P01", n=2) as store:
+        store.record(0, plain_result(1.0))
+    notes = tmp_path / "notes.csv"
+    notes.write_text("my own notes\n")
+    cases = [
+        (["--out", str(tmp_path / "foo.tar")], "give a path ending in .zip"),
+        (["--out", str(tmp_path / "z"), "--csv", str(notes)], "is not a ratings CSV"),
+        (["--out", str(notes)], "existing file"),
+    ]
+    for args, says in cases:
+        code = main(["export", str(session), *args])
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1 and says in err, err
+    assert not (tmp_path / "foo.tar").exists() and not (tmp_path / "z").exists()
+    assert notes.read_text() == "my own notes\n"
+    # a ratings CSV and a zip written by an earlier export may be replaced
+    again = ["export", str(session), "--out", str(tmp_path / "a.zip"), "--csv",
+             str(tmp_path / "r.csv")]
+    assert main(again) == 0 and main(again) == 0
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["export", str(empty)]) == 2
+    assert "holds no session file" in capsys.readouterr().err

@@ -9,6 +9,7 @@ import sys
 import numpy as np
 import pytest
 
+from cgvq_cli.study_cli import main
 from session_store import read_info, read_ratings, verify_session
 from session_store.errors import StudyError
 from session_store.schedule import ScheduleItem, make_schedule
@@ -123,3 +124,39 @@ def test_cli(manifest, tmp_path):
     assert res.returncode == 0, res.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == [
         "ground_truth.json", "ground_truth_stimuli.csv", "sim01.sqlite", "sim02.sqlite"]
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--raters", "100000000"], "from 1 to 10000 raters"),
+    (["--raters", "2", "--pace", "-1"], "--pace"),
+    (["--raters", "2", "--stagger", "nan"], "--stagger"),
+    (["--raters", "2", "--upload-timeout", "-1"], "--upload-timeout"),
+    (["--raters", "2", "--upload-timeout", "inf"], "--upload-timeout"),
+])
+def test_cli_refuses_out_of_range_options(manifest, tmp_path, capsys, args, says):
+    out = tmp_path / "out"
+    code = main(["simulate", "--manifest", str(manifest), "--out", str(out), "--no-progress",
+                 *args])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and says in err, err
+    assert not out.exists()
+
+
+def test_cli_refuses_an_unreachable_server_before_writing(manifest, tmp_path, capsys):
+    import socket
+
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    invites = tmp_path / "invites.csv"
+    invites.write_text("participant,token,server,command\n"
+                       f"P01,tok_0123456789abcdef0123456789,http://127.0.0.1:{port},x\n"
+                       f"P02,tok_abcdef0123456789abcdef012345,http://127.0.0.1:{port},x\n")
+    out = tmp_path / "out"
+    code = main(["simulate", "--manifest", str(manifest), "--raters", "2", "--out", str(out),
+                 "--no-progress", "--server", f"http://127.0.0.1:{port}", "--invites",
+                 str(invites), "--upload-timeout", "1"])
+    captured = capsys.readouterr()
+    assert code == 2
+    assert captured.err.count("\n") == 1 and "cannot reach the study server" in captured.err
+    assert not out.exists()

@@ -272,3 +272,29 @@ def test_init_refuses_a_folder_without_videos_and_a_foreign_out_folder(tmp_path,
     code, _, err = init(capsys, renders, "--out", other)
     assert code == 2 and "is not empty and holds no manifest.json" in err
     assert [p.name for p in other.iterdir()] == ["thesis.tex"]
+
+
+def test_init_refuses_a_folder_with_references_only(tmp_path, capsys):
+    renders, study = tmp_path / "renders", tmp_path / "study"
+    write_video(renders / "forest" / "reference.mkv", clip(1), FPS)
+    code, out, err = init(capsys, renders, "--out", study)
+    assert code == 2
+    assert len(error_lines(err)) == 1 and "cgvq-study init: error:" in err
+    assert "a study needs at least one test video" in err
+    assert "no test videos" in out
+    assert not study.exists()
+
+
+def test_check_refuses_a_manifest_without_conditions(tmp_path, capsys):
+    renders, study = tmp_path / "renders", tmp_path / "study"
+    make_renders(renders, problems=False)
+    assert init(capsys, renders, "--out", study)[0] == 0
+    data = json.loads((study / "manifest.json").read_text())
+    data["conditions"] = []
+    data["protocol"]["repetitions"] = 1
+    (study / "manifest.json").write_text(json.dumps(data))
+    code = main(["check", str(study)])
+    out, err = capsys.readouterr()
+    assert code == 2
+    assert "OK" not in out
+    assert len(error_lines(err)) == 1 and "no test conditions" in err, err

@@ -196,3 +196,98 @@ def test_tokens_never_start_with_a_dash(monkeypatch):
     assert auth.new_token() == "fine_token_0123456789"
     monkeypatch.undo()
     assert not any(auth.new_token().startswith("-") for _ in range(2000))
+
+
+def _one_line_refusal(proc, says):
+    assert proc.returncode == 2, (proc.stdout, proc.stderr)
+    assert proc.stderr.count("\n") == 1 and says in proc.stderr, proc.stderr
+    assert proc.stdout == ""  # nothing announced (no URL, no admin token)
+
+
+@pytest.mark.parametrize("folder", ["missing", "empty"])
+def test_serve_without_a_study_creates_nothing(tmp_path, folder):
+    target = tmp_path / "target"
+    if folder == "empty":
+        target.mkdir()
+    proc = run_cli("serve", str(target), "--port", "0", timeout=60)
+    _one_line_refusal(proc, "study folder not found" if folder == "missing" else
+                      "holds no manifest.json")
+    assert not (target / "server").exists()
+    assert (folder == "empty") == target.exists()
+    proc = run_cli("backup", str(target), timeout=60)
+    assert proc.returncode == 2 and "nothing to back up" in proc.stderr
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--rate", "nan"], "--rate must be a positive number"),
+    (["--stats-every", "inf"], "--stats-every must be a positive number"),
+    (["--target-raters", "0"], "--target-raters must be at least 1"),
+    (["--behind-proxy", "not-an-ip,,"], "no empty entries"),
+    (["--behind-proxy", "not-an-ip"], "is not an IP address"),
+    (["--host", "no such host!", "--insecure"], "cannot be resolved"),
+])
+def test_serve_refuses_bad_options_before_anything(served_study, args, says):
+    proc = run_cli("serve", str(served_study), "--port", "0", *args, timeout=60)
+    _one_line_refusal(proc, says)
+    assert not (served_study / "server").exists()
+
+
+def test_serve_checks_the_tls_files_before_announcing(served_study, tmp_path):
+    import shutil
+    import subprocess
+
+    text = tmp_path / "text.txt"
+    text.write_text("not a certificate\n")
+    proc = run_cli("serve", str(served_study), "--port", "0", "--certfile", str(text),
+                   "--keyfile", str(text), timeout=60)
+    _one_line_refusal(proc, "--certfile")
+    assert "is not a PEM certificate" in proc.stderr
+    if shutil.which("openssl") is None:
+        return
+    pairs = []
+    for k in (1, 2):
+        cert, key = tmp_path / f"cert{k}.pem", tmp_path / f"key{k}.pem"
+        subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days",
+                        "2", "-subj", "/CN=127.0.0.1", "-keyout", str(key), "-out", str(cert)],
+                       check=True, capture_output=True, timeout=120)
+        pairs.append((cert, key))
+    for keyfile, says in ((text, "is not a PEM private key"),
+                          (pairs[1][1], "is not the private key of the certificate")):
+        proc = run_cli("serve", str(served_study), "--port", "0", "--certfile",
+                       str(pairs[0][0]), "--keyfile", str(keyfile), timeout=60)
+        _one_line_refusal(proc, says)
+        assert "--keyfile" in proc.stderr
+    assert not (served_study / "server").exists()
+
+
+def test_invite_checks_every_input_before_writing_or_registering(served_study, tmp_path):
+    a_file = tmp_path / "text.txt"
+    a_file.write_text("x")
+    out = tmp_path / "inv.csv"
+    proc = run_cli("invite", str(served_study), "--n", "2", "--out", str(out), "--files",
+                   str(a_file))
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1
+    assert "--files" in proc.stderr and "is a file" in proc.stderr
+    assert not out.exists() and not (served_study / "server").exists()
+
+    proc = run_cli("invite", str(served_study), "--n", "100000000", "--out", str(out),
+                   timeout=60)
+    assert proc.returncode == 2 and "from 1 to 10000" in proc.stderr and not out.exists()
+
+    folder = tmp_path / "a-folder"
+    folder.mkdir()
+    proc = run_cli("invite", str(served_study), "--n", "1", "--out", str(folder))
+    assert proc.returncode == 2 and "is a folder" in proc.stderr
+    assert "earlier tokens" not in proc.stderr
+
+    # invite files that exist already: refused after reading the ids, nobody registered
+    assert run_cli("invite", str(served_study), "--n", "1", "--out",
+                   str(tmp_path / "first.csv")).returncode == 0
+    links = tmp_path / "links"
+    links.mkdir()
+    (links / "P02.cgvq-invite.json").write_text("{}")
+    proc = run_cli("invite", str(served_study), "--n", "1", "--out", str(out), "--files",
+                   str(links))
+    assert proc.returncode == 2 and "holds invite files already" in proc.stderr
+    assert not out.exists()
+    assert [r[0] for r in db_dump(served_study)["participants"]] == ["P01"]

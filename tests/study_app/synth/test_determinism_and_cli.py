@@ -57,6 +57,13 @@ def _cli(*args):
         (["--methods", "raytracing"], "unknown method"),
         (["--scenes", "nowhere"], "unknown scene"),
         (["--seconds", "0.01"], "whole number of frames"),
+        (["--size", "800000"], "at most 8192"),
+        (["--size", "16384x16"], "at most 8192"),
+        (["--size", "8"], "at least 16"),
+        (["--seconds", "1e9"], "at most 60 seconds"),
+        (["--methods", ""], "--methods is empty"),
+        (["--methods", ","], "--methods is empty"),
+        (["--scenes", "colonnade,colonnade"], "more than once"),
     ],
 )
 def test_cli_user_errors_are_one_line_exit_2(tmp_path, args, message):
@@ -65,6 +72,51 @@ def test_cli_user_errors_are_one_line_exit_2(tmp_path, args, message):
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], res.stderr
     assert "Traceback" not in res.stderr
+    assert not (tmp_path / "s").exists()
+
+
+def _failing_render(*_args, **_kwargs):
+    import moderngl
+
+    raise moderngl.Error("the framebuffer is not complete")
+
+
+def test_render_failure_is_a_study_error_and_leaves_no_folder(egl, tmp_path, monkeypatch):
+    from session_store.errors import StudyError
+    from study_app.synth import build
+
+    monkeypatch.setattr(build, "_render_scene", _failing_render)
+    out = tmp_path / "new" / "study"
+    with pytest.raises(StudyError, match="smaller --size"):
+        synthesize(out, SynthOptions(width=16, height=16, seconds=0.1, methods=("vrs",),
+                                     scenes=("colonnade",)), progress=False)
+    assert not (tmp_path / "new").exists()
+
+
+def test_render_failure_keeps_the_study_being_overwritten(egl, tmp_path, monkeypatch):
+    from session_store.errors import StudyError
+    from study_app.synth import build
+
+    out = tmp_path / "study"
+    (out / "videos").mkdir(parents=True)
+    (out / "manifest.json").write_text("{}")
+    monkeypatch.setattr(build, "_render_scene", _failing_render)
+    with pytest.raises(StudyError, match="OpenGL driver"):
+        synthesize(out, SynthOptions(width=16, height=16, seconds=0.1, methods=("vrs",),
+                                     scenes=("colonnade",)), overwrite=True, progress=False)
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "videos"]
+    assert (out / "manifest.json").read_text() == "{}"
+
+
+def test_more_frames_than_memory_is_refused_before_anything(tmp_path, monkeypatch):
+    from session_store.errors import StudyError
+    from study_app.synth import build
+
+    monkeypatch.setattr(build, "available_memory_bytes", lambda: 1024**2)
+    with pytest.raises(StudyError, match="memory is available"):
+        synthesize(tmp_path / "s", SynthOptions(width=512, height=512, seconds=10,
+                                                methods=("vrs",)), progress=False)
+    assert not (tmp_path / "s").exists()
 
 
 def test_cli_writes_a_study(egl, tmp_path):

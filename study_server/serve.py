@@ -133,8 +133,21 @@ def check_tls_files(certfile: Path, keyfile: Path) -> None:
                          "key in PEM format") from None
 
 
+_HOST_NAME = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9.-]*[A-Za-z0-9])?")
+
+
 def resolve_host(host: str, port: int) -> None:
-    """Refuse a --host that is no address and no resolvable name."""
+    """Refuse a --host that is no address and no resolvable name. A name that cannot be one
+    (spaces, punctuation) is refused here, without asking a name server."""
+    try:
+        ipaddress.ip_address(host)
+        return
+    except ValueError:
+        pass
+    if not _HOST_NAME.fullmatch(host):
+        raise StudyError(f"--host {host!r} cannot be resolved: it is neither an IP address nor "
+                         "a host name (letters, digits, '-' and '.'); give an IP address of "
+                         "this machine (e.g. 127.0.0.1 or 0.0.0.0) or its host name")
     try:
         socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
     except (socket.gaierror, UnicodeError) as exc:

@@ -291,3 +291,18 @@ def test_invite_checks_every_input_before_writing_or_registering(served_study, t
     assert proc.returncode == 2 and "holds invite files already" in proc.stderr
     assert not out.exists()
     assert [r[0] for r in db_dump(served_study)["participants"]] == ["P01"]
+
+
+def test_a_host_that_cannot_be_a_name_is_refused_without_asking_a_name_server(monkeypatch):
+    from session_store.errors import StudyError
+    from study_server import serve
+
+    def lookup(*_args, **_kw):
+        pytest.fail("a name server was asked")
+
+    monkeypatch.setattr(serve.socket, "getaddrinfo", lookup)
+    for host in ("no such host!", "a b", "", "[::1]"):
+        with pytest.raises(StudyError, match="neither an IP address nor a host name"):
+            serve.resolve_host(host, 0)
+    for address in ("127.0.0.1", "0.0.0.0", "::1"):
+        serve.resolve_host(address, 0)  # addresses need no lookup

@@ -202,6 +202,44 @@ def _options(args: argparse.Namespace, pools: list[str]) -> Any:
         **_learned(args))
 
 
+def _set_options(args: argparse.Namespace) -> list[tuple[str, str]]:
+    """(flag, MetricOptions field) for each metric option this run sets to other than its
+    default: what some metric asked for must read."""
+    from .metrics.viewing import DEFAULT_DISPLAY
+
+    pool = args.pool if isinstance(args.pool, list) else [args.pool]
+    given = {
+        "--display": ("viewing", str(args.display).strip().lower() != DEFAULT_DISPLAY),
+        "--ppd": ("viewing", args.ppd is not None),
+        "--weights": ("weights", args.weights is not None),
+        "--backbone": ("backbone", args.backbone is not None),
+        "--random-backbone": ("random_backbone", args.random_backbone is not None),
+        "--precision": ("precision", args.precision != "auto"),
+        "--fast-stem": ("fast_stem", args.fast_stem),
+        "--patch-scale": ("patch_scale", args.patch_scale != 4),
+        "--seamless": ("seamless", args.seamless),
+        "--batch-size": ("batch_size", args.batch_size is not None),
+        "--pool": ("pools", any(p not in (None, "max") for p in pool)),
+        "--learned-weights": ("learned_weights", bool(args.learned_weights)),
+        "--learned-sha256": ("learned_sha256", bool(args.learned_sha256)),
+    }
+    return [(flag, field) for flag, (field, is_set) in given.items() if is_set]
+
+
+def _refuse_unread_options(args: argparse.Namespace, names: list[str]) -> None:
+    """An option that none of the metrics asked for reads would be silently ignored (for
+    example --precision fp16 with psnr, or a learned-weights file with CGVQM): refuse it,
+    saying which metrics it is for."""
+    from .metrics import readers
+
+    _learned(args)  # a malformed PART=PATH or PART=HEX is named as such first
+    for flag, field in _set_options(args):
+        if not readers(field, names):
+            users = ", ".join(readers(field))
+            raise CGVQMError(f"{flag} applies to {users}, not to {', '.join(names)}: "
+                             f"drop it, or ask for a metric that reads it")
+
+
 def _learned(args: argparse.Namespace) -> dict[str, Any]:
     """--learned-weights PART=PATH / DIR and --learned-sha256 PART=HEX as MetricOptions."""
     from .metrics.learned.files import PARTS
@@ -336,6 +374,10 @@ def _cmd_score(args: argparse.Namespace) -> int:
         raise CGVQMError("give --metric or --variant, not both")
     if args.strict:
         _refuse_mismatched_pair(args)
+    from .metrics import get_entry
+
+    get_entry(name)  # an unknown name first, with the list
+    _refuse_unread_options(args, [name])
     if name not in ("cgvqm-2", "cgvqm-5"):
         if args.emap or args.emap_png:
             raise CGVQMError(f"error maps are written for CGVQM only, not {name}")
@@ -396,6 +438,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     pools = list(dict.fromkeys(args.pool or ["max"]))
     options = _options(args, pools)
     names = parse_metric_list(requested or ["cgvqm-2"], options)
+    _refuse_unread_options(args, names)
     _threads(args)
     if cluster is None:
         run = score_manifest

@@ -20,6 +20,7 @@ import torch
 
 from .backbone import build_backbone, expected_keys
 from .errors import CGVQMError, key_mismatch
+from .safe_load import load_tensors, refusal_reason
 from .weights import offline
 
 log = logging.getLogger(__name__)
@@ -96,16 +97,10 @@ def load_backbone_file(path: str | Path, arch: str = "r3d_18") -> Backbone:
         raise CGVQMError(f"{path}: the backbone file is empty (an interrupted copy?); copy "
                          f"{BACKBONE_FILE} again")
     try:
-        try:
-            sd = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
-        except RuntimeError:
-            sd = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        # torch's own text suggests weights_only=False, which would run the file's code
-        why = ("not a file of tensors only" if "weights_only" in str(exc)
-               else (str(exc).splitlines() or [type(exc).__name__])[0][:200])
-        raise CGVQMError(f"{path}: not a readable PyTorch state dict ({why}); give "
-                         f"the R3D-18 file {BACKBONE_FILE}") from None
+        sd = load_tensors(path)
+    except Exception as exc:  # torch raises many types for refused or broken files
+        raise CGVQMError(f"{path}: not a readable PyTorch state dict ({refusal_reason(exc)}); "
+                         f"give the R3D-18 file {BACKBONE_FILE}") from None
     if isinstance(sd, Mapping) and "state_dict" in sd and isinstance(sd["state_dict"], Mapping):
         sd = sd["state_dict"]
     if not isinstance(sd, Mapping):

@@ -438,6 +438,22 @@ def _write_truth(panel: _Panel, opts: SimulationOptions, raters: list[RaterTruth
     return truth_path
 
 
+def _check_colour_failures(manifest: Any, opts: SimulationOptions) -> None:
+    """Failures of a check the panel does not run, or more of them than there are raters who
+    are not outliers, would silently simulate fewer than asked for."""
+    if not opts.colour_failures:
+        return
+    vs = manifest.panel.vision_screening if manifest.panel is not None else None
+    if vs is None or not vs.colour:
+        raise StudyError(f"--colour-failures {opts.colour_failures}: this manifest's panel does "
+                         "not screen colour vision (panel.vision_screening.colour; "
+                         "cgvq-study panel adds it)")
+    honest = opts.raters - opts.outliers
+    if opts.colour_failures > honest:
+        raise StudyError(f"--colour-failures {opts.colour_failures}: at most the raters who are "
+                         f"not outliers ({honest}) can fail the colour check")
+
+
 def run_simulation(manifest_path: str | Path, out_dir: str | Path, opts: SimulationOptions,
                    *, overwrite: bool = False, progress: bool = True,
                    upload: UploadOptions | None = None) -> SimulationRun:
@@ -448,6 +464,10 @@ def run_simulation(manifest_path: str | Path, out_dir: str | Path, opts: Simulat
     stimuli = loaded.manifest.stimuli()
     if not stimuli:
         raise StudyError(f"{manifest_path}: the manifest has no stimuli to rate")
+    if not loaded.manifest.conditions:
+        raise StudyError(f"{manifest_path}: the manifest lists no test videos (conditions), "
+                         "only references; add conditions (cgvq-study init) before simulating")
+    _check_colour_failures(loaded.manifest, opts)
     repetitions = opts.repetitions or loaded.manifest.protocol.repetitions
     if len(stimuli) == 1 and repetitions > 1:
         raise StudyError("a single stimulus cannot be repeated without showing it twice in a "

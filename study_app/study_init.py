@@ -86,6 +86,9 @@ def init_study(opts: InitOptions) -> InitResult:
         raise StudyError(f"{opts.folder} is not a folder of videos")
     if out == folder:
         raise StudyError("--out must be a new folder, not the folder of renders itself")
+    blocker = next((p for p in (out, *out.parents) if p.exists() and not p.is_dir()), None)
+    if blocker is not None:  # found now, not after probing every video
+        raise StudyError(f"--out {opts.out}: {blocker} is a file; give a folder for the study")
     if opts.study_id is not None and not is_valid_id(opts.study_id):
         raise StudyError(f"--study-id {opts.study_id!r} may contain only letters, digits, "
                          "'_', '-' and '.', and must start with a letter or digit")

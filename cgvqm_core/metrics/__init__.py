@@ -22,9 +22,10 @@ from .registry import (
     get_entry,
     metric_table_rows,
     parse_metric_list,
+    readers,
 )
 from .viewing import ViewingCondition
 
 __all__ = ["HIGHER", "LOWER", "Availability", "Entry", "MetricOptions", "MetricScore",
            "MetricSpec", "ViewingCondition", "build_scorers", "entries", "get_entry",
-           "metric_table_rows", "parse_metric_list", "score_reference"]
+           "metric_table_rows", "parse_metric_list", "readers", "score_reference"]

@@ -48,7 +48,9 @@ def _spec(variant: str, levels: str) -> MetricSpec:
         licence="cgvqm_core (Apache-2.0); published weights IntelLabs/cgvqm (Apache-2.0); "
                 "R3D-18 Kinetics-400 weights from torchvision (BSD-3-Clause)",
         reference=f"Jindal et al. 2025 ({levels})", needs_weights=True,
-        outputs=("score", "per_frame", "per_clip", "error_map"), min_size=4)
+        outputs=("score", "per_frame", "per_clip", "error_map"), min_size=4,
+        reads=("weights", "backbone", "random_backbone", "precision", "patch_scale",
+               "batch_size", "seamless", "fast_stem", "pools"))
 
 
 class CGVQMScorer(VideoScorer):

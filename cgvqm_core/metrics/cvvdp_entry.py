@@ -50,7 +50,7 @@ SPEC = MetricSpec(
     value_range=(None, 10), kind=VIDEO,
     colour="sRGB frames through the display model to linear luminance, DKL opponent space",
     licence="cvvdp: MIT (University of Cambridge)", reference="Mantiuk et al. 2024",
-    outputs=("score",), min_size=16)
+    outputs=("score",), min_size=16, reads=("viewing",))
 
 _STATE: dict[str, Any] = {}
 

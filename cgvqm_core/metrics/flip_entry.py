@@ -34,7 +34,7 @@ SPEC = MetricSpec(
     name="flip", title="FLIP (LDR)", family="flip_entry", direction=LOWER, value_range=(0, 1),
     kind=IMAGE, colour="sRGB frames, FLIP's own YCxCz/L*a*b* pipeline",
     licence="flip-evaluator: BSD-3-Clause (NVIDIA)", reference="Andersson et al. 2020",
-    devices=("cpu",), min_size=1)
+    devices=("cpu",), min_size=1, reads=("viewing",))
 
 
 def flip_frame(ref: np.ndarray, test: np.ndarray, ppd: float) -> float:

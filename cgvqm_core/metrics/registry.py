@@ -50,6 +50,9 @@ class MetricSpec:
     needs_weights: bool = False
     outputs: tuple[str, ...] = ("score", "per_frame")
     min_size: int = 1  # smallest height and width it is defined for
+    #: the :class:`MetricOptions` fields, other than ``device``, that change its numbers;
+    #: an option set for a run where no metric reads it is refused, not silently ignored
+    reads: tuple[str, ...] = ()
 
     def range_text(self) -> str:
         lo, hi = self.value_range
@@ -305,6 +308,13 @@ def check_device(device: str) -> None:
                          "device; use --device cpu")
     if dev.type not in ("cpu", "cuda"):
         raise CGVQMError(f"device {device!r} is not supported; use cpu or cuda")
+
+
+def readers(option: str, names: Sequence[str] | None = None) -> list[str]:
+    """The metrics (of ``names``, or of the registry) that read the :class:`MetricOptions`
+    field ``option``."""
+    pool = [get_entry(n) for n in names] if names is not None else entries()
+    return [e.spec.name for e in pool if option in e.spec.reads]
 
 
 def build_scorers(names: Sequence[str], options: MetricOptions) -> list[Scorer]:

@@ -261,7 +261,7 @@ def test_backbone_files_that_are_no_state_dict_are_named_so(capsys, tmp_path, np
     empty.write_bytes(b"")
     garbage.write_bytes(np.random.default_rng(0).bytes(3000))
     for path, why in ((tmp_path, "is a folder"), (empty, "the backbone file is empty"),
-                      (garbage, "not a file of tensors only")):
+                      (garbage, "not a PyTorch file of tensors only")):
         args = [a for a in _score_args(npy_pair) if a not in ("--random-backbone", 0)]
         rc, _, err = _run(capsys, *args, "--backbone", path)
         line = _refused(rc, _no_warnings(err), why)

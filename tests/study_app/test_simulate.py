@@ -142,6 +142,50 @@ def test_cli_refuses_out_of_range_options(manifest, tmp_path, capsys, args, says
     assert not out.exists()
 
 
+def _variant(manifest, tmp_path, **changes):
+    doc = json.loads(manifest.read_text())
+    doc.update(changes)
+    return save_manifest(parse_manifest(doc), tmp_path / "variant.json")
+
+
+@pytest.mark.parametrize("changes, args, says", [
+    ({}, ["--colour-failures", "1"], "does not screen colour vision"),
+    ({"panel": "colour-off"}, ["--colour-failures", "1"], "does not screen colour vision"),
+    ({"panel": "colour-on"}, ["--outliers", "2", "--colour-failures", "2"],
+     "at most the raters who are not outliers (1)"),
+    ({"conditions": []}, [], "lists no test videos"),
+])
+def test_cli_refuses_what_it_would_silently_leave_out(manifest, tmp_path, capsys, changes,
+                                                      args, says):
+    """Colour-check failures the panel cannot produce, more failures than honest raters, or
+    a manifest of references alone: refused rather than simulated as something else."""
+    from stimuli_manifests.panel_templates import default_panel
+
+    if "panel" in changes:
+        changes["panel"] = default_panel(colour_check=changes["panel"] == "colour-on")
+    variant = _variant(manifest, tmp_path, **changes)
+    out = tmp_path / "out"
+    code = main(["simulate", "--manifest", str(variant), "--out", str(out), "--no-progress",
+                 "--raters", "3", *args])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and says in err, err
+    assert not out.exists()
+
+
+def test_colour_failures_are_simulated_as_asked(manifest, tmp_path):
+    from session_store import read_session
+    from stimuli_manifests.panel_templates import default_panel
+
+    variant = _variant(manifest, tmp_path, panel=default_panel())
+    out = tmp_path / "out"
+    assert main(["simulate", "--manifest", str(variant), "--out", str(out), "--no-progress",
+                 "--raters", "3", "--outliers", "1", "--colour-failures", "2"]) == 0
+    outcomes = [read_session(p).screenings for p in sorted(out.glob("*.sqlite"))]
+    failed = sum(any(s["test"] == "colour" and s["outcome"] == "failed" for s in r)
+                 for r in outcomes)
+    assert failed == 2
+
+
 def test_cli_refuses_an_unreachable_server_before_writing(manifest, tmp_path, capsys):
     import socket
 

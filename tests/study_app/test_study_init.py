@@ -274,6 +274,18 @@ def test_init_refuses_a_folder_without_videos_and_a_foreign_out_folder(tmp_path,
     assert [p.name for p in other.iterdir()] == ["thesis.tex"]
 
 
+@pytest.mark.parametrize("out", ["notes.txt", "notes.txt/study"])
+def test_init_refuses_an_out_that_is_or_lies_under_a_file(tmp_path, capsys, out):
+    renders = tmp_path / "renders"
+    make_renders(renders, problems=False)
+    (tmp_path / "notes.txt").write_text("precious")
+    code, stdout, err = init(capsys, renders, "--out", tmp_path / out)
+    assert code == 2 and len(error_lines(err)) == 1, err
+    assert "notes.txt is a file; give a folder for the study" in err
+    assert stdout == ""  # refused before any video was probed
+    assert (tmp_path / "notes.txt").read_text() == "precious"
+
+
 def test_init_refuses_a_folder_with_references_only(tmp_path, capsys):
     renders, study = tmp_path / "renders", tmp_path / "study"
     write_video(renders / "forest" / "reference.mkv", clip(1), FPS)

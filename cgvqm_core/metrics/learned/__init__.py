@@ -159,7 +159,8 @@ class LearnedEntry(Entry):
             name=d.name, title=d.title, family="learned", direction=LOWER,
             value_range=d.value_range, kind=IMAGE, colour=d.colour, licence=_licence(d),
             reference=d.reference, needs_weights=True, outputs=("score", "per_frame"),
-            min_size=d.min_size)
+            min_size=d.min_size,
+            reads=("learned_weights", "learned_dirs", "learned_sha256"))
 
     def availability(self) -> Availability:
         return self.availability_for(MetricOptions())

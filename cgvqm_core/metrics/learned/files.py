@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ...errors import CGVQMError, key_mismatch
+from ...safe_load import load_tensors, refusal_reason
 
 if TYPE_CHECKING:
     import torch
@@ -207,17 +208,11 @@ def _expected(part: Part, stated: Mapping[str, str] | None) -> str | None:
 
 
 def _read(path: Path) -> Any:
-    import torch
-
     try:
-        try:
-            return torch.load(path, map_location="cpu", weights_only=True, mmap=True)
-        except RuntimeError:  # legacy (non-zip) files cannot be memory-mapped
-            return torch.load(path, map_location="cpu", weights_only=True)
+        return load_tensors(path)
     except Exception as exc:  # torch raises many types for refused or broken files
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise CGVQMError(f"{path}: not a weights file PyTorch's safe loader accepts (tensors "
-                         f"only; {first})") from None
+        raise CGVQMError(f"{path}: not a weights file PyTorch's safe loader accepts "
+                         f"({refusal_reason(exc)})") from None
 
 
 def load(part_name: str, explicit: Mapping[str, str] | None = None,
@@ -239,10 +234,10 @@ def load(part_name: str, explicit: Mapping[str, str] | None = None,
         raise CGVQMError(f"{path}: sha256 {digest} is not that of the published "
                          f"{path.name} ({part.published[0][0]}); the file is corrupt or "
                          "incomplete, copy it again")
+    content = _read(path)  # a file that cannot be read is an error, and only that
     if published is None and expected is None:
         log.warning("%s: sha256 %s is not that of a published %s file; its scores are "
                     "recorded as from unpublished weights", path, digest, part.title)
-    content = _read(path)
     if isinstance(content, Mapping) and isinstance(content.get("state_dict"), Mapping):
         content = content["state_dict"]
     return WeightsFile(part, path, digest, published, origin, content)

@@ -548,6 +548,16 @@ def test_cli_score_with_local_weights(capsys, tmp_path, wfiles):
     rc, _, err = _run(capsys, "score", "--ref", r, "--test", t, "--metric", "lpips",
                       "--learned-weights", "nonsense")
     assert rc == 2 and "PART=PATH" in err and err.count("\n") == 1  # before any loading
+    # a file that is not weights: one error line, no hash warning before it, and not torch's
+    # advice to load it with weights_only=False
+    garbage = tmp_path / "garbage.pth"
+    garbage.write_text("not weights {")
+    rc, _, err = _run(capsys, "score", "--ref", r, "--test", t, "--metric", "lpips",
+                      "--learned-weights", f"vgg16={wfiles.paths['vgg16']}",
+                      "--learned-sha256", f"vgg16={wfiles.sha['vgg16']}",
+                      "--learned-weights", f"lpips={garbage}")
+    assert rc == 2 and err.count("\n") == 1, err
+    assert "not a PyTorch file of tensors only" in err and "weights_only" not in err
     # a folder with the files under their published names
     folder = tmp_path / "folder"
     folder.mkdir()

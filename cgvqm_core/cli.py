@@ -18,79 +18,19 @@ from typing import Any
 
 from stimuli_manifests.cli_runner import OneLineParser, run_command
 
+from .cli_options import (
+    add_metric_options,
+    check_options,
+    metric_options,
+    on_conversion,
+    refuse_unread_options,
+    set_threads,
+)
 from .errors import CGVQMError
 from .metric import quality_label
 from .ray_options import add_ray_arguments, ray_settings
 from .stage_clock import StageClock
 from .version import __version__
-
-
-def _add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = False) -> None:
-    if multi_variant:
-        p.add_argument("--metrics", metavar="LIST",
-                       help="comma-separated registry names (`cgvqm metrics` lists them; "
-                            "'all' = every available one; default cgvqm-2)")
-        p.add_argument("--variant", action="append", choices=("cgvqm-2", "cgvqm-5"),
-                       help="same as --metrics for the CGVQM variants (repeatable)")
-    else:
-        p.add_argument("--metric", metavar="NAME",
-                       help="registry name (`cgvqm metrics`; default cgvqm-2)")
-        p.add_argument("--variant", choices=("cgvqm-2", "cgvqm-5"),
-                       help="CGVQM-2 (stem + layer1, faster) or CGVQM-5 (all layers); "
-                            "same as --metric")
-    p.add_argument("--display", default="standard_4k",
-                   help="viewing condition for FLIP's pixels per degree and ColorVideoVDP's "
-                        "display model (default standard_4k: 30-inch 4K at 0.75 m)")
-    p.add_argument("--ppd", type=float, help="pixels per visual degree (overrides --display's "
-                                              "geometry for FLIP and ColorVideoVDP)")
-    p.add_argument("--weights", metavar="PATH",
-                   help="omega/alpha file (upstream pickle or cgvqm-weights JSON) instead of "
-                        "the variant's published weights; 'uniform' for a smoke test")
-    p.add_argument("--backbone", metavar="PATH",
-                   help="R3D-18 state dict file (default: $CGVQM_BACKBONE, then the torch hub "
-                        "cache, then a download)")
-    p.add_argument("--random-backbone", metavar="SEED", type=int,
-                   help="use a seeded RANDOM backbone (testing only; every output says so)")
-    p.add_argument("--learned-weights", action="append", metavar="PART=PATH|DIR",
-                   help="local weights of lpips/lpips-alex/dists/pieapp: PART is vgg16, "
-                        "alexnet, lpips, lpips-alex, dists or pieapp; or a folder holding "
-                        "the files under their published names (repeatable; never downloaded)")
-    p.add_argument("--learned-sha256", action="append", metavar="PART=HEX",
-                   help="sha256 a learned-metric weights file must have (repeatable)")
-    p.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
-    p.add_argument("--precision", choices=("auto", "fp32", "tf32", "bf16", "fp16"),
-                   default="auto",
-                   help="auto (default): what upstream computes as its users run it: fp32 on "
-                        "a CPU (bit-identical), tf32 on CUDA (PyTorch's defaults); fp32: "
-                        "strict, equal to the CPU also on CUDA; bf16 (CPUs with AMX or "
-                        "AVX512-BF16, refused on others with the reason; GPUs) or fp16 "
-                        "(GPUs): faster, scores drift slightly (see the README)")
-    p.add_argument("--fast-stem", action="store_true",
-                   help="with --precision fp16 on CUDA: run the stem in TF32 rather than true "
-                        "fp32: about 1.5x faster, but q moves further from fp32 (up to 0.03 "
-                        "on the demo, 0.07-0.14 far below q = 0; docs/performance.md)")
-    p.add_argument("--patch-scale", type=int, default=4,
-                   help="patch grid: H/s x W/s pixel patches (default 4, as upstream)")
-    p.add_argument("--seamless", action="store_true",
-                   help="patches with a halo so features do not depend on the patch grid "
-                        "(NOT upstream-identical; no error maps)")
-    p.add_argument("--batch-size", type=int,
-                   help="videos per network pass (reference + tests; default on a CPU: "
-                        "2 for patches up to 16x128x128 or in bf16, else 1; on CUDA as many "
-                        "as fit 16 patches of 30x128x128, several patch positions per pass)")
-    p.add_argument("--threads", type=int,
-                   help="CPU threads for PyTorch (default: PyTorch's choice)")
-    p.add_argument("--allow-resample", action="store_true",
-                   help="accept a test video whose fps differs from the reference's")
-    p.add_argument("--strict", action="store_true",
-                   help="refuse (exit 2) a test video whose frame count differs from its "
-                        "reference's. Without it such a test is resampled in time to the "
-                        "reference's frame count as upstream does (nearest neighbour: frames "
-                        "are repeated or dropped, never interpolated) with a warning saying "
-                        "how many frames were invented or dropped")
-    p.add_argument("--allow-convert", action="store_true",
-                   help="convert 10-bit or alpha input to 8-bit RGB (with a warning) "
-                        "instead of refusing it")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -117,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="say where the time went (decode, copy, backbone, pooling, idle; "
                          "on stderr, and under 'timing' with --json)")
     sc.add_argument("--csv", metavar="OUT", help="append the score to a scores CSV")
-    _add_metric_options(sc)
+    add_metric_options(sc)
 
     ba = sub.add_parser("batch", help="score every stimulus of a manifest into a scores CSV")
     ba.add_argument("--manifest", required=True, help="cgvq-manifest/1 JSON file")
@@ -129,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also score each hidden reference against itself")
     ba.add_argument("--group-size", type=int, default=4,
                     help="test videos scored together against one reference (default 4)")
-    _add_metric_options(ba, multi_variant=True)
+    add_metric_options(ba, multi_variant=True)
     add_ray_arguments(ba)
 
     we = sub.add_parser("weights", help="fetch, verify or describe the metric's weights")
@@ -150,128 +90,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _on_conversion(args: argparse.Namespace) -> str:
-    return "warn" if args.allow_convert else "error"
-
-
-def _at_least_one(option: str, value: int | None, what: str) -> None:
-    if value is not None and value < 1:
-        raise CGVQMError(f"{option} must be at least 1 ({what}), got {value}")
-
-
-def _check_options(args: argparse.Namespace) -> None:
-    """Refuse counts, seeds and rates out of range before any work. argparse takes any int
-    or float, and downstream nothing would fail: a batch size of 0 is clamped to 1, an
-    infinite fps gives clips of 30 frames, a negative seed is another seed's network."""
-    from .hub import check_seed
-    from .stream import check_rate
-
-    _at_least_one("--batch-size", args.batch_size, "videos per network pass")
-    _at_least_one("--patch-scale", args.patch_scale, "the patch grid divides H and W by it")
-    _at_least_one("--threads", args.threads, "CPU threads for PyTorch")
-    _at_least_one("--group-size", getattr(args, "group_size", None),
-                  "test videos scored together")
-    if args.random_backbone is not None:
-        check_seed(args.random_backbone, "--random-backbone SEED")
-    check_rate(getattr(args, "fps", None), "--fps")
-    png = getattr(args, "emap_png", None)
-    if png and Path(png).exists() and not Path(png).is_dir():
-        raise CGVQMError(f"--emap-png {png}: is a file; give a folder for the error-map PNGs")
-    if getattr(args, "fast_stem", False) and not (
-            args.precision == "fp16" and str(args.device).startswith("cuda")):
-        raise CGVQMError("--fast-stem applies to --precision fp16 on --device cuda only "
-                         "(TF32 is a GPU mode; bf16 keeps its stem exact)")
-
-
-def _threads(args: argparse.Namespace) -> None:
-    if args.threads is not None:
-        import torch
-
-        _at_least_one("--threads", args.threads, "CPU threads for PyTorch")
-        torch.set_num_threads(args.threads)
-
-
-def _options(args: argparse.Namespace, pools: list[str]) -> Any:
-    from .metrics import MetricOptions, ViewingCondition
-
-    return MetricOptions(
-        device=args.device, viewing=ViewingCondition(args.display, args.ppd),
-        weights=args.weights, backbone=args.backbone, random_backbone=args.random_backbone,
-        precision=args.precision, patch_scale=args.patch_scale, batch_size=args.batch_size,
-        seamless=args.seamless, fast_stem=args.fast_stem, pools=tuple(pools),
-        **_learned(args))
-
-
-def _set_options(args: argparse.Namespace) -> list[tuple[str, str]]:
-    """(flag, MetricOptions field) for each metric option this run sets to other than its
-    default: what some metric asked for must read."""
-    from .metrics.viewing import DEFAULT_DISPLAY
-
-    pool = args.pool if isinstance(args.pool, list) else [args.pool]
-    given = {
-        "--display": ("viewing", str(args.display).strip().lower() != DEFAULT_DISPLAY),
-        "--ppd": ("viewing", args.ppd is not None),
-        "--weights": ("weights", args.weights is not None),
-        "--backbone": ("backbone", args.backbone is not None),
-        "--random-backbone": ("random_backbone", args.random_backbone is not None),
-        "--precision": ("precision", args.precision != "auto"),
-        "--fast-stem": ("fast_stem", args.fast_stem),
-        "--patch-scale": ("patch_scale", args.patch_scale != 4),
-        "--seamless": ("seamless", args.seamless),
-        "--batch-size": ("batch_size", args.batch_size is not None),
-        "--pool": ("pools", any(p not in (None, "max") for p in pool)),
-        "--learned-weights": ("learned_weights", bool(args.learned_weights)),
-        "--learned-sha256": ("learned_sha256", bool(args.learned_sha256)),
-    }
-    return [(flag, field) for flag, (field, is_set) in given.items() if is_set]
-
-
-def _refuse_unread_options(args: argparse.Namespace, names: list[str]) -> None:
-    """An option that none of the metrics asked for reads would be silently ignored (for
-    example --precision fp16 with psnr, or a learned-weights file with CGVQM): refuse it,
-    saying which metrics it is for."""
-    from .metrics import readers
-
-    _learned(args)  # a malformed PART=PATH or PART=HEX is named as such first
-    for flag, field in _set_options(args):
-        if not readers(field, names):
-            users = ", ".join(readers(field))
-            raise CGVQMError(f"{flag} applies to {users}, not to {', '.join(names)}: "
-                             f"drop it, or ask for a metric that reads it")
-
-
-def _learned(args: argparse.Namespace) -> dict[str, Any]:
-    """--learned-weights PART=PATH / DIR and --learned-sha256 PART=HEX as MetricOptions."""
-    from .metrics.learned.files import PARTS
-
-    files: dict[str, str] = {}
-    dirs: list[str] = []
-    sha: dict[str, str] = {}
-    for spec in args.learned_weights or []:
-        part, eq, path = spec.partition("=")
-        if eq and part.strip().lower() in PARTS:
-            files[part.strip().lower()] = path
-        elif Path(spec).expanduser().is_dir():
-            dirs.append(spec)
-        else:
-            raise CGVQMError(f"--learned-weights {spec!r}: give PART=PATH with PART one of "
-                             f"{', '.join(PARTS)}, or an existing folder")
-    for spec in args.learned_sha256 or []:
-        part, eq, value = spec.partition("=")
-        if not eq or part.strip().lower() not in PARTS:
-            raise CGVQMError(f"--learned-sha256 {spec!r}: give PART=HEX with PART one of "
-                             f"{', '.join(PARTS)}")
-        value = value.strip().lower()
-        if len(value) != 64 or any(ch not in "0123456789abcdef" for ch in value):
-            raise CGVQMError(f"--learned-sha256 {spec!r}: the sha256 is 64 hexadecimal digits")
-        sha[part.strip().lower()] = value
-    return {"learned_weights": files, "learned_dirs": tuple(dirs), "learned_sha256": sha}
-
-
 def _metrics(args: argparse.Namespace, variants: list[str]) -> list[Any]:
     from .metric import CGVQM
 
-    _threads(args)
+    set_threads(args)
     out = []
     for v in variants:
         out.append(CGVQM(v, weights=args.weights, backbone=args.backbone,
@@ -318,12 +140,12 @@ def _cmd_score_peer(args: argparse.Namespace, name: str) -> int:
     from .batch import Appender, canonical_json, read_done
     from .metrics import build_scorers, score_reference
 
-    _threads(args)
-    options = _options(args, [args.pool])
+    set_threads(args)
+    options = metric_options(args, [args.pool])
     (scorer,) = build_scorers([name], options)
     (results,) = score_reference(args.ref, [args.test], [scorer], device=args.device,
                                  fps=args.fps, allow_resample=args.allow_resample,
-                                 on_conversion=_on_conversion(args),
+                                 on_conversion=on_conversion(args),
                                  progress=sys.stderr.isatty(), strict=args.strict)
     (m,) = results
     if args.json:
@@ -359,7 +181,7 @@ def _refuse_mismatched_pair(args: argparse.Namespace) -> None:
     """--strict: compare the two headers' frame counts before the network is built."""
     from .stream import check_frame_count, open_input
 
-    conv = _on_conversion(args)
+    conv = on_conversion(args)
     ref = open_input(args.ref, fps=args.fps, name="reference", on_conversion=conv)
     test = open_input(args.test, fps=args.fps, name="test", on_conversion=conv)
     check_frame_count(ref, test, strict=True)
@@ -368,7 +190,7 @@ def _refuse_mismatched_pair(args: argparse.Namespace) -> None:
 def _cmd_score(args: argparse.Namespace) -> int:
     from .batch import Appender, read_done
 
-    _check_options(args)
+    check_options(args)
     name = (args.metric or args.variant or "cgvqm-2").strip().lower()
     if args.metric and args.variant and args.metric != args.variant:
         raise CGVQMError("give --metric or --variant, not both")
@@ -377,7 +199,7 @@ def _cmd_score(args: argparse.Namespace) -> int:
     from .metrics import get_entry
 
     get_entry(name)  # an unknown name first, with the list
-    _refuse_unread_options(args, [name])
+    refuse_unread_options(args, [name])
     if name not in ("cgvqm-2", "cgvqm-5"):
         if args.emap or args.emap_png:
             raise CGVQMError(f"error maps are written for CGVQM only, not {name}")
@@ -391,7 +213,7 @@ def _cmd_score(args: argparse.Namespace) -> int:
     clock = StageClock(metric.net.device) if args.timing else None
     res = metric.score(args.ref, args.test, pool=args.pool, fps=args.fps,
                        allow_resample=args.allow_resample, emap=args.emap or False,
-                       emap_png_dir=args.emap_png, on_conversion=_on_conversion(args),
+                       emap_png_dir=args.emap_png, on_conversion=on_conversion(args),
                        progress=sys.stderr.isatty(), strict=args.strict, clock=clock)
     if clock is not None:
         print(f"timing: {clock.report()}", file=sys.stderr)
@@ -432,14 +254,14 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     from .metrics import parse_metric_list
 
     cluster = ray_settings(args, args.device)  # no Ray: says so before any work
-    _check_options(args)
+    check_options(args)
     requested = [args.metrics] if args.metrics else []
     requested += list(args.variant or [])
     pools = list(dict.fromkeys(args.pool or ["max"]))
-    options = _options(args, pools)
+    options = metric_options(args, pools)
     names = parse_metric_list(requested or ["cgvqm-2"], options)
-    _refuse_unread_options(args, names)
-    _threads(args)
+    refuse_unread_options(args, names)
+    set_threads(args)
     if cluster is None:
         run = score_manifest
     else:
@@ -449,7 +271,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     s = run(args.manifest, args.out, names, options,
             include_references=args.include_references, root=args.root,
             group_size=args.group_size, allow_resample=args.allow_resample,
-            on_conversion=_on_conversion(args), strict=args.strict)
+            on_conversion=on_conversion(args), strict=args.strict)
     print(f"{s.scored} scored, {s.skipped} already in {args.out}, {s.rows} rows written "
           f"({', '.join(names)})")
     for name in s.not_applicable:

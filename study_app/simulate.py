@@ -27,7 +27,6 @@ from __future__ import annotations
 import csv
 import json
 import logging
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -45,14 +44,14 @@ from stimuli_manifests import LoadedManifest, Stimulus, load_manifest
 
 from . import __version__
 from .panel_progress import QUESTIONNAIRE_EVENT
-from .remote import ServerClient, ServerUnavailable, Uploader, UploadStatus
-from .remote.participant import request_block
+from .remote import UploadStatus
 from .simulate_panel import (
     likert_centres,
     simulated_acuity_check,
     simulated_answers,
     simulated_colour_check,
 )
+from .simulate_upload import NextBlock, UploadOptions, rate_and_upload
 
 log = logging.getLogger(__name__)
 
@@ -176,29 +175,6 @@ def _iso(t: datetime) -> str:
     return t.isoformat(timespec="milliseconds").replace("+00:00", "Z")
 
 
-@dataclass(frozen=True)
-class UploadOptions:
-    """Simulated participants uploading to a study server as they rate (``simulate
-    --server``), through the same upload client as the app."""
-
-    server: str
-    tokens: dict[str, str]
-    """participant id -> token (from the invites CSV); the raters take these ids in order."""
-    pace_s: float = 0.0
-    """Seconds between two ratings of one rater (0: as fast as possible)."""
-    stagger_s: float = 0.0
-    """Rater ``k`` starts ``k * stagger_s`` seconds after the first (participants arriving
-    over time; 0: all at once)."""
-    offline: dict[str, tuple[float, float]] = field(default_factory=dict)
-    """participant -> (from, until) seconds after the start: their network is down then."""
-    timeout_s: float = 600.0
-    """How long to wait at the end for every upload to arrive."""
-    min_backoff_s: float = 0.2
-    max_backoff_s: float = 5.0
-    client_factory: Callable[[str, str], ServerClient] | None = None
-    """Makes each rater's client from (server, token); e.g. one that times its requests."""
-
-
 @dataclass
 class SimulationRun:
     truth_path: Path
@@ -305,10 +281,6 @@ def _draw_panel(loaded: LoadedManifest, opts: SimulationOptions, repetitions: in
     return _Panel(loaded, stimuli, repetitions, participants, out, scale, unit, levels,
                   {s.id: true_quality(s, levels, scale) for s in stimuli}, scenes, ambiguity,
                   kinds, rater_seeds, settings, centres, failures)
-
-
-NextBlock = Callable[[str, int, str | None], dict[str, Any]]
-"""(session id, block, last stimulus) -> the study server's block (``id``, ``stimuli``)."""
 
 
 def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
@@ -490,85 +462,13 @@ def run_simulation(manifest_path: str | Path, out_dir: str | Path, opts: Simulat
         if upload is None:
             raters = [rater(k) for k in range(opts.raters)]
         else:
-            raters, statuses = _rate_and_upload(rater, participants, out, upload, t0)
+            raters, statuses = rate_and_upload(rater, participants, out, upload, t0, SESSION_SUFFIX)
     finally:
         bar.close()
     truth_path = _write_truth(panel, opts, raters)
     log.info("simulated %d raters (%d outliers) x %d trials into %s", opts.raters,
              opts.outliers, panel.n_trials, out)
     return SimulationRun(truth_path, statuses)
-
-
-class _OfflineClient(ServerClient):
-    """A participant whose network is down for a while (simulated outage)."""
-
-    def __init__(self, server: str, token: str, down: tuple[float, float], t0: float) -> None:
-        super().__init__(server, token)
-        self._down = (t0 + down[0], t0 + down[1])
-
-    def open(self, *args: Any, **kwargs: Any) -> Any:
-        if self._down[0] <= time.monotonic() < self._down[1]:
-            raise ServerUnavailable("simulated network outage")
-        return super().open(*args, **kwargs)
-
-
-def _rate_and_upload(rater: Callable[..., RaterTruth], participants: list[str], out: Path,
-                     upload: UploadOptions, t0: float
-                     ) -> tuple[list[RaterTruth], dict[str, UploadStatus]]:
-    """Every rater at once, each in a thread, each with its uploader (the app's)."""
-    uploaders: dict[str, Uploader] = {}
-    results: dict[int, RaterTruth] = {}
-    errors: list[BaseException] = []
-
-    def one(k: int) -> None:
-        pid = participants[k]
-        time.sleep(k * upload.stagger_s)
-        down = upload.offline.get(pid)
-        make = upload.client_factory or ServerClient
-        client = (_OfflineClient(upload.server, upload.tokens[pid], down, t0) if down
-                  else make(upload.server, upload.tokens[pid]))
-        up = Uploader(out / f"{pid}{SESSION_SUFFIX}", client, pid,
-                      min_backoff_s=upload.min_backoff_s, max_backoff_s=upload.max_backoff_s,
-                      seed=k)
-        uploaders[pid] = up
-        started = False
-
-        def changed() -> None:
-            nonlocal started
-            if not started:  # the uploader starts once the session file exists
-                up.start()
-                started = True
-            up.notify()
-
-        def next_block(session_id: str, block: int, last: str | None) -> dict[str, Any]:
-            """As the app: wait for the uploads, ask; retry while the server is away."""
-            while True:
-                try:
-                    return request_block(client, pid, up, session_id, block, last)
-                except ServerUnavailable:
-                    time.sleep(upload.min_backoff_s)
-
-        try:
-            results[k] = rater(k, changed, next_block)
-        except BaseException as exc:
-            errors.append(exc)
-
-    threads = [threading.Thread(target=one, args=(k,), name=f"rater-{participants[k]}")
-               for k in range(len(participants))]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    if errors:
-        for up in uploaders.values():
-            up.stop()
-        raise errors[0]
-    deadline = time.monotonic() + upload.timeout_s
-    statuses = {}
-    for pid, up in uploaders.items():
-        statuses[pid] = up.flush(max(deadline - time.monotonic(), 0.1))
-        up.stop()
-    return [results[k] for k in range(len(participants))], statuses
 
 
 def _truncated_normal(rng: np.random.Generator, sd: float, limit_sd: float) -> float:

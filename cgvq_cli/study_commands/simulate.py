@@ -71,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.upload_timeout) and args.upload_timeout > 0):
         raise StudyError(f"--upload-timeout must be a positive number of seconds, got "
                          f"{args.upload_timeout:g}")
+    _refuse_ignored(args)
     opts = SimulationOptions(raters=args.raters, outliers=args.outliers,
                              outlier_kind=args.outlier_kind, seed=args.seed,
                              repetitions=args.repetitions,
@@ -80,6 +81,12 @@ def run(args: argparse.Namespace) -> int:
         from session_store.invite import read_invites
 
         invites = read_invites(args.invites)
+        invited = [i.participant for i in invites[:args.raters]]
+        strangers = sorted({pid for pid, _, _ in args.offline} - set(invited))
+        if strangers:
+            raise StudyError(f"--offline {strangers[0]}: not one of the {len(invited)} raters "
+                             f"simulated here ({', '.join(invited[:3])}"
+                             f"{', ...' if len(invited) > 3 else ''}, from {args.invites})")
         opts.check()
         _check_server(args.server, invites[0] if invites else None)
         upload = UploadOptions(server=args.server,
@@ -104,6 +111,22 @@ def run(args: argparse.Namespace) -> int:
                          f"{args.upload_timeout:g} s (see the report on stdout); the session files "
                          f"are in {args.out}")
     return 0
+
+
+def _refuse_ignored(args: argparse.Namespace) -> None:
+    """Options that would change nothing in this run are refused, not silently dropped."""
+    from session_store.errors import StudyError
+
+    if args.server is None:
+        given = [flag for flag, on in (("--pace", args.pace != 0), ("--stagger", args.stagger != 0),
+                                       ("--offline", bool(args.offline)),
+                                       ("--upload-timeout", args.upload_timeout != 600.0)) if on]
+        if given:
+            raise StudyError(f"{given[0]} applies to uploads to a study server: add --server "
+                             "and --invites, or drop it")
+    if args.outlier_kind != "random" and args.outliers == 0:
+        raise StudyError(f"--outlier-kind {args.outlier_kind}: no outliers are simulated; add "
+                         "--outliers N")
 
 
 def _check_server(server: str, first) -> None:

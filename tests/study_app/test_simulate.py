@@ -132,6 +132,12 @@ def test_cli(manifest, tmp_path):
     (["--raters", "2", "--stagger", "nan"], "--stagger"),
     (["--raters", "2", "--upload-timeout", "-1"], "--upload-timeout"),
     (["--raters", "2", "--upload-timeout", "inf"], "--upload-timeout"),
+    # options that would change nothing: uploads without a server, a kind without outliers
+    (["--raters", "2", "--pace", "1"], "--pace applies to uploads to a study server"),
+    (["--raters", "2", "--stagger", "1"], "--stagger applies to uploads"),
+    (["--raters", "2", "--offline", "sim01:0:5"], "--offline applies to uploads"),
+    (["--raters", "2", "--upload-timeout", "5"], "--upload-timeout applies to uploads"),
+    (["--raters", "2", "--outlier-kind", "inverted"], "no outliers are simulated"),
 ])
 def test_cli_refuses_out_of_range_options(manifest, tmp_path, capsys, args, says):
     out = tmp_path / "out"
@@ -139,6 +145,21 @@ def test_cli_refuses_out_of_range_options(manifest, tmp_path, capsys, args, says
                  *args])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and says in err, err
+    assert not out.exists()
+
+
+def test_cli_refuses_an_outage_of_a_rater_it_does_not_simulate(manifest, tmp_path, capsys):
+    invites = tmp_path / "invites.csv"
+    invites.write_text("participant,token,server,command\n"
+                       "P01,tok_0123456789abcdef0123456789,http://127.0.0.1:9,x\n"
+                       "P02,tok_abcdef0123456789abcdef012345,http://127.0.0.1:9,x\n")
+    out = tmp_path / "out"
+    code = main(["simulate", "--manifest", str(manifest), "--raters", "1", "--out", str(out),
+                 "--no-progress", "--server", "http://127.0.0.1:9", "--invites", str(invites),
+                 "--offline", "P02:1:5"])  # one rater: P01 only
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert "--offline P02: not one of the 1 raters simulated here (P01" in err
     assert not out.exists()
 
 

@@ -260,7 +260,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     pools = list(dict.fromkeys(args.pool or ["max"]))
     options = metric_options(args, pools)
     names = parse_metric_list(requested or ["cgvqm-2"], options)
-    refuse_unread_options(args, names)
+    refuse_unread_options(args, names, options)
     set_threads(args)
     if cluster is None:
         run = score_manifest

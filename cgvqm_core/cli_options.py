@@ -156,18 +156,27 @@ def _set_options(args: argparse.Namespace) -> list[tuple[str, str]]:
     return [(flag, field) for flag, (field, is_set) in given.items() if is_set]
 
 
-def refuse_unread_options(args: argparse.Namespace, names: list[str]) -> None:
+def refuse_unread_options(args: argparse.Namespace, names: list[str],
+                          options: Any = None) -> None:
     """An option that none of the metrics asked for reads would be silently ignored (for
     example --precision fp16 with psnr, or a learned-weights file with CGVQM): refuse it,
-    saying which metrics it is for."""
-    from .metrics import readers
+    saying which metrics it is for. With the run's ``options``, a reader that 'all' left
+    out because it cannot run here is named with the reason."""
+    from .metrics import get_entry, readers
 
     _learned(args)  # a malformed PART=PATH or PART=HEX is named as such first
     for flag, field in _set_options(args):
-        if not readers(field, names):
-            users = ", ".join(readers(field))
-            raise CGVQMError(f"{flag} applies to {users}, not to {', '.join(names)}: "
-                             f"drop it, or ask for a metric that reads it")
+        if readers(field, names):
+            continue
+        users = readers(field)
+        if options is not None:
+            for name in users:
+                why = get_entry(name).availability_for(options)
+                if not why.ok:
+                    raise CGVQMError(f"{flag}: {name} would read it but is not available "
+                                     f"here: {why.reason}")
+        raise CGVQMError(f"{flag} applies to {', '.join(users)}, not to {', '.join(names)}: "
+                         f"drop it, or ask for a metric that reads it")
 
 
 def _learned(args: argparse.Namespace) -> dict[str, Any]:

@@ -98,3 +98,22 @@ def test_batch_refuses_an_option_no_asked_metric_reads(capsys, tmp_path):
                "psnr,flip", "--ppd", "40"])
     capsys.readouterr()
     assert rc == 0 and out.exists()
+
+
+def test_batch_names_a_reader_that_all_left_out_as_unavailable(capsys, tmp_path,
+                                                                monkeypatch):
+    """'all' takes the metrics that can run here; learned weights given in a folder that
+    holds none leave the learned metrics out, which is said instead of 'not to psnr, ...'."""
+    import os
+
+    for var in [v for v in os.environ if v.startswith("CGVQM_") and "WEIGHTS" in v]:
+        monkeypatch.delenv(var)
+    (tmp_path / "no-weights").mkdir()
+    manifest = _study(tmp_path)
+    out = tmp_path / "s.csv"
+    rc = main(["batch", "--manifest", str(manifest), "--out", str(out), "--metrics", "all",
+               "--learned-weights", str(tmp_path / "no-weights")])
+    _, err = capsys.readouterr()
+    assert rc == 2 and err.count("\n") == 1, err
+    assert "--learned-weights: lpips would read it but is not available here" in err
+    assert "vgg16" in err and not out.exists()

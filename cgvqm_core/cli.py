@@ -187,6 +187,18 @@ def _refuse_mismatched_pair(args: argparse.Namespace) -> None:
     check_frame_count(ref, test, strict=True)
 
 
+def _refuse_fps_for_files(args: argparse.Namespace) -> None:
+    """--fps gives PNG folders and .npy arrays their rate; video files keep their own, so
+    with two of them it would change nothing."""
+    def carries_rate(path: str) -> bool:
+        p = Path(path).expanduser()
+        return p.is_file() and p.suffix.lower() != ".npy"
+
+    if args.fps is not None and carries_rate(args.ref) and carries_rate(args.test):
+        raise CGVQMError(f"--fps {args.fps:g}: both inputs are video files, which carry their "
+                         "own frame rate; --fps applies to PNG folders and .npy arrays only")
+
+
 def _cmd_score(args: argparse.Namespace) -> int:
     from .batch import Appender, read_done
 
@@ -200,6 +212,7 @@ def _cmd_score(args: argparse.Namespace) -> int:
 
     get_entry(name)  # an unknown name first, with the list
     refuse_unread_options(args, [name])
+    _refuse_fps_for_files(args)
     if name not in ("cgvqm-2", "cgvqm-5"):
         if args.emap or args.emap_png:
             raise CGVQMError(f"error maps are written for CGVQM only, not {name}")
@@ -233,6 +246,11 @@ def _cmd_score(args: argparse.Namespace) -> int:
         if res.q_anchored is not None:
             print(f"calibrated to the study scale: {res.q_anchored:.2f} "
                   f"({quality_label(res.q_anchored)})")
+        else:
+            fitted = (metric.weights.provenance or {}).get("anchoring")
+            if isinstance(fitted, dict) and fitted.get("pool") not in (None, res.pool):
+                print(f"no study-scale score: {Path(str(metric.weights.source)).name} was "
+                      f"calibrated for {fitted['pool']} pooling, this is {res.pool}")
         if args.emap:
             print(f"error map written to {args.emap}")
     if args.csv:
@@ -249,6 +267,25 @@ def _cmd_score(args: argparse.Namespace) -> int:
     return 0
 
 
+def _variant_of_weights(args: argparse.Namespace, names: list[str], asked: bool) -> list[str]:
+    """A --weights file fixes the CGVQM variant: without a request it is the file's; a
+    request for another variant, or for both, is refused (each row would carry the file's
+    variant, some twice)."""
+    if args.weights in (None, "uniform"):
+        return names
+    from .weights import resolve_weights
+
+    held = resolve_weights(args.weights).variant
+    variants = [n for n in names if n in ("cgvqm-2", "cgvqm-5")]
+    if not asked:
+        return [held]
+    if variants and variants != [held]:
+        raise CGVQMError(f"--weights {args.weights} holds {held} weights, but "
+                         f"{' and '.join(variants)} {'was' if len(variants) == 1 else 'were'} "
+                         f"asked for: ask for {held} alone among the CGVQM variants")
+    return names
+
+
 def _cmd_batch(args: argparse.Namespace) -> int:
     from .batch import score_manifest
     from .metrics import parse_metric_list
@@ -259,7 +296,8 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     requested += list(args.variant or [])
     pools = list(dict.fromkeys(args.pool or ["max"]))
     options = metric_options(args, pools)
-    names = parse_metric_list(requested or ["cgvqm-2"], options)
+    names = _variant_of_weights(args, parse_metric_list(requested or ["cgvqm-2"], options),
+                                bool(requested))
     refuse_unread_options(args, names, options)
     set_threads(args)
     if cluster is None:
@@ -288,6 +326,9 @@ def _cmd_weights(args: argparse.Namespace) -> int:
 
     action = args.weights_command
     if action == "fetch":
+        if args.no_backbone and args.backbone_file:
+            raise CGVQMError("--backbone-file is for the backbone, which --no-backbone skips: "
+                             "drop one of them")
         if not args.no_backbone and args.backbone_file and not Path(
                 args.backbone_file).expanduser().is_file():  # before anything is copied
             raise CGVQMError(f"--backbone-file {args.backbone_file}: no such file")

@@ -163,6 +163,7 @@ def refuse_unread_options(args: argparse.Namespace, names: list[str],
     saying which metrics it is for. With the run's ``options``, a reader that 'all' left
     out because it cannot run here is named with the reason."""
     from .metrics import get_entry, readers
+    from .metrics.viewing import DEFAULT_DISPLAY
 
     _learned(args)  # a malformed PART=PATH or PART=HEX is named as such first
     for flag, field in _set_options(args):
@@ -177,6 +178,30 @@ def refuse_unread_options(args: argparse.Namespace, names: list[str],
                                      f"here: {why.reason}")
         raise CGVQMError(f"{flag} applies to {', '.join(users)}, not to {', '.join(names)}: "
                          f"drop it, or ask for a metric that reads it")
+    _refuse_unread_parts(args, names)
+    if args.ppd is not None and str(args.display).strip().lower() != DEFAULT_DISPLAY and (
+            "cvvdp" not in names):
+        raise CGVQMError("--display gives flip only its pixels per degree, which --ppd fixes: "
+                         "drop one of them (cvvdp would read both)")
+
+
+def _refuse_unread_parts(args: argparse.Namespace, names: list[str]) -> None:
+    """A weights file or hash for a part none of the asked metrics loads (an AlexNet file
+    with lpips, which uses VGG-16, say) would be ignored, even when it does not exist."""
+    from .metrics import entries, get_entry
+
+    used = {p for n in names for p in get_entry(n).weight_parts}
+    for flag, specs in (("--learned-weights", args.learned_weights or []),
+                        ("--learned-sha256", args.learned_sha256 or [])):
+        for spec in specs:
+            part, eq, _ = spec.partition("=")
+            part = part.strip().lower()
+            if not eq or part in used or Path(spec).expanduser().is_dir():
+                continue
+            users = [e.spec.name for e in entries() if part in e.weight_parts]
+            raise CGVQMError(f"{flag} {part}=...: {', '.join(names)} "
+                             f"{'does' if len(names) == 1 else 'do'} not load {part} weights "
+                             f"(used by {', '.join(users)}): drop it, or ask for one of those")
 
 
 def _learned(args: argparse.Namespace) -> dict[str, Any]:

@@ -37,29 +37,37 @@ def add_ray_arguments(p: argparse.ArgumentParser) -> None:
                         "ADDRESS on a Ray instance started here; 'auto' or HOST:PORT joins a "
                         "running cluster (`ray start --head`). Every node must see the videos "
                         "at the same paths; this machine writes the results")
-    g.add_argument("--ray-cpus-per-unit", type=int, default=1, metavar="N",
+    g.add_argument("--ray-cpus-per-unit", type=int, metavar="N",
                    help="CPUs each task reserves, and its PyTorch threads (default 1)")
     g.add_argument("--ray-gpus-per-unit", type=float, metavar="G",
                    help="GPUs each task reserves with --device cuda (default 1; a fraction "
                         "such as 0.5 puts two tasks on one GPU)")
-    g.add_argument("--ray-retries", type=int, default=3, metavar="N",
+    g.add_argument("--ray-retries", type=int, metavar="N",
                    help="times a task is rerun after its worker died (default 3)")
 
 
 def ray_settings(args: argparse.Namespace, device: str) -> RaySettings | None:
     """The checked settings, or None without ``--ray``; with ``--ray``, Ray must be installed
     (:func:`require_ray`)."""
+    given = [flag for flag, value in (("--ray-cpus-per-unit", args.ray_cpus_per_unit),
+                                      ("--ray-gpus-per-unit", args.ray_gpus_per_unit),
+                                      ("--ray-retries", args.ray_retries)) if value is not None]
     if args.ray is None:
-        if args.ray_gpus_per_unit is not None:
-            raise CGVQMError("--ray-gpus-per-unit needs --ray")
+        if given:
+            raise CGVQMError(f"{given[0]} needs --ray")
         return None
+    if getattr(args, "threads", None) is not None:
+        raise CGVQMError("--threads with --ray: each task runs --ray-cpus-per-unit PyTorch "
+                         "threads; give that instead")
+    cpus = 1 if args.ray_cpus_per_unit is None else args.ray_cpus_per_unit
+    retries = 3 if args.ray_retries is None else args.ray_retries
     address = args.ray.strip()
     if not address:
         raise CGVQMError("--ray ADDRESS is empty; give 'auto', HOST:PORT, or no address")
-    if args.ray_cpus_per_unit < 1:
-        raise CGVQMError(f"--ray-cpus-per-unit must be at least 1, got {args.ray_cpus_per_unit}")
-    if args.ray_retries < 0:
-        raise CGVQMError(f"--ray-retries must be 0 or more, got {args.ray_retries}")
+    if cpus < 1:
+        raise CGVQMError(f"--ray-cpus-per-unit must be at least 1, got {cpus}")
+    if retries < 0:
+        raise CGVQMError(f"--ray-retries must be 0 or more, got {retries}")
     kind, _, index = device.partition(":")
     if kind == "cuda":
         if index:
@@ -70,11 +78,11 @@ def ray_settings(args: argparse.Namespace, device: str) -> RaySettings | None:
             raise CGVQMError(f"--ray-gpus-per-unit must be above 0 with --device cuda, "
                              f"got {gpus:g}")
     else:
-        if args.ray_gpus_per_unit:
+        if args.ray_gpus_per_unit is not None:
             raise CGVQMError("--ray-gpus-per-unit needs --device cuda")
         gpus = 0.0
     require_ray()
-    return RaySettings(address, args.ray_cpus_per_unit, gpus, args.ray_retries)
+    return RaySettings(address, cpus, gpus, retries)
 
 
 def require_ray() -> None:

@@ -161,6 +161,8 @@ class Entry(ABC):
     """A registered metric: its spec, availability here, and a scorer factory."""
 
     spec: MetricSpec
+    #: the local weight files it reads (:data:`.learned.files.PARTS`: vgg16, lpips, ...)
+    weight_parts: tuple[str, ...] = ()
 
     def availability(self) -> Availability:
         return Availability(True)

@@ -214,7 +214,11 @@ def test_ray_without_the_extra_is_one_line(tmp_path):
 def test_bad_ray_options_are_one_line(capsys, tmp_path):
     for extra, words in ((["--ray", "--ray-cpus-per-unit", "0"], "at least 1"),
                          (["--ray", "--device", "cuda:1"], "--device cuda"),
-                         (["--ray-gpus-per-unit", "1"], "needs --ray")):
+                         (["--ray-gpus-per-unit", "1"], "needs --ray"),
+                         # without --ray they would be ignored, even invalid values
+                         (["--ray-cpus-per-unit", "4"], "--ray-cpus-per-unit needs --ray"),
+                         (["--ray-retries", "-3"], "--ray-retries needs --ray"),
+                         (["--ray", "--threads", "2"], "each task runs --ray-cpus-per-unit")):
         assert main(["batch", "--manifest", "m.json", "--out", str(tmp_path / "s.csv"),
                      *extra]) == 2
         err = capsys.readouterr().err

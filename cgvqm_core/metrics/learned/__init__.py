@@ -155,6 +155,7 @@ def build_model(d: _Def, weights: list[files.WeightsFile], device: str
 class LearnedEntry(Entry):
     def __init__(self, d: _Def) -> None:
         self.d = d
+        self.weight_parts = tuple(d.parts)
         self.spec = MetricSpec(
             name=d.name, title=d.title, family="learned", direction=LOWER,
             value_range=d.value_range, kind=IMAGE, colour=d.colour, licence=_licence(d),

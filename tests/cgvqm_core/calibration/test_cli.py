@@ -105,6 +105,14 @@ def test_calibrate_writes_weights_the_metric_scores_with(study, tmp_path, capsys
     assert scored["q_anchored"] == pytest.approx(expected, abs=1e-6)
     assert 0 <= scored["q_anchored"] <= 100
     assert res.q_anchored == pytest.approx(expected, abs=1e-6)
+    # mean pooling has no study-scale score from a max-pooled calibration, and says so
+    assert cgvqm_main(["score", "--ref", str(study / "videos" / "ref1.mkv"),
+                       "--test", str(study / "videos" / "SRC02_HRC03.mkv"),
+                       "--weights", str(tmp_path / "w.json"), "--random-backbone", "0",
+                       "--pool", "mean"]) == 0
+    out = capsys.readouterr().out
+    assert "calibrated to the study scale" not in out
+    assert "no study-scale score: w.json was calibrated for max pooling, this is mean" in out
 
 
 def test_user_errors_exit_2_with_one_line(study, tmp_path, capsys):

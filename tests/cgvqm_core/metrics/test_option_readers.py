@@ -117,3 +117,56 @@ def test_batch_names_a_reader_that_all_left_out_as_unavailable(capsys, tmp_path,
     assert rc == 2 and err.count("\n") == 1, err
     assert "--learned-weights: lpips would read it but is not available here" in err
     assert "vgg16" in err and not out.exists()
+
+
+@pytest.mark.parametrize(("metric", "option", "says"), [
+    # a weights part the metric does not load: ignored before, even a missing file
+    ("lpips", ["--learned-weights", "alexnet=missing.pth"],
+     "lpips does not load alexnet weights (used by lpips-alex)"),
+    ("lpips", ["--learned-sha256", "dists=" + "0" * 64],
+     "lpips does not load dists weights (used by dists)"),
+    # FLIP reads only the pixels per degree, which --ppd fixes
+    ("flip", ["--ppd", "40", "--display", "sdr_fhd_24"], "which --ppd fixes"),
+])
+def test_score_refuses_parts_and_displays_its_metric_does_not_use(capsys, tmp_path, metric,
+                                                                  option, says):
+    rc = main(["score", *_pair(tmp_path), "--metric", metric, *option])
+    _, err = capsys.readouterr()
+    assert rc == 2 and err.count("\n") == 1 and says in err, err
+
+
+def test_score_refuses_fps_for_two_video_files(capsys, tmp_path):
+    pair = _pair(tmp_path)
+    rc = main(["score", *pair, "--metric", "psnr", "--fps", "60"])
+    _, err = capsys.readouterr()
+    assert rc == 2 and "both inputs are video files" in err
+    # a .npy input takes it
+    np.save(tmp_path / "t.npy", np.zeros((4, 32, 32, 3), np.uint8))
+    rc = main(["score", pair[0], pair[1], "--test", str(tmp_path / "t.npy"), "--metric",
+               "psnr", "--fps", "8"])
+    out, err = capsys.readouterr()
+    assert rc == 0 and out.startswith("psnr = "), err
+
+
+def test_batch_refuses_a_variant_its_weights_file_does_not_hold(capsys, tmp_path):
+    """The weights file fixes CGVQM's variant: asking for the other (or both) would write the
+    file's variant under every row, some twice."""
+    from cgvqm_core.weights import resolve_weights, save_weights
+
+    manifest = _study(tmp_path)
+    weights = save_weights(tmp_path / "w5.json", resolve_weights("uniform", "cgvqm-5"))
+    out = tmp_path / "s.csv"
+    base = ["batch", "--manifest", str(manifest), "--out", str(out), "--random-backbone", "0",
+            "--weights", str(weights)]
+    for asked, names in ((["--variant", "cgvqm-2"], "cgvqm-2 was asked for"),
+                         (["--metrics", "cgvqm-2,cgvqm-5"], "cgvqm-2 and cgvqm-5 were asked")):
+        rc = main([*base, *asked])
+        _, err = capsys.readouterr()
+        assert rc == 2 and "holds cgvqm-5 weights" in err and names in err, err
+        assert not out.exists()
+
+
+def test_weights_fetch_refuses_a_backbone_file_it_would_skip(capsys):
+    rc = main(["weights", "fetch", "--no-backbone", "--backbone-file", "r3d.pth"])
+    _, err = capsys.readouterr()
+    assert rc == 2 and "which --no-backbone skips" in err

@@ -440,6 +440,10 @@ def run_simulation(manifest_path: str | Path, out_dir: str | Path, opts: Simulat
         raise StudyError(f"{manifest_path}: the manifest lists no test videos (conditions), "
                          "only references; add conditions (cgvq-study init) before simulating")
     _check_colour_failures(loaded.manifest, opts)
+    if opts.repetitions is not None and loaded.manifest.protocol.adaptive_settings():
+        raise StudyError(f"--repetitions {opts.repetitions}: this manifest allocates trials "
+                         "adaptively (protocol.allocation); its blocks, not repetitions, set "
+                         "the trials")
     repetitions = opts.repetitions or loaded.manifest.protocol.repetitions
     if len(stimuli) == 1 and repetitions > 1:
         raise StudyError("a single stimulus cannot be repeated without showing it twice in a "

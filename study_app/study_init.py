@@ -106,7 +106,9 @@ def init_study(opts: InitOptions) -> InitResult:
         result.problems.append(Problem(
             "no test videos", str(opts.folder),
             f"only references were found; a study needs at least one test video: {how}"))
-    result.warnings += [f"{p}: matches no pattern, left out" for p in result.mapping.unmatched]
+    why = (f"not listed in {opts.mapping_csv.name}" if opts.mapping_csv else
+           "matches no pattern")
+    result.warnings += [f"{p}: {why}, left out" for p in result.mapping.unmatched]
     paths = [folder / v.path for v in result.mapping.videos]
     result.probes = probe_files(paths, progress=opts.progress)
     _video_problems(result, folder, display, check_speed=opts.transcode is None)

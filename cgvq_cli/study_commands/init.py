@@ -31,10 +31,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                                                   "default)")
     parser.add_argument("--out", type=Path, required=True, metavar="STUDY",
                         help="the study folder to write (new, or one init made before)")
-    parser.add_argument("--pattern", default=DEFAULT_TEST_PATTERN, metavar="PATTERN",
+    parser.add_argument("--pattern", metavar="PATTERN",
                         help=f"path pattern of test videos (default {DEFAULT_TEST_PATTERN})")
-    parser.add_argument("--reference-pattern", default=DEFAULT_REFERENCE_PATTERN,
-                        metavar="PATTERN",
+    parser.add_argument("--reference-pattern", metavar="PATTERN",
                         help=f"path pattern of references (default {DEFAULT_REFERENCE_PATTERN})")
     parser.add_argument("--mapping", type=Path, metavar="CSV",
                         help="CSV mapping files to path,scene,role,method,level,setting "
@@ -76,12 +75,22 @@ def _display(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from session_store.errors import StudyError
+    from stimuli_manifests.from_folder.mapping import (
+        DEFAULT_REFERENCE_PATTERN,
+        DEFAULT_TEST_PATTERN,
+    )
     from study_app.study_init import InitOptions, init_study
 
     from .init_tables import print_changes, print_probe_table, print_problems, print_warnings
 
+    given = [f for f, v in (("--pattern", args.pattern),
+                            ("--reference-pattern", args.reference_pattern)) if v is not None]
+    if args.mapping is not None and given:
+        raise StudyError(f"{given[0]} maps files by their names; --mapping lists them in a CSV "
+                         "instead: give one or the other")
     opts = InitOptions(folder=args.folder, out=args.out, mapping_csv=args.mapping,
-                       test_pattern=args.pattern, reference_pattern=args.reference_pattern,
+                       test_pattern=args.pattern or DEFAULT_TEST_PATTERN,
+                       reference_pattern=args.reference_pattern or DEFAULT_REFERENCE_PATTERN,
                        study_id=args.study_id, transcode=args.transcode,
                        display=_display(args), force=args.force,
                        progress=sys.stderr.isatty())  # no bar in the one-line error of a pipe

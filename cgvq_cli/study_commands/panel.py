@@ -39,6 +39,9 @@ def run(args: argparse.Namespace) -> int:
             raise StudyError(f"{' and '.join(given)} {'needs' if len(given) == 1 else 'need'} "
                              "--add-templates (it sets what the templates write); add it, or edit "
                              "the panel block in manifest.json")
+    if args.on_fail is not None and args.no_colour_check and not args.acuity:
+        raise StudyError("--on-fail needs a vision check to act on: --no-colour-check without "
+                         "--acuity leaves none")
     on_fail = args.on_fail or "flag"
     study = load_study(args.study)
     manifest = study.manifest

@@ -83,6 +83,9 @@ def run(args: argparse.Namespace) -> int:
                              "or --server, --participant and --token from the experimenter")
         if args.participant is None:
             raise StudyError("give --participant ID (the id the experimenter gave you)")
+        if args.data_dir is not None:
+            raise StudyError("--data-dir is where a study downloaded from a server is kept; a "
+                             "local study folder keeps its sessions in --sessions-dir")
     invite = None
     if served:
         from study_app.remote.participant import check_invite_args

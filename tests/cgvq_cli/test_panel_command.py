@@ -50,3 +50,13 @@ def test_template_options_without_add_templates_are_refused(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "--add-templates" in err and args[0] in err, err
     assert (study / "manifest.json").read_bytes() == before
+
+
+def test_on_fail_without_any_vision_check_is_refused(tmp_path, capsys):
+    study = make_study(tmp_path / "study")
+    before = (study / "manifest.json").read_bytes()
+    assert main(["panel", str(study), "--add-templates", "--no-colour-check",
+                 "--on-fail", "end"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--on-fail needs a vision check to act on" in err, err
+    assert (study / "manifest.json").read_bytes() == before

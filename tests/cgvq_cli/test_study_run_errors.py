@@ -54,6 +54,7 @@ def test_invalid_window_sizes(tiny_study, capsys, size, words):
 
 @pytest.mark.parametrize("args, words", [
     (["--refresh-hz", "60"], "--pilot-no-vsync"),
+    (["--data-dir", "downloads"], "a local study folder keeps its sessions in --sessions-dir"),
     (["--pilot-no-vsync", "--refresh-hz", "nan"], "between 20 and 500"),
     (["--pilot-no-vsync", "--refresh-hz", "0"], "between 20 and 500"),
     (["--practice", "-1"], "--practice"),

@@ -175,6 +175,7 @@ def _variant(manifest, tmp_path, **changes):
     ({"panel": "colour-on"}, ["--outliers", "2", "--colour-failures", "2"],
      "at most the raters who are not outliers (1)"),
     ({"conditions": []}, [], "lists no test videos"),
+    ({"protocol": "adaptive"}, ["--repetitions", "7"], "allocates trials adaptively"),
 ])
 def test_cli_refuses_what_it_would_silently_leave_out(manifest, tmp_path, capsys, changes,
                                                       args, says):
@@ -184,6 +185,9 @@ def test_cli_refuses_what_it_would_silently_leave_out(manifest, tmp_path, capsys
 
     if "panel" in changes:
         changes["panel"] = default_panel(colour_check=changes["panel"] == "colour-on")
+    if "protocol" in changes:  # its blocks set the trials, not --repetitions
+        changes["protocol"] = {**json.loads(manifest.read_text())["protocol"],
+                               "allocation": "adaptive", "adaptive": {"blocks": 3}}
     variant = _variant(manifest, tmp_path, **changes)
     out = tmp_path / "out"
     code = main(["simulate", "--manifest", str(variant), "--out", str(out), "--no-progress",

@@ -252,6 +252,8 @@ def test_a_study_with_sessions_is_not_changed_under_them(tmp_path, capsys):
     (["--min-refresh-hz", "0"], "--min-refresh-hz must be between 1 and 1000"),
     (["--mapping", "nonexistent.csv"], "cannot read nonexistent.csv"),
     (["--study-id", "my study/1"], "--study-id 'my study/1' may contain only"),
+    (["--mapping", "map.csv", "--pattern", "{scene}/{method}_L{level}.{ext}"],
+     "--pattern maps files by their names; --mapping lists them in a CSV instead"),
 ])
 def test_bad_options_are_one_line_errors(tmp_path, capsys, args, says):
     renders = tmp_path / "renders"

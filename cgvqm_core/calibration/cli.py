@@ -10,7 +10,7 @@ import math
 import os
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from stimuli_manifests import StimuliError
 from stimuli_manifests.cli_runner import OneLineParser, one_line
@@ -40,6 +40,52 @@ def default_cache() -> Path:
     return cache_dir() / "features"
 
 
+#: the fit's options and their defaults (what --features-only would leave unused)
+FIT_DEFAULTS: dict[str, Any] = {
+    "steps": 100_000, "lr_omega": 1e-6, "lr_alpha": 1.0, "alpha_init": 1000.0,
+    "objective": "plcc", "pool": "max", "select": "train", "val_ratio": 0.25, "seed": 0,
+    "anchor": "logistic"}
+#: the validation's options and their defaults (what --no-validation leaves unused)
+VALIDATION_DEFAULTS: dict[str, Any] = {"train_ratio": None, "repeats": 10, "report": None}
+
+
+def _flag(dest: str) -> str:
+    return "--" + dest.replace("_", "-")
+
+
+def _refuse_unused(args: argparse.Namespace) -> None:
+    """Options this run would not read are refused, not ignored: the fit's and the
+    validation's with --features-only, the validation's with --no-validation, alpha's with
+    a correlation objective (blind to alpha's scale; alpha is refitted by least squares
+    after the fit), --val-ratio without --select val."""
+    def given(defaults: dict[str, Any]) -> list[str]:
+        return [_flag(k) for k, v in defaults.items() if getattr(args, k) != v]
+
+    if args.features_only:
+        unused = given(FIT_DEFAULTS) + given(VALIDATION_DEFAULTS) + (
+            ["--no-validation"] if args.no_validation else []) + (
+            ["--out"] if args.out is not None else [])
+        if unused:
+            raise CGVQMError(f"--features-only stops once the feature cache is filled: "
+                             f"{', '.join(unused)} would do nothing; drop "
+                             f"{'it' if len(unused) == 1 else 'them'}")
+        return
+    if args.out is None:
+        raise CGVQMError("--out W: give the weights file to write (.json)")
+    if args.no_validation and given(VALIDATION_DEFAULTS):
+        raise CGVQMError(f"{given(VALIDATION_DEFAULTS)[0]} describes the validation splits, "
+                         "which --no-validation skips: drop one of them")
+    alpha = given({"lr_alpha": FIT_DEFAULTS["lr_alpha"],
+                   "alpha_init": FIT_DEFAULTS["alpha_init"]})
+    if alpha and args.objective != "nmse":
+        raise CGVQMError(f"{alpha[0]} has no effect with --objective {args.objective} (the "
+                         "correlation ignores alpha's scale, and alpha is refitted by least "
+                         "squares after the fit); it applies to --objective nmse")
+    if args.val_ratio != FIT_DEFAULTS["val_ratio"] and args.select != "val":
+        raise CGVQMError("--val-ratio sets the held-out share of --select val; add --select "
+                         "val or drop it")
+
+
 def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``calibrate`` subcommand to the ``cgvqm`` parser."""
     p = subparsers.add_parser(
@@ -51,7 +97,8 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--dataset", action="append", required=True, metavar="NAME=MANIFEST:DMOS_CSV",
                    help="a study: its manifest and its DMOS CSV (repeatable)")
     p.add_argument("--variant", choices=("cgvqm-2", "cgvqm-5"), default="cgvqm-2")
-    p.add_argument("--out", required=True, metavar="W", help="weights file to write (.json)")
+    p.add_argument("--out", metavar="W",
+                   help="weights file to write (.json; not with --features-only)")
     p.add_argument("--cache", metavar="DIR",
                    help="feature cache folder (default $CGVQM_FEATURE_CACHE or "
                         "~/.cache/cgvqm/features); reruns reuse it")
@@ -63,35 +110,40 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--include-references", action="store_true",
                    help="also fit on hidden references (zero error) when the DMOS CSV has them")
     g = p.add_argument_group("fit")
-    g.add_argument("--steps", type=int, default=100_000, help="Adam steps (default 100000)")
-    g.add_argument("--lr-omega", type=float, default=1e-6, help="default 1e-6 (upstream)")
-    g.add_argument("--lr-alpha", type=float, default=1.0, help="default 1.0 (upstream)")
-    g.add_argument("--alpha-init", type=float, default=1000.0, help="default 1000 (upstream)")
-    g.add_argument("--objective", choices=OBJECTIVES, default="plcc",
+    g.add_argument("--steps", type=int, default=FIT_DEFAULTS["steps"],
+                   help="Adam steps (default 100000)")
+    g.add_argument("--lr-omega", type=float, default=FIT_DEFAULTS["lr_omega"],
+                   help="default 1e-6 (upstream)")
+    g.add_argument("--lr-alpha", type=float, default=FIT_DEFAULTS["lr_alpha"],
+                   help="default 1.0 (upstream); with --objective nmse only")
+    g.add_argument("--alpha-init", type=float, default=FIT_DEFAULTS["alpha_init"],
+                   help="default 1000 (upstream); with --objective nmse only")
+    g.add_argument("--objective", choices=OBJECTIVES, default=FIT_DEFAULTS["objective"],
                    help="plcc: sum of 1 - |PLCC| over datasets (upstream, default; blind to "
                         "the sign); plcc-signed: 1 - PLCC(q, DMOS), only the right direction "
                         "counts; nmse: squared error of q against the DMOS over its variance")
-    g.add_argument("--pool", choices=POOLINGS, default="max",
+    g.add_argument("--pool", choices=POOLINGS, default=FIT_DEFAULTS["pool"],
                    help="patch pooling the weights are fitted for (default max, as upstream)")
-    g.add_argument("--select", choices=SELECTIONS, default="train",
+    g.add_argument("--select", choices=SELECTIONS, default=FIT_DEFAULTS["select"],
                    help="which step's weights to keep: lowest training loss (default, as "
                         "upstream), lowest loss on held-out validation scenes, or the last")
-    g.add_argument("--val-ratio", type=float, default=0.25,
+    g.add_argument("--val-ratio", type=float, default=FIT_DEFAULTS["val_ratio"],
                    help="share of training scenes held out for --select val (default 0.25)")
-    g.add_argument("--seed", type=int, default=0,
+    g.add_argument("--seed", type=int, default=FIT_DEFAULTS["seed"],
                    help="seed of omega's random start and of the first split (default 0)")
     v = p.add_argument_group("validation")
     v.add_argument("--train-ratio", type=float, action="append", metavar="R",
                    help="share of each dataset's scenes used for training (repeatable; "
                         "default 0.2, the paper's 20:80)")
-    v.add_argument("--repeats", type=int, default=10,
+    v.add_argument("--repeats", type=int, default=VALIDATION_DEFAULTS["repeats"],
                    help="splits per train ratio, seeds SEED..SEED+n-1 (default 10)")
     v.add_argument("--no-validation", action="store_true",
                    help="skip the repeated splits (only the final fit)")
     v.add_argument("--report", metavar="PATH",
                    help="write the validation per split as CSV (PATH) and its summary "
                         "(PATH with .summary.csv)")
-    p.add_argument("--anchor", choices=(*ANCHOR_METHODS, "none"), default="logistic",
+    p.add_argument("--anchor", choices=(*ANCHOR_METHODS, "none"),
+                   default=FIT_DEFAULTS["anchor"],
                    help="monotone map of q onto the 0..100 scale (default logistic)")
     f = p.add_argument_group("features (the metric's network)")
     f.add_argument("--backbone", metavar="PATH",
@@ -133,6 +185,9 @@ def _check(args: argparse.Namespace) -> None:
         ok = math.isfinite(value) and (value >= 0 if low == "0 or more" else value > 0)
         if not ok:
             raise CGVQMError(f"{name} {value:g}: must be a finite number, {low}")
+    _refuse_unused(args)
+    if args.out is None:
+        return  # --features-only
     out = Path(args.out)
     if out.suffix.lower() != ".json":
         raise CGVQMError(f"--out {out}: the weights file is JSON; give a name ending in .json")

@@ -236,8 +236,8 @@ def test_a_request_no_node_meets_is_refused_at_once(study, cluster, tmp_path, ca
 def test_calibrate_ray_fills_the_same_cache(study, cluster, tmp_path, capsys):
     def features(cache: Path, *extra: str) -> dict[str, np.ndarray]:
         rc = main(["calibrate", "--dataset", f"s={study}:{study.parent / 'dmos.csv'}",
-                   "--random-backbone", "0", "--cache", str(cache), "--out",
-                   str(tmp_path / "w.json"), "--features-only", "--quiet", *extra])
+                   "--random-backbone", "0", "--cache", str(cache), "--features-only",
+                   "--quiet", *extra])
         assert rc == 0, capsys.readouterr().err
         return {str(p.relative_to(cache)): np.load(p) for p in cache.rglob("*.npy")}
 

@@ -74,7 +74,9 @@ def test_calibrate_writes_weights_the_metric_scores_with(study, tmp_path, capsys
         raise AssertionError("feature recomputed although cached")
 
     monkeypatch.setattr(FeatureCache, "save_entry", no_compute)
-    assert calib_cli.main(_args(study, tmp_path, "--no-validation")) == 0
+    no_validation = [a for a in _args(study, tmp_path, "--no-validation")
+                     if a not in ("--train-ratio", "0.67", "--repeats", "2")]
+    assert calib_cli.main(no_validation) == 0
 
     # the metric, loading the file, scores q = 100 - alpha * max_p(m_p . |omega|) on the
     # very features the calibration cached
@@ -141,6 +143,35 @@ def test_fit_settings_out_of_range_are_refused_before_any_work(study, tmp_path, 
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and why in err[0], err
     assert not (tmp_path / "cache").exists() and not (tmp_path / "w.json").exists()
+
+
+@pytest.mark.parametrize("extra,why", [
+    # options this run would not read
+    (["--no-validation"], "--train-ratio describes the validation splits, which "
+                          "--no-validation skips"),
+    (["--lr-alpha", "2"], "--lr-alpha has no effect with --objective plcc"),
+    (["--objective", "plcc-signed", "--alpha-init", "5"],
+     "--alpha-init has no effect with --objective plcc-signed"),
+    (["--val-ratio", "0.5"], "--val-ratio sets the held-out share of --select val"),
+    (["--features-only"], "--features-only stops once the feature cache is filled: --steps, "
+                          "--lr-omega, --train-ratio, --repeats, --out would do nothing"),
+])
+def test_options_the_run_would_not_read_are_refused(study, tmp_path, capsys, extra, why):
+    assert calib_cli.main(_args(study, tmp_path, *extra)) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and why in err[0], err
+    assert not (tmp_path / "cache").exists() and not (tmp_path / "w.json").exists()
+
+
+def test_alpha_options_and_val_ratio_are_taken_where_they_apply(study, tmp_path, capsys):
+    assert calib_cli.main(_args(study, tmp_path, "--objective", "nmse", "--alpha-init", "5",
+                                "--lr-alpha", "0", "--select", "val", "--val-ratio",
+                                "0.5")) == 0
+    doc = json.loads((tmp_path / "w.json").read_text())
+    prov = doc["provenance"]
+    assert prov["optimiser"]["alpha_init"] == 5.0 and prov["optimiser"]["lr_alpha"] == 0.0
+    assert prov["final_fit"]["alpha_from_optimiser"] == 5.0  # lr 0: alpha stayed at its start
+    assert prov["final_fit"]["validation_videos"] == 8  # 0.5 of 3 scenes: 2 (0.25: 1)
 
 
 def test_the_weights_file_must_be_a_json_file_in_an_existing_folder(study, tmp_path, capsys):

@@ -19,6 +19,7 @@ from .scores import MODELS, fit_scores
 from .screening import DEFAULT_METHOD, method_names, methods_help
 from .sureal_io import load_sureal
 
+DEFAULT_ALPHA = 0.05
 MAX_LINES = 20  # input problems and exclusions printed on stderr before "... and N more"
 
 
@@ -40,7 +41,7 @@ def _inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--exclude-failed-vision", action="store_true",
                    help="leave out raters who failed a vision check of the study's panel "
                         "(reported like any other exclusion; default: flag them only)")
-    p.add_argument("--alpha", type=float, default=0.05,
+    p.add_argument("--alpha", type=float, default=DEFAULT_ALPHA,
                    help="significance level of the tests, in (0, 0.5) (0.05)")
     p.add_argument("--seed", type=int, default=0,
                    help="seed of bootstraps and splits, a whole number >= 0 (0)")
@@ -91,6 +92,37 @@ def _load(args: argparse.Namespace):
     return load_ratings(args.manifest, ratings_csv=args.ratings, sessions=args.sessions)
 
 
+def _refuse_unread(args: argparse.Namespace) -> None:
+    """Options this command would not read are refused, not ignored: --manifest with a
+    SUREAL dataset (it carries its stimuli), --alpha where no test uses it (the screening
+    would look stricter or looser than it was), --exclude-failed-vision with inputs that
+    never carry vision checks. (Resampling counts stay shared by every subcommand, so one
+    set of options serves them all.)"""
+    from .screening import rules
+
+    if args.sureal and args.manifest:
+        raise AnalysisError("--manifest is read with --sessions/--ratings; a SUREAL dataset "
+                            "carries its own stimuli: drop --manifest")
+    metric_tests = args.command == "compare" or bool(getattr(args, "metric", None))
+    if args.alpha != DEFAULT_ALPHA and not (rules()[args.outliers].uses_alpha or metric_tests):
+        uses = [r.name for r in rules().values() if r.uses_alpha]
+        raise AnalysisError(f"--alpha is the significance level of --outliers "
+                            f"{'/'.join(uses)} and of the metric comparisons (--metric); "
+                            f"{args.command} with --outliers {args.outliers} runs no test "
+                            "that uses it: drop it")
+    if args.exclude_failed_vision and not args.sessions:
+        raise AnalysisError("--exclude-failed-vision needs session files (--sessions): "
+                            "ratings CSVs and SUREAL datasets carry no vision checks")
+
+
+def _refuse_no_vision_checks(args: argparse.Namespace, rs) -> None:
+    """--exclude-failed-vision on ratings in which nobody took a vision check."""
+    if args.exclude_failed_vision and (rs.panel is None or not any(
+            rs.panel.screenings.values())):
+        raise AnalysisError("--exclude-failed-vision: no participant took a vision check in "
+                            "these sessions (the study's panel screens no vision); drop it")
+
+
 def _check_out(args: argparse.Namespace) -> None:
     """``--out`` must not be a file where a folder is written, nor a folder for a CSV."""
     out = getattr(args, "out", None)
@@ -135,8 +167,10 @@ def _run(args: argparse.Namespace) -> int:
                             seed=args.seed, n_boot=args.bootstrap, n_splits=args.splits,
                             min_completeness=args.min_completeness,
                             exclude_failed_vision=args.exclude_failed_vision).check()
+    _refuse_unread(args)
     _check_out(args)
     rs = _load(args)
+    _refuse_no_vision_checks(args, rs)
     _say([str(x) for x in rs.exclusions], "excluded")
     _say([str(p) for p in rs.problems], "input problem")
     if args.command in ("dmos", "export"):

@@ -132,6 +132,10 @@ def _constant(tmp_path: Path, files) -> list[str]:
     ("outdir", "is a folder"),
     ("constant", "all 4200 ratings are equal"),
     ("completeness", "min-completeness must lie in [0, 1]"),
+    # options the command would not read
+    ("alpha-unused", "--alpha is the significance level of --outliers grubbs"),
+    ("sureal-manifest", "a SUREAL dataset carries its own stimuli: drop --manifest"),
+    ("vision-csv", "--exclude-failed-vision needs session files"),
 ])
 def test_user_errors_exit_2_with_one_line(argv, says, files, capsys, tmp_path,
                                           monkeypatch) -> None:
@@ -146,11 +150,24 @@ def test_user_errors_exit_2_with_one_line(argv, says, files, capsys, tmp_path,
         "outdir": ["dmos", *common, "--out", str(tmp_path)],
         "constant": _constant(tmp_path, files) if argv == "constant" else None,
         "completeness": ["dmos", *common, "--min-completeness", "1.5", "--out", "d.csv"],
+        "alpha-unused": ["dmos", *common, "--alpha", "0.01", "--out", "d.csv"],
+        "sureal-manifest": ["dmos", "--sureal", "d.json", "--manifest", "m.json", "--out",
+                            "d.csv"],
+        "vision-csv": ["dmos", *common, "--exclude-failed-vision", "--out", "d.csv"],
     }.get(argv, argv) if isinstance(argv, str) else argv
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("cgvq-analyze: error:"), err
     assert says in err[0] and "Traceback" not in err[0]
+
+
+def test_alpha_is_accepted_where_a_test_uses_it(files, tmp_path: Path) -> None:
+    """Grubbs screening and the metric comparisons read --alpha; p913 alone does not."""
+    common = ["--manifest", str(files["manifest"]), "--ratings", str(files["ratings"]),
+              "--alpha", "0.01", "--bootstrap", "20", "--splits", "20"]
+    assert main(["dmos", *common, "--outliers", "grubbs", "--out",
+                 str(tmp_path / "d.csv")]) == 0
+    assert main(["compare", *common, "--metric", str(files["metric"])]) == 0
 
 
 @pytest.mark.parametrize(("command", "option", "value"), [

@@ -140,3 +140,23 @@ def test_split_half_histogram_of_a_tiny_panel(tmp_path):
     values["rmse"] = [float("nan"), 0.5, 0.5 + 1e-17]
     a = SimpleNamespace(ceiling=SimpleNamespace(values=values))
     assert split_half_hist(a, tmp_path / "s.png").is_file()
+
+
+def test_excluding_failed_vision_needs_sessions_that_took_a_check(tmp_path, capsys):
+    """Sessions of a study whose panel screens no vision: --exclude-failed-vision would
+    exclude nobody, silently; it is refused."""
+    from analysis.cli import main
+
+    refs = [{"id": f"R{i}", "path": f"r{i}.mkv", "scene": f"scene{i}"} for i in range(3)]
+    conds = [{"id": f"R{i}_blur_L{lv}", "reference": f"R{i}", "path": f"r{i}_{lv}.mkv",
+              "method": "blur", "level": lv} for i in range(3) for lv in (1, 2)]
+    path = save_manifest(parse_manifest({"study_id": "no-panel", "references": refs,
+                                         "conditions": conds}), tmp_path / "manifest.json")
+    sessions = tmp_path / "sessions"
+    run_simulation(path, sessions, SimulationOptions(raters=4, seed=1), progress=False)
+    out = tmp_path / "d.csv"
+    assert main(["dmos", "--sessions", str(sessions), "--manifest", str(path),
+                 "--exclude-failed-vision", "--bootstrap", "20", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no participant took a vision check" in err, err
+    assert not out.exists()

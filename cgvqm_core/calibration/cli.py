@@ -222,6 +222,12 @@ def _run(args: argparse.Namespace) -> int:
     # the studies first: their mistakes show before the network is built
     items = load_datasets(specs, dmos_scale=args.dmos_scale,
                           include_references=args.include_references)
+    if not args.features_only and not args.no_validation:
+        from .splits import training_scenes
+
+        counts = items.groupby("dataset")["scene"].nunique().to_dict()
+        for note in training_scenes(counts, args.train_ratio or [0.2]):
+            print(f"note: {note}")
     feature_args = {"variant": args.variant, "backbone": args.backbone,
                     "random_backbone": args.random_backbone, "device": args.device,
                     "precision": args.precision, "patch_scale": args.patch_scale,

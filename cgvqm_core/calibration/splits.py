@@ -37,6 +37,31 @@ def _share(n: int, ratio: float, *, keep_rest: bool) -> int:
     return max(1, min(k, n - 1 if keep_rest else n))
 
 
+def training_scenes(scene_counts: dict[str, int], ratios: Sequence[float]) -> list[str]:
+    """What each train ratio gives in whole scenes, per dataset: a line for each ratio that
+    rounding moves (0.2 of 3 scenes trains on 1, a third); two ratios that give the same
+    split are refused, since the validation table would show one split under two labels."""
+    notes: list[str] = []
+    seen: dict[tuple[int, ...], float] = {}
+    for d, n in scene_counts.items():
+        if n < 2 and any(r < 1.0 for r in ratios):
+            raise CGVQMError(f"dataset {d!r} has one scene: a scene-disjoint split needs two")
+    for ratio in ratios:
+        ks = tuple(_share(n, ratio, keep_rest=ratio < 1.0) for n in scene_counts.values())
+        if ks in seen:
+            raise CGVQMError(
+                f"--train-ratio {seen[ks]:g} and {ratio:g} give the same split in whole "
+                f"scenes (" + ", ".join(f"{k} of {n} in {d}" for k, (d, n) in
+                                         zip(ks, scene_counts.items(), strict=True))
+                + "): drop one")
+        seen[ks] = ratio
+        for k, (d, n) in zip(ks, scene_counts.items(), strict=True):
+            if f"{k / n:.2f}" != f"{ratio:.2f}":  # as the validation table shows it
+                notes.append(f"train ratio {ratio:g} trains on {k} of {n} scenes in {d} "
+                             f"({k / n:.2f})")
+    return notes
+
+
 def scene_split(scenes: Sequence[str], datasets: Sequence[str], train_ratio: float, seed: int,
                 *, val_ratio: float = 0.0) -> Split:
     """Split videos by scene, per dataset: ``train_ratio`` of each dataset's scenes train

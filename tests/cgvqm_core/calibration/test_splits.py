@@ -70,3 +70,20 @@ def test_one_scene_cannot_be_split():
         scene_split(["s"] * 5, ["A"] * 5, 0.5, 0)
     with pytest.raises(CGVQMError, match="validation"):
         scene_split(["a", "b", "c"], ["A"] * 3, 0.2, 0, val_ratio=0.25)
+
+
+def test_training_scenes_says_what_rounding_does_and_refuses_one_split_twice():
+    """0.1 and 0.9 of two scenes both train on one: the table would show one split under
+    two labels. A ratio that rounding moves is said in whole scenes."""
+    from cgvqm_core.calibration.splits import training_scenes
+
+    with pytest.raises(CGVQMError, match=r"0\.1 and 0\.9 give the same split .*1 of 2 in a"):
+        training_scenes({"a": 2}, [0.1, 0.9])
+    # scene_split agrees on the counts the notes give
+    assert training_scenes({"a": 5, "b": 4}, [0.2]) == [
+        "train ratio 0.2 trains on 1 of 4 scenes in b (0.25)"]
+    split = scene_split(["s1", "s2", "s3", "s4"], ["b"] * 4, 0.2, seed=0)
+    assert len(split.train_scenes) == 1
+    assert training_scenes({"a": 5}, [0.2, 0.4, 0.6]) == []  # 1, 2 and 3 of 5: exact
+    with pytest.raises(CGVQMError, match="has one scene"):
+        training_scenes({"a": 1}, [0.5])

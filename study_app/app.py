@@ -275,6 +275,11 @@ class App:
             raise StudyError(
                 f"the study's manifest changed since this session started "
                 f"({self.session_path}); resume with the original study folder")
+        if self.opts.seed is not None and self.opts.seed != info.seed:
+            raise StudyError(
+                f"--seed {self.opts.seed}: this session was started with seed {info.seed} "
+                f"(kept in {self.session_path.name}); a resumed session keeps its plan: "
+                "leave --seed out")
         return True
 
     def _window_for(self) -> tuple[int, int]:

@@ -58,6 +58,10 @@ def check_listen(listen: Listen) -> None:
             f"serving on {listen.host} without TLS would send tokens and ratings in clear text: "
             "give --certfile/--keyfile, or serve on 127.0.0.1 behind a TLS reverse proxy (see "
             "the README), or pass --insecure if you really mean it")
+    if listen.insecure and (listen.tls or is_loopback(listen.host)):
+        raise StudyError("--insecure allows plain HTTP on a host other than this machine; "
+                         f"{'with TLS' if listen.tls else f'on {listen.host}'} it changes "
+                         "nothing: drop it")
     if not 0 <= listen.port <= 65535:
         raise StudyError(f"--port {listen.port} is not a port number")
     if listen.proxy is not None:

@@ -116,3 +116,16 @@ def test_prefetch_decodes_pair_and_refuses_mismatch(tiny_study, tmp_path, study_
     other = study_factory(tmp_path / "big", size=32, briefing=False, consent=False)
     with pytest.raises(StudyError, match="differ"):
         decode_pair("x", test, load_study(other).loaded.reference_path("SRC01"))
+
+
+def test_run_refuses_another_seed_for_a_resumed_session(tiny_study, capsys):
+    """The plan of a started session comes from its file; a --seed that differs from the
+    stored one would be ignored, so it is refused before any window opens."""
+    session = _session(tiny_study, 1)  # started with seed 3, one trial answered
+    before = session.read_bytes()
+    code = main(["run", str(tiny_study), "--participant", "P07", "--seed", "4",
+                 "--pilot-no-vsync"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert "--seed 4: this session was started with seed 3" in err
+    assert session.read_bytes() == before

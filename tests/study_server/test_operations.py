@@ -225,6 +225,8 @@ def test_serve_without_a_study_creates_nothing(tmp_path, folder):
     (["--behind-proxy", "not-an-ip,,"], "no empty entries"),
     (["--behind-proxy", "not-an-ip"], "is not an IP address"),
     (["--host", "no such host!", "--insecure"], "cannot be resolved"),
+    # it would change nothing: plain HTTP on this machine is allowed anyway
+    (["--host", "127.0.0.1", "--insecure"], "--insecure allows plain HTTP on a host other"),
 ])
 def test_serve_refuses_bad_options_before_anything(served_study, args, says):
     proc = run_cli("serve", str(served_study), "--port", "0", *args, timeout=60)

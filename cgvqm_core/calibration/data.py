@@ -82,6 +82,10 @@ def load_dataset(spec: DatasetSpec, *, dmos_scale: str = "quality",
             f"{spec.manifest} (e.g. {', '.join(unknown[:5])}); pair each DMOS file with the "
             "manifest of its study"
         )
+    if include_references and not any(stimuli[s].is_hidden_reference
+                                      for s in dmos["stimulus"]):
+        raise CGVQMError(f"--include-references: dataset {spec.name}'s DMOS CSV "
+                         f"({spec.dmos_csv}) rates no hidden references: drop it")
     rows = []
     n_nan = 0
     for rec in dmos.itertuples(index=False):

@@ -44,6 +44,14 @@ def test_rows_join_the_manifest_and_carry_scenes(tmp_path):
     assert len(load_dataset(spec, include_references=True)) == 5
 
 
+def test_including_references_needs_a_dmos_csv_that_rates_them(tmp_path):
+    rows = [(f"{r}_HRC0{k}", r, 50.0 + k) for r in ("SRC01", "SRC02") for k in (1, 2)]
+    spec = write_study(tmp_path, rows)
+    assert len(load_dataset(spec)) == 4
+    with pytest.raises(CGVQMError, match="rates no hidden references"):
+        load_dataset(spec, include_references=True)
+
+
 def test_impairment_scale_is_turned_around_and_clipped(tmp_path):
     rows = [("SRC01_HRC01", "SRC01", 120.0), ("SRC01_HRC02", "SRC01", 30.0),
             ("SRC02_HRC01", "SRC02", -5.0), ("SRC02_HRC02", "SRC02", 50.0)]

@@ -191,13 +191,8 @@ class Display:
         from . import sdl
 
         pg = self.pg
-        index = pos = None
-        with contextlib.suppress(Exception):
-            from pygame._sdl2.video import Window
-
-            win = Window.from_display_module()
-            index = int(win.display_index)
-            pos = tuple(win.position)
+        placement = sdl.window_placement()
+        index, pos = placement if placement is not None else (None, None)
         bounds = sdl.display_bounds()
         if not bounds:
             sizes = pg.display.get_desktop_sizes()

@@ -62,6 +62,13 @@ def _lib() -> ctypes.CDLL | None:
             lib.SDL_GetKeyFromScancode.restype = ctypes.c_int32
             lib.SDL_GetKeyName.argtypes = [ctypes.c_int32]
             lib.SDL_GetKeyName.restype = ctypes.c_char_p
+            lib.SDL_GL_GetCurrentWindow.restype = ctypes.c_void_p
+            lib.SDL_GL_GetCurrentWindow.argtypes = []
+            lib.SDL_GetWindowDisplayIndex.argtypes = [ctypes.c_void_p]
+            lib.SDL_GetWindowDisplayIndex.restype = ctypes.c_int
+            lib.SDL_GetWindowPosition.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int),
+                                                  ctypes.POINTER(ctypes.c_int)]
+            lib.SDL_GetWindowPosition.restype = None
             return lib
         except (OSError, AttributeError) as exc:
             log.debug("SDL library %s unusable: %s", path, exc)
@@ -95,6 +102,30 @@ def display_bounds() -> list[tuple[int, int, int, int]] | None:
     except (OSError, ValueError):
         return None
     return out
+
+
+def window_placement() -> tuple[int, tuple[int, int]] | None:
+    """The OpenGL window's monitor index and its position on the desktop, or None.
+
+    Asked of SDL directly: Pygame's ``_sdl2.video.Window.from_display_module()`` would answer
+    too, but it stores a pointer to itself in the SDL window without keeping itself alive, so
+    once that object is freed every later window, key or mouse event makes Pygame take a
+    reference to freed memory (the heap corruption that crashed the player at random)."""
+    lib = _lib()
+    if lib is None:
+        return None
+    try:
+        window = lib.SDL_GL_GetCurrentWindow()
+        if not window:
+            return None
+        index = lib.SDL_GetWindowDisplayIndex(window)
+        x, y = ctypes.c_int(), ctypes.c_int()
+        lib.SDL_GetWindowPosition(window, ctypes.byref(x), ctypes.byref(y))
+    except (OSError, ValueError):
+        return None
+    if index < 0:
+        return None
+    return index, (x.value, y.value)
 
 
 def layout_key_name(scancode: int) -> str | None:

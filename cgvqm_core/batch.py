@@ -26,7 +26,7 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from tqdm.auto import tqdm
 
@@ -176,28 +176,40 @@ def read_done(path: Path) -> set[str]:
 
 
 class Appender:
-    """Appends rows to a scores CSV (header first if new), flushed to disk per write."""
+    """Appends rows to a scores CSV (header first if new), flushed to disk per write. The
+    file is created with the first rows, so a run that fails before scoring anything leaves
+    no header-only CSV behind for the next step to read as an empty result."""
 
     def __init__(self, path: Path) -> None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        new = not path.is_file() or path.stat().st_size == 0
-        self.fh = path.open("a", newline="", encoding="utf-8")
+        self.path = path
+        self.fh: IO[str] | None = None
+        self.writer: Any = None
+
+    def _open(self) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        new = not self.path.is_file() or self.path.stat().st_size == 0
+        self.fh = self.path.open("a", newline="", encoding="utf-8")
         self.writer = csv.writer(self.fh)
         if new:
             self.writer.writerow(SCORE_COLUMNS)
-            self.flush()
 
     def write(self, rows: list[dict[str, Any]]) -> None:
+        if not rows:
+            return
+        if self.fh is None:
+            self._open()
         self.writer.writerows([[SCORES.version if c == FORMAT_COLUMN else r.get(c, "")
                                 for c in SCORE_COLUMNS] for r in rows])
         self.flush()
 
     def flush(self) -> None:
-        self.fh.flush()
-        os.fsync(self.fh.fileno())
+        if self.fh is not None:
+            self.fh.flush()
+            os.fsync(self.fh.fileno())
 
     def close(self) -> None:
-        self.fh.close()
+        if self.fh is not None:
+            self.fh.close()
 
 
 # -- running a unit -------------------------------------------------------------------------

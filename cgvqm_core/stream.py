@@ -23,6 +23,7 @@ import torch.nn.functional as F
 from tqdm.auto import tqdm
 
 from stimuli_manifests import StimuliError, open_video
+from stimuli_manifests.pairs import same_frame_rate
 
 from .clip_feed import ClipSet, clip_sets
 from .errors import CGVQMError
@@ -333,7 +334,7 @@ def check_fps(ref: FrameSource, test: FrameSource, allow_resample: bool) -> None
     if isinstance(test, ArraySource) or isinstance(ref, ArraySource):
         return
     fr, ft = float(ref.info.fps), float(test.info.fps)
-    if abs(fr - ft) > 1e-3 * max(fr, ft):
+    if not same_frame_rate(fr, ft):
         if not allow_resample:
             raise CGVQMError(
                 f"{test.info.path}: {ft:g} fps differs from the reference's {fr:g} fps; pass "

@@ -23,7 +23,7 @@ MANIFEST_FORMAT = VersionedFormat(
     advice="upgrade the toolkit or convert the manifest")
 FORMAT = MANIFEST_FORMAT.version
 
-_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
+_ID_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]*")  # used with fullmatch: "$" takes "\n"
 # Participant-facing texts a study folder may hold beside its manifest; their sha256 go into
 # ``Manifest.texts`` like the videos' (the participant consents to exactly this text).
 STUDY_TEXT_FILES = ("briefing.md", "consent.md")
@@ -299,14 +299,14 @@ class Manifest(_Strict):
 
 
 def is_valid_id(text: str) -> bool:
-    """Whether ``text`` can be a reference or stimulus id (letters, digits, ``_-.``)."""
-    return bool(_ID_RE.match(text))
+    """Whether ``text`` can be a reference or stimulus id (ASCII letters, digits, ``_-.``)."""
+    return bool(_ID_RE.fullmatch(text))
 
 
 def _valid_id(value: str | None) -> str | None:
-    if value is not None and not _ID_RE.match(value):
+    if value is not None and not _ID_RE.fullmatch(value):
         raise ValueError(
-            f"id {value!r} may contain only letters, digits, '_', '-' and '.', "
+            f"id {value!r} may contain only ASCII letters, digits, '_', '-' and '.', "
             "and must start with a letter or digit"
         )
     return value

@@ -8,7 +8,12 @@ from __future__ import annotations
 
 from .video import VideoInfo
 
-FPS_TOLERANCE = 1e-3
+FPS_TOLERANCE = 1e-3  # in frames per second: 29.97 (30000/1001) is not 30
+
+
+def same_frame_rate(a: float, b: float) -> bool:
+    """Whether two frame rates are one (the player's and the metrics' one rule)."""
+    return abs(a - b) <= FPS_TOLERANCE
 
 
 def pair_mismatches(test_id: str, reference_id: str, test: VideoInfo, reference: VideoInfo
@@ -19,7 +24,7 @@ def pair_mismatches(test_id: str, reference_id: str, test: VideoInfo, reference:
         out.append(f"{test_id}: size {test.width}x{test.height} differs from its reference "
                    f"{reference_id} ({reference.width}x{reference.height}); re-render or "
                    "re-encode it at the reference's size")
-    if abs(test.fps - reference.fps) > FPS_TOLERANCE:
+    if not same_frame_rate(test.fps, reference.fps):
         out.append(f"{test_id}: {test.fps:g} fps differs from its reference {reference_id} "
                    f"({reference.fps:g} fps)")
     if test.frame_count != reference.frame_count:

@@ -20,12 +20,13 @@ import av
 import numpy as np
 
 from .errors import VideoError
+from .frame_files import ordered_frames
 from .lossless import LosslessCodec, codec_spec
 
 log = logging.getLogger(__name__)
 
 DEFAULT_FOLDER_FPS = 30.0
-ConversionPolicy = Literal["warn", "error"]
+ConversionPolicy = Literal["warn", "error", "quiet"]
 SourceKind = Literal["video", "frames", "npy"]
 
 
@@ -43,6 +44,7 @@ class VideoInfo:
     codec: str
     bit_depth: int
     has_alpha: bool
+    profile: str | None = None  # the codec's profile, e.g. H.264's "High 4:4:4 Predictive"
 
     @property
     def duration(self) -> float:
@@ -72,7 +74,8 @@ class VideoSource:
 
     ``fps`` overrides the frame rate of frame folders and .npy arrays (which carry none; the
     default is 30). ``on_conversion`` decides what happens with 10/12/16-bit or alpha input:
-    ``"warn"`` converts to 8-bit RGB and logs a warning, ``"error"`` raises :class:`VideoError`.
+    ``"warn"`` converts to 8-bit RGB and logs a warning, ``"error"`` raises :class:`VideoError`,
+    ``"quiet"`` converts without a word (for callers that report it themselves).
     """
 
     def __init__(
@@ -90,9 +93,7 @@ class VideoSource:
         if not self.path.exists():
             raise VideoError(f"{self.path}: no such file or folder")
         if self.path.is_dir():
-            self._frame_files = sorted(
-                p for p in self.path.iterdir() if p.suffix.lower() == ".png" and p.is_file()
-            )
+            self._frame_files = ordered_frames(self.path)
             self.info = self._probe_folder()
         elif self.path.suffix.lower() == ".npy":
             self.info = self._probe_npy()
@@ -124,15 +125,19 @@ class VideoSource:
             width, height = ctx.width, ctx.height
             pix_fmt = ctx.pix_fmt or "unknown"
             codec = ctx.name
+            profile = ctx.profile
+            _refuse_non_square_pixels(self.path, stream)
         finally:
             container.close()
+        _refuse_display_rotation(self.path)
         if frames == 0:
             raise VideoError(f"{self.path}: the video has no frames")
         if not width or not height:
             raise VideoError(f"{self.path}: frame size unknown (corrupt or unsupported video)")
         bits, alpha = _pix_fmt_traits(pix_fmt)
         return VideoInfo(
-            self.path, "video", width, height, fps, int(frames), pix_fmt, codec, bits, alpha
+            self.path, "video", width, height, fps, int(frames), pix_fmt, codec, bits, alpha,
+            profile,
         )
 
     def _probe_folder(self) -> VideoInfo:
@@ -207,9 +212,11 @@ class VideoSource:
         if self.on_conversion == "error":
             raise VideoError(
                 f"{self.path}: input has {desc} ({info.pix_fmt}); the toolkit works on 8-bit "
-                "RGB. Convert it first or allow conversion"
+                "RGB: convert it first or allow the conversion (cgvqm --allow-convert)"
             )
-        log.warning("%s: %s input (%s) converted to 8-bit RGB", self.path, desc, info.pix_fmt)
+        if self.on_conversion == "warn":
+            log.warning("%s: %s input (%s) converted to 8-bit RGB", self.path, desc,
+                        info.pix_fmt)
 
     # -- decoding -----------------------------------------------------------------------
     def frames(self) -> Iterator[np.ndarray]:
@@ -306,11 +313,58 @@ class VideoSource:
         return out
 
 
+def _refuse_non_square_pixels(path: Path, stream: av.video.stream.VideoStream) -> None:
+    """The player shows one stored pixel per screen pixel and the metrics compare stored
+    pixels, so an anamorphic video would be seen and scored squeezed."""
+    sar = stream.sample_aspect_ratio or stream.codec_context.sample_aspect_ratio
+    if sar and sar != 1:
+        raise VideoError(f"{path}: non-square pixels (sample aspect ratio {sar.numerator}:"
+                         f"{sar.denominator}); re-encode it with square pixels at its display "
+                         "size")
+
+
+def _refuse_display_rotation(path: Path) -> None:
+    """Media players turn or mirror a video by its display matrix (phones and some
+    recorders write one); the toolkit shows and scores the stored pixels, so such a video
+    would be seen and scored sideways, upside down or mirrored. Read from the first decoded
+    frame, where FFmpeg puts the matrix."""
+    container = _open_container(path)
+    try:
+        stream = container.streams.video[0]
+        frame = next(container.decode(stream), None)
+        turn = _display_turn(frame) if frame is not None else None
+    except av.error.FFmpegError:
+        return  # decoding reports the damage with the frame it happens at
+    finally:
+        container.close()
+    if turn is not None:
+        raise VideoError(f"{path}: carries a display matrix ({turn}) that media players apply "
+                         "but the toolkit does not (it shows and scores the stored pixels); "
+                         "re-encode it upright (FFmpeg applies the matrix when it re-encodes)")
+
+
+def _display_turn(frame: av.VideoFrame) -> str | None:
+    """What the frame's display matrix does ('rotated 90 degrees counter-clockwise',
+    'mirrored'), or None when it has none or it is the identity."""
+    for data in frame.side_data:
+        if data.type != av.sidedata.sidedata.Type.DISPLAYMATRIX:
+            continue
+        a, b, _, c, d = np.frombuffer(bytes(data), dtype=np.int32)[:5].tolist()
+        if (a, b, c, d) == (1 << 16, 0, 0, 1 << 16):
+            return None
+        if a * d - b * c < 0:
+            return "mirrored"
+        return f"rotated {round(frame.rotation) % 360} degrees counter-clockwise"
+    return None
+
+
 def _open_container(path: Path) -> av.container.InputContainer:
     try:
         return av.open(str(path), mode="r")
     except av.error.FFmpegError as exc:
-        raise VideoError(f"{path}: not a readable video ({exc})") from None
+        if path.is_file() and path.stat().st_size == 0:
+            raise VideoError(f"{path}: empty file (0 bytes)") from None
+        raise VideoError(f"{path}: not a readable video ({exc.strerror or exc})") from None
     except OSError as exc:
         raise VideoError(f"{path}: cannot open ({exc})") from None
 

@@ -11,6 +11,7 @@ import logging
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Literal
 
 from session_store.study_folder import Study
 from stimuli_manifests import (
@@ -84,7 +85,16 @@ def check_study(study: Study, *, progress: bool = False) -> StudyCheck:
     return out
 
 
-def playback_findings(sid: str, info: VideoInfo, disp: DisplayRequirements
+# How to raise the display requirements: in the manifest of a study, with init's options
+# before a manifest exists.
+_RAISE_SIZE = {"manifest": "raise display.min_width/min_height in the manifest",
+               "init": "pass a larger --min-display"}
+_RAISE_HZ = {"manifest": "raise display.min_refresh_hz in the manifest",
+             "init": "pass a higher --min-refresh-hz"}
+
+
+def playback_findings(sid: str, info: VideoInfo, disp: DisplayRequirements, *,
+                      settings: Literal["manifest", "init"] = "manifest"
                       ) -> tuple[list[str], list[str]]:
     """(errors, warnings) on showing one video frame-accurately on the study's minimum
     display: 1:1 pixels, every frame shown, an even cadence, a lossless codec."""
@@ -93,13 +103,13 @@ def playback_findings(sid: str, info: VideoInfo, disp: DisplayRequirements
     if info.width > disp.min_width or info.height > disp.min_height:
         errors.append(
             f"{sid}: {info.width}x{info.height} does not fit the minimum display "
-            f"{disp.min_width}x{disp.min_height} at 1:1 pixels; raise display.min_width/"
-            "min_height in the manifest or use smaller videos")
+            f"{disp.min_width}x{disp.min_height} at 1:1 pixels; {_RAISE_SIZE[settings]} or "
+            "use smaller videos")
     if info.fps > disp.min_refresh_hz + 1.5:
         errors.append(
             f"{sid}: {info.fps:g} fps is faster than the minimum refresh rate "
-            f"{disp.min_refresh_hz:g} Hz: frames would be skipped on such a display; raise "
-            "display.min_refresh_hz in the manifest or render at a lower frame rate")
+            f"{disp.min_refresh_hz:g} Hz: frames would be skipped on such a display; "
+            f"{_RAISE_HZ[settings]} or render at a lower frame rate")
     else:
         nominal = next((hz for hz in COMMON_REFRESH_HZ if hz >= disp.min_refresh_hz - 1.5),
                        round(disp.min_refresh_hz))
@@ -111,16 +121,28 @@ def playback_findings(sid: str, info: VideoInfo, disp: DisplayRequirements
                 "motion); frame rates that divide the refresh rate play evenly")
     if info.duration < 0.5:
         warnings.append(f"{sid}: only {info.duration:.2f} s long")
-    if info.kind == "video" and info.codec not in LOSSLESS_DECODER_NAMES | {"h264"}:
+    if info.kind == "video" and info.codec == "h264" and not _may_be_lossless_h264(info):
+        warnings.append(f"{sid}: H.264 in profile {info.profile or 'unknown'} ({info.pix_fmt}) "
+                        "is lossy (only High 4:4:4 Predictive can be lossless); make sure it is "
+                        "close enough to the render for a quality study")
+    elif info.kind == "video" and info.codec not in LOSSLESS_DECODER_NAMES | {"h264"}:
         warnings.append(f"{sid}: codec {info.codec}; make sure decoding is lossless "
                         "enough for a quality study")
     if info.needs_conversion:
         warnings.append(f"{sid}: {info.bit_depth}-bit{' with alpha' if info.has_alpha else ''}"
-                        f" ({info.pix_fmt}); the player shows it as 8-bit RGB")
+                        f" ({info.pix_fmt}); the player shows it as 8-bit RGB, and cgvqm scores "
+                        "it only with --allow-convert (init --transcode stores 8-bit copies)")
     return errors, warnings
 
 
-def label_room_problem(videos: Iterable[VideoInfo], disp: DisplayRequirements) -> str | None:
+def _may_be_lossless_h264(info: VideoInfo) -> bool:
+    """Only H.264's High 4:4:4 profiles have a lossless mode (x264's qp 0 and its RGB mode
+    write them); every other profile quantises, and 4:2:0 also halves the colour."""
+    return bool(info.profile) and "4:4:4" in str(info.profile)
+
+
+def label_room_problem(videos: Iterable[VideoInfo], disp: DisplayRequirements, *,
+                       settings: Literal["manifest", "init"] = "manifest") -> str | None:
     """Why the largest video leaves no room for the test/reference label, if it does not."""
     videos = list(videos)
     if not videos:
@@ -130,7 +152,7 @@ def label_room_problem(videos: Iterable[VideoInfo], disp: DisplayRequirements) -
             (disp.min_width, disp.min_height), big):
         return (f"videos of {big[0]}x{big[1]} leave no room for the test/reference label on "
                 f"the minimum display {disp.min_width}x{disp.min_height}, so the pre-flight "
-                "would refuse such screens; raise display.min_width/min_height in the manifest")
+                f"would refuse such screens; {_RAISE_SIZE[settings]}")
     return None
 
 

@@ -26,6 +26,7 @@ from stimuli_manifests.from_folder.build import (
     delete_stale,
     materialise,
     place,
+    shared_paths,
 )
 from stimuli_manifests.from_folder.mapping import (
     DEFAULT_REFERENCE_PATTERN,
@@ -115,6 +116,9 @@ def init_study(opts: InitOptions) -> InitResult:
     if result.problems:
         return result
     placements = place(result.mapping.videos, result.probes, folder, opts.transcode)
+    result.problems += shared_paths(placements)
+    if result.problems:
+        return result
     study_id = opts.study_id or (previous.study_id if previous else _default_study_id(out))
     if previous is not None and not opts.force:
         _refuse_if_sessions_would_break(previous, placements, out)
@@ -200,7 +204,9 @@ def _video_problems(result: InitResult, folder: Path, display: DisplayRequiremen
             result.problems.append(Problem("undecodable", str(video.path), str(probe.error)))
             continue
         infos[video.stimulus_id] = probe.info
-        errors, warnings = playback_findings(str(video.path), probe.info, display)
+        result.warnings += [f"{video.path}: {w}" for w in probe.warnings]
+        errors, warnings = playback_findings(str(video.path), probe.info, display,
+                                             settings="init")
         result.problems += [Problem("player", str(video.path), e.split(": ", 1)[1])
                             for e in errors]
         result.warnings += warnings
@@ -214,7 +220,7 @@ def _video_problems(result: InitResult, folder: Path, display: DisplayRequiremen
             for message in pair_mismatches(str(video.path), str(ref.path), test_info, ref_info):
                 result.problems.append(Problem("mismatch", str(video.path),
                                                message.split(": ", 1)[1]))
-    if (problem := label_room_problem(infos.values(), display)) is not None:
+    if (problem := label_room_problem(infos.values(), display, settings="init")) is not None:
         result.problems.append(Problem("player", "all videos", problem))
     if check_speed:
         _speed_problems(result, {v.stimulus_id: folder / v.path for v in videos},

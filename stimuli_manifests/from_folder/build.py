@@ -20,7 +20,7 @@ from ..checksums import sha256_file
 from ..lossless import LosslessCodec, codec_spec
 from ..model import Condition, DisplayRequirements, Manifest, Reference
 from ..video import VideoSource, write_video
-from .mapping import MappedVideo
+from .mapping import MappedVideo, Problem
 from .probe import ProbedVideo
 
 VIDEOS_DIR = "videos"
@@ -77,6 +77,26 @@ def place(videos: list[MappedVideo], probes: dict[Path, ProbedVideo], folder: Pa
     out.sort(key=lambda p: (p.video.scene, p.video.role != "reference", p.video.method or "",
                             p.video.level or 0))
     return out
+
+
+def shared_paths(placements: list[Placement]) -> list[Problem]:
+    """Stimuli that would land on one file of the study: a transcode gives ``x.mkv`` and
+    ``x.mp4`` the same name, and names that differ only in case are one file on the
+    participants' macOS and Windows disks. One would overwrite the other."""
+    first: dict[str, Placement] = {}
+    problems = []
+    for pl in placements:
+        key = pl.study_path.as_posix().casefold()
+        if key in first:
+            other = first[key]
+            problems.append(Problem(
+                "shared file", str(pl.video.path),
+                f"would be stored as {pl.study_path}, the same file as {other.video.path} "
+                f"({other.study_path}){' once transcoded' if pl.codec else ''}; rename one of "
+                "them"))
+        else:
+            first[key] = pl
+    return problems
 
 
 def _recorded_sources(manifest: Manifest | None) -> dict[str, tuple[dict[str, Any], str, str]]:

@@ -10,6 +10,7 @@ than raised, so that one run lists all of them.
 from __future__ import annotations
 
 import csv
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
@@ -99,17 +100,45 @@ def compile_pattern(pattern: str, *, required: tuple[str, ...]) -> re.Pattern[st
 
 
 def video_files(folder: Path, *, exclude: Path | None = None) -> list[PurePosixPath]:
-    """Video files under ``folder`` (by suffix, hidden files and ``exclude`` skipped), sorted."""
-    out = []
-    for path in sorted(folder.rglob("*")):
-        rel = path.relative_to(folder)
-        if any(part.startswith(".") for part in rel.parts) or not path.is_file():
+    """Video files under ``folder`` (by suffix, hidden files and ``exclude`` skipped), sorted;
+    symbolic links to folders are followed (renders often live on another disk)."""
+    return [rel for rel, target in _walk(folder, exclude) if target is None]
+
+
+def broken_links(folder: Path, *, exclude: Path | None = None) -> list[Problem]:
+    """Video-named symbolic links under ``folder`` whose target does not exist: a render the
+    researcher meant to include, not a file to leave out without a word."""
+    return [Problem("broken link", rel.as_posix(), f"is a symbolic link to {target}, which "
+                    "does not exist") for rel, target in _walk(folder, exclude)
+            if target is not None]
+
+
+def _walk(folder: Path, exclude: Path | None) -> list[tuple[PurePosixPath, str | None]]:
+    """(relative path, None) for each video file and (relative path, link target) for each
+    broken link, following linked folders once each (a link back up is not a loop)."""
+    out: list[tuple[PurePosixPath, str | None]] = []
+    seen: set[str] = set()
+    for root, dirs, files in os.walk(folder, followlinks=True):
+        real = os.path.realpath(root)
+        if real in seen:
+            dirs[:] = []
             continue
-        if exclude is not None and path.resolve().is_relative_to(exclude):
+        seen.add(real)
+        here = Path(root)
+        if exclude is not None and Path(real).is_relative_to(exclude):
+            dirs[:] = []
             continue
-        if path.suffix.lower() in VIDEO_SUFFIXES:
-            out.append(PurePosixPath(rel.as_posix()))
-    return out
+        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        for name in files:
+            path = here / name
+            if name.startswith(".") or path.suffix.lower() not in VIDEO_SUFFIXES:
+                continue
+            rel = PurePosixPath(path.relative_to(folder).as_posix())
+            if path.is_file():
+                out.append((rel, None))
+            elif path.is_symlink():
+                out.append((rel, os.readlink(path)))
+    return sorted(out)
 
 
 def map_by_pattern(folder: Path, *, test_pattern: str = DEFAULT_TEST_PATTERN,
@@ -118,7 +147,7 @@ def map_by_pattern(folder: Path, *, test_pattern: str = DEFAULT_TEST_PATTERN,
     """Map every video file under ``folder`` with the two filename patterns."""
     test_re = compile_pattern(test_pattern, required=("scene", "method", "level"))
     ref_re = compile_pattern(reference_pattern, required=("scene",))
-    out = FolderMapping()
+    out = FolderMapping(problems=broken_links(folder, exclude=exclude))
     for rel in video_files(folder, exclude=exclude):
         text = rel.as_posix()
         if m := ref_re.fullmatch(text):
@@ -174,6 +203,10 @@ def _csv_row(folder: Path, row: dict[str, str], where: str, out: FolderMapping) 
         out.problems.append(Problem("mapping", where, f"role {row.get('role')!r} is not "
                                     "'reference' or 'test'"))
         return
+    if (folder / rel).is_dir():
+        out.problems.append(Problem("not a video file", where, f"{path} is a folder; init "
+                                    "takes video files (encode a frame sequence first)"))
+        return
     if not (folder / rel).is_file():
         out.problems.append(Problem("missing file", where, f"{path} does not exist in "
                                     f"{folder}"))
@@ -198,7 +231,7 @@ def _check(out: FolderMapping) -> None:
         if not is_valid_id(sid):
             out.problems.append(Problem(
                 "bad id", str(video.path), f"id {sid!r} (from scene/method) may contain only "
-                "letters, digits, '_', '-' and '.'; rename the file or map it in a CSV"))
+                "ASCII letters, digits, '_', '-' and '.'; rename the file or map it in a CSV"))
         if sid in seen:
             out.problems.append(Problem(
                 "duplicate id", sid, f"{seen[sid].path} and {video.path} are both {sid}"))

@@ -7,7 +7,6 @@ says whether the player's background decoding keeps up (see ``study_app.prefligh
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -18,6 +17,7 @@ from tqdm import tqdm
 from ..checksums import sha256_file
 from ..errors import StimuliError
 from ..video import VideoInfo, VideoSource
+from .timing import decoder_errors, uneven_timing
 
 
 @dataclass(frozen=True)
@@ -30,6 +30,7 @@ class ProbedVideo:
     info: VideoInfo | None = None
     decode_seconds: float = 0.0
     error: str | None = None
+    warnings: tuple[str, ...] = ()
 
     @property
     def decode_fps(self) -> float:
@@ -40,21 +41,38 @@ class ProbedVideo:
 
 
 def probe_file(path: Path) -> ProbedVideo:
-    """Probe and fully decode one file; problems land in ``error``, never raise."""
+    """Probe and fully decode one file; problems land in ``error``, never raise.
+
+    The player and the metrics take the container's frame count as the video's length, so
+    a file that decodes fewer (or more) frames is damaged for them, and FFmpeg's own error
+    messages while decoding (a bad checksum, a broken slice) mean frames that decode to the
+    wrong pixels without failing."""
     sha = sha256_file(path)
     size = path.stat().st_size
     try:
-        source = VideoSource(path)
-        start = time.perf_counter()
-        count = sum(1 for _ in source.frames())
-        seconds = time.perf_counter() - start
+        source = VideoSource(path, on_conversion="quiet")  # init's table reports it
+        with decoder_errors() as errors:
+            start = time.perf_counter()
+            count = sum(1 for _ in source.frames())
+            seconds = time.perf_counter() - start
     except StimuliError as exc:
         message = str(exc).removeprefix(f"{path}: ")
         return ProbedVideo(path, sha, size, error=f"cannot be decoded: {message}")
     info = source.info
-    if count != info.frame_count:  # the container's count was an estimate: trust the decoder
-        info = dataclasses.replace(info, frame_count=count)
-    return ProbedVideo(path, sha, size, info, seconds)
+    if count != info.frame_count:
+        return ProbedVideo(path, sha, size, error=(
+            f"truncated or damaged: its container lists {info.frame_count} frames but "
+            f"{count} decode; re-export or re-encode it"))
+    if errors:
+        return ProbedVideo(path, sha, size, error=(
+            f"damaged: the decoder reported {errors[0]}"
+            + (f" and {len(errors) - 1} more error(s)" if len(errors) > 1 else "")
+            + "; frames may show wrong pixels: re-export or re-encode it"))
+    warnings = ()
+    if info.kind == "video" and (gap := uneven_timing(path)) is not None:
+        warnings = (f"{gap}; the player and the metrics show every frame for "
+                    f"1/{info.fps:g} s, so the file's own timing is not reproduced",)
+    return ProbedVideo(path, sha, size, info, seconds, warnings=warnings)
 
 
 def probe_files(paths: Iterable[Path], *, progress: bool = False,

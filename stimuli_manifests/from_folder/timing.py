@@ -1,0 +1,72 @@
+"""What a full decode can say about a file beyond its frames: FFmpeg's own error reports,
+and timestamps that are not evenly spaced.
+
+Both are invisible in the decoded frames: a damaged slice can decode to wrong pixels
+without an exception, and the player and the metrics show every frame for 1/fps whatever
+the file's timestamps say, so a render with a dropped-frame gap would play smoothly in the
+study although a media player shows the stutter.
+"""
+
+from __future__ import annotations
+
+import itertools
+import statistics
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import av
+import av.logging
+
+# An interval this far from the median interval is a gap or a burst, not rounding of
+# millisecond timestamps (30 fps in Matroska alternates 33 and 34 ms).
+UNEVEN_RATIO = 1.5
+
+
+@contextmanager
+def decoder_errors() -> Iterator[list[str]]:
+    """FFmpeg's messages at error level or worse while the block runs (from every thread:
+    decoding runs in FFmpeg's worker threads), as 'codec: message' lines."""
+    previous = av.logging.get_level()
+    av.logging.set_level(av.logging.ERROR)
+    lines: list[str] = []
+    try:
+        with av.logging.Capture(local=False) as captured:
+            yield lines
+    finally:
+        av.logging.set_level(previous)
+    pending = ""
+    for level, name, text in captured:  # FFmpeg writes one line in pieces; a newline ends it
+        if level > av.logging.ERROR:
+            continue
+        pending += " " + text
+        if text.endswith("\n"):
+            lines.append(f"{name}: {' '.join(pending.split())}")
+            pending = ""
+    if pending.strip():
+        lines.append(" ".join(pending.split()))
+
+
+def uneven_timing(path: Path) -> str | None:
+    """A line naming the largest uneven frame interval of the first video stream, or None
+    when the presentation timestamps are evenly spaced (or absent)."""
+    try:
+        with av.open(str(path)) as container:
+            stream = container.streams.video[0]
+            pts = sorted(p.pts for p in container.demux(stream) if p.pts is not None)
+            base = stream.time_base
+    except (av.error.FFmpegError, IndexError):
+        return None
+    if base is None or len(pts) < 3:
+        return None
+    steps = [float((b - a) * base) for a, b in itertools.pairwise(pts)]
+    typical = statistics.median(steps)
+    if typical <= 0:
+        return None
+    worst = max(range(len(steps)), key=lambda i: abs(steps[i] / typical - 1))
+    ratio = steps[worst] / typical
+    if 1 / UNEVEN_RATIO <= ratio <= UNEVEN_RATIO:
+        return None
+    return (f"uneven timestamps: {steps[worst] * 1000:.0f} ms between frames {worst} and "
+            f"{worst + 1}, where most are {typical * 1000:.0f} ms (variable frame rate or "
+            "dropped frames)")

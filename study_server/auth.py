@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import hmac
 import os
+import re
 import secrets
 import time
 from pathlib import Path
@@ -58,7 +59,7 @@ def admin_token(server_dir: Path, *, create: bool = True) -> tuple[str, bool]:
             return token, False
     if not create:
         raise StudyError(f"no admin token: set ${ADMIN_ENV} or run 'cgvq-study serve' once")
-    server_dir.mkdir(parents=True, exist_ok=True)
+    server_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     token = command_line_token(32)
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w", encoding="ascii") as fh:
@@ -87,7 +88,9 @@ def cookie_valid(admin: str, value: str | None, now: float | None = None) -> boo
     if not value:
         return False
     expiry, _, sig = value.partition(".")
-    if not expiry.isdigit() or int(expiry) < (now or time.time()):
+    # ASCII digits only: str.isdigit() accepts '²', which int() refuses (a 500 before)
+    if not re.fullmatch(r"[0-9]{1,12}", expiry) or int(expiry) < (now or time.time()):
         return False
     want = hmac.new(admin.encode(), f"dashboard:{expiry}".encode(), hashlib.sha256).hexdigest()
-    return hmac.compare_digest(want, sig)
+    # as bytes: compare_digest raises on non-ASCII str (a cookie is client-chosen)
+    return hmac.compare_digest(want.encode(), sig.encode("utf-8", "replace"))

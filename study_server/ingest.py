@@ -42,9 +42,10 @@ from session_store.protocol import (
 )
 from session_store.records import utc_now
 from session_store.replica import ContradictionError, Replica
-from stimuli_manifests import StimuliError, parse_manifest
+from stimuli_manifests import parse_manifest
 from stimuli_manifests.panel import PanelError
 
+from .content import StudyDesign, content_problem, parse_time
 from .storage import ServerStore, SessionRow, StoredEntry
 
 log = logging.getLogger(__name__)
@@ -106,17 +107,6 @@ def parse(model: type[BaseModel], data: Any) -> Any:
         raise Refused(422, f"malformed request: {where}: {first['msg']}") from None
 
 
-def parse_time(text: Any) -> datetime | None:
-    """An ISO 8601 time as aware UTC, or None when it is not one."""
-    if not isinstance(text, str) or len(text) > 40:
-        return None
-    try:
-        t = datetime.fromisoformat(text.replace("Z", "+00:00"))
-    except ValueError:
-        return None
-    return t.astimezone(UTC) if t.tzinfo else t.replace(tzinfo=UTC)
-
-
 def client_time_of(e: OutboxEntry) -> str | None:
     """When the client made this change, by its own clock."""
     b = e.body
@@ -132,6 +122,12 @@ def client_time_of(e: OutboxEntry) -> str | None:
     except (KeyError, TypeError):
         return None
     return value if parse_time(value) is not None else None
+
+
+def _short(value: Any) -> str:
+    """A client's value in a message: quoted and cut short (flags and the log are bounded)."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _span(seqs: list[int]) -> str:
@@ -157,7 +153,7 @@ class Ingest:
         self._cache_lock = threading.Lock()
         self._locks: dict[str, threading.Lock] = collections.defaultdict(threading.Lock)
         self._locks_lock = threading.Lock()
-        self._panels: dict[str, Any] = {}
+        self._designs: dict[str, StudyDesign] = {}
         self.check_allocation: Callable[[str, str, str | None, list[OutboxEntry]],
                                         str | None] | None = None
         """Set by the server for adaptive studies (:meth:`.allocator.Allocator.check_entries`)."""
@@ -248,29 +244,30 @@ class Ingest:
         return {"acked_seq": acked, "server_time": received, "clock_offset_ms": offset_ms}
 
     # -- upload -----------------------------------------------------------------------
-    def _panel(self, manifest_sha256: str) -> Any:
-        """The panel block of a manifest this server served (None: none, or unknown)."""
-        if manifest_sha256 not in self._panels:
+    def _design(self, manifest_sha256: str) -> StudyDesign:
+        """The design of a study version this server serves, cached per version. Only a
+        known sha is ever looked up (the header is checked first), so the cache is bounded
+        by the versions in the database, never by what clients send."""
+        with self._cache_lock:
+            design = self._designs.get(manifest_sha256)
+        if design is None:
             raw = self.store.version_manifest(manifest_sha256)
-            panel = None
-            if raw is not None:
-                try:
-                    panel = parse_manifest(json.loads(raw), source="manifest").panel
-                except (ValueError, StimuliError):
-                    panel = None
-            self._panels[manifest_sha256] = panel
-        return self._panels[manifest_sha256]
+            if raw is None:
+                raise Refused(409, "the session's study version is unknown to this server")
+            design = StudyDesign.of(parse_manifest(json.loads(raw), source="manifest"))
+            with self._cache_lock:
+                self._designs[manifest_sha256] = design
+        return design
 
-    def _check_answers(self, pid: str, session_id: str, manifest_sha256: str | None,
+    def _check_answers(self, pid: str, session_id: str, design: StudyDesign,
                        entries: list[OutboxEntry]) -> None:
         """Answers must be valid answers to the study's questions (the app checks them with
         the same rule, so only an altered client sends others); the refusal and the flag
         never repeat a free-text answer."""
-        answers = [e for e in entries if e.kind == "answer"]
-        if not answers:
-            return
-        panel = self._panel(str(manifest_sha256))
-        for e in answers:
+        panel = design.panel
+        for e in entries:
+            if e.kind != "answer":
+                continue
             body = e.body
             try:
                 if panel is None:
@@ -282,6 +279,29 @@ class Ingest:
                 self.flag(pid, session_id, "answer", detail)
                 raise Refused(422, detail) from None
 
+    def _check_content(self, pid: str, session_id: str, design: StudyDesign,
+                       entries: list[OutboxEntry]) -> None:
+        """Every entry's types and its fit with the study (:mod:`.content`): refused (422)
+        and flagged, before anything is applied or cached."""
+        for e in entries:
+            problem = content_problem(design, e)
+            if problem is not None:
+                self.flag(pid, session_id, "content", problem)
+                raise Refused(422, f"upload refused: {problem}")
+
+    def _check_allocation(self, pid: str, session_id: str, sha: str,
+                          entries: list[OutboxEntry]) -> None:
+        """The adaptive allocation's own check (blocks this server issued), as a 409."""
+        if self.check_allocation is None:
+            return
+        try:
+            problem = self.check_allocation(pid, session_id, sha, entries)
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError):
+            problem = "a block entry is malformed"
+        if problem is not None:
+            self.flag(pid, session_id, "allocation", problem)
+            raise Refused(409, f"upload refused: {problem}")
+
     def upload(self, pid: str, data: Any, address: str | None) -> dict[str, Any]:
         msg: UploadIn = parse(UploadIn, data)
         entries = sorted((e.entry() for e in msg.entries), key=lambda e: e.seq)
@@ -290,16 +310,18 @@ class Ingest:
             participant = self.store.participant(pid)
             offset_ms = participant.clock_offset_ms if participant else None
             sess = self.store.session_of(pid)
-            first_header = entries[0].body.get("header") if entries[0].kind == "session" \
-                else None
-            sha = sess.manifest_sha256 if sess is not None else (
-                first_header.get("manifest_sha256") if isinstance(first_header, dict) else None)
-            self._check_answers(pid, msg.session_id, sha, entries)
-            if self.check_allocation is not None:
-                problem = self.check_allocation(pid, msg.session_id, sha, entries)
-                if problem is not None:
-                    self.flag(pid, msg.session_id, "allocation", problem)
-                    raise Refused(409, f"upload refused: {problem}")
+            if sess is None:
+                first = entries[0]
+                if first.seq != 1 or first.kind != "session":
+                    raise Refused(409, f"the server holds no session of {pid} yet: send from "
+                                       "entry 1 (the session's header and plan)")
+                sha = str(self._check_header(pid, msg.session_id, first)["manifest_sha256"])
+            else:
+                sha = sess.manifest_sha256
+            design = self._design(sha)
+            self._check_content(pid, msg.session_id, design, entries)
+            self._check_answers(pid, msg.session_id, design, entries)
+            self._check_allocation(pid, msg.session_id, sha, entries)
             if sess is None:
                 acked = self._first_upload(pid, msg.session_id, entries, now, offset_ms,
                                            address)
@@ -316,12 +338,13 @@ class Ingest:
         if header.get("session_id") != session_id:
             problems.append("its session id differs from the upload's")
         if header.get("participant") != pid:
-            problems.append(f"it belongs to participant {header.get('participant')!r}")
+            problems.append(f"it belongs to participant {_short(header.get('participant'))}")
         if header.get("study_id") != self.study_id:
-            problems.append(f"it is for study {header.get('study_id')!r}, not {self.study_id!r}")
+            problems.append(f"it is for study {_short(header.get('study_id'))}, not "
+                            f"{self.study_id!r}")
         sha = header.get("manifest_sha256")
         known = {v.manifest_sha256 for v in self.store.versions()}
-        if sha not in known:
+        if not isinstance(sha, str) or sha not in known:
             problems.append("it was made for a manifest this server never served "
                             f"({str(sha)[:12]}...)")
         if problems:
@@ -333,9 +356,6 @@ class Ingest:
     def _first_upload(self, pid: str, session_id: str, entries: list[OutboxEntry],
                       now: datetime, offset_ms: float | None, address: str | None) -> int:
         first = entries[0]
-        if first.seq != 1 or first.kind != "session":
-            raise Refused(409, f"the server holds no session of {pid} yet: send from entry 1 "
-                               "(the session's header and plan)")
         header = self._check_header(pid, session_id, first)
         try:
             rep = Replica.in_memory(first)

@@ -55,6 +55,8 @@ class ParticipantStats:
     """Questionnaire answers received (counts only: the dashboard never shows answers)."""
     vision: dict[str, str] = field(default_factory=dict)
     """Vision check -> outcome (passed, failed, inconclusive)."""
+    unreadable: int = 0
+    """Stored entries the statistics could not read (skipped; shown as a flag)."""
 
 
 @dataclass
@@ -95,72 +97,115 @@ def _num(x: Any) -> float | None:
     return float(x) if isinstance(x, int | float) and not isinstance(x, bool) else None
 
 
+def _obj(x: Any) -> dict[str, Any]:
+    """``x`` when it is a JSON object, else empty: a stored body may hold any JSON type."""
+    return x if isinstance(x, dict) else {}
+
+
+@dataclass
+class _Samples:
+    """Per-participant samples, summarised once every entry was read."""
+
+    rts: list[float] = field(default_factory=list)
+    toggles: list[float] = field(default_factory=list)
+    viewing: list[float] = field(default_factory=list)
+    hidden: list[float] = field(default_factory=list)
+
+
+def _add_rating(ps: ParticipantStats, acc: _Samples, body: dict[str, Any]) -> None:
+    row = _obj(body.get("row"))
+    ps.n_ratings += 1
+    rt = _num(row.get("rt_ms"))
+    if rt is not None:
+        acc.rts.append(rt / 1000.0)
+    t = _num(row.get("n_toggles"))
+    if t is not None:
+        acc.toggles.append(t)
+    ref, test = _num(row.get("ms_on_reference")), _num(row.get("ms_on_test"))
+    if ref is not None and test is not None:
+        acc.viewing.append((ref + test) / 1000.0)
+    ps.dropped_frames += int(_num(row.get("dropped_frames")) or 0)
+    rating = _num(row.get("rating"))
+    if row.get("is_hidden_reference") and rating is not None:
+        acc.hidden.append(rating)
+
+
+def _add_entry(ps: ParticipantStats, acc: _Samples, kind: str, body: dict[str, Any]) -> None:
+    """One entry's contribution; every structured field is type-checked (one participant's
+    odd body must not stop the statistics for everyone)."""
+    if kind == "rating":
+        _add_rating(ps, acc, body)
+    elif kind == "answer":
+        ps.answers += 1
+    elif kind == "screening":
+        ps.vision[str(body.get("test"))] = str(body.get("outcome"))
+    elif kind == "requeue":
+        ps.requeued += 1
+        details = _obj(_obj(body.get("presentation")).get("details"))
+        ps.dropped_frames += int(_num(details.get("dropped_frames")) or 0)
+    elif kind == "preflight":
+        results = body.get("results")
+        ps.preflight_skipped = bool(body.get("skipped"))
+        ps.preflight_failed = [str(r.get("name")) for r in
+                               (results if isinstance(results, list) else [])
+                               if isinstance(r, dict) and not r.get("ok")]
+    elif kind == "session":
+        settings = _obj(body.get("settings"))
+        ps.simulated = bool(settings.get("simulated"))
+        mode = settings.get("timing_mode")
+        if isinstance(mode, str):
+            ps.timing = mode
+    elif kind == "start":
+        display = _obj(body.get("display"))
+        if ps.timing is None and "vsync" in display:
+            ps.timing = "vsync" if display.get("vsync") else "no vsync"
+        elif ps.timing is None and display.get("simulated"):
+            ps.timing = "simulated"
+
+
 def participant_stats(rows: list[tuple[str, str, str, str, str]]
                       ) -> dict[str, ParticipantStats]:
     """Per-participant behaviour from the entries (participant, sha, kind, body JSON,
-    session id)."""
+    session id). An entry that cannot be read is skipped and counted in
+    ``ParticipantStats.unreadable``, never a failure of the whole snapshot."""
     out: dict[str, ParticipantStats] = {}
-    rts: dict[str, list[float]] = {}
-    toggles: dict[str, list[float]] = {}
-    viewing: dict[str, list[float]] = {}
-    hidden: dict[str, list[float]] = {}
+    samples: dict[str, _Samples] = {}
     for pid, _, kind, text, _ in rows:
         ps = out.setdefault(pid, ParticipantStats(pid))
-        body = json.loads(text)
-        if kind == "rating":
-            row = body.get("row", {})
-            ps.n_ratings += 1
-            rt = _num(row.get("rt_ms"))
-            if rt is not None:
-                rts.setdefault(pid, []).append(rt / 1000.0)
-            t = _num(row.get("n_toggles"))
-            if t is not None:
-                toggles.setdefault(pid, []).append(t)
-            ref, test = _num(row.get("ms_on_reference")), _num(row.get("ms_on_test"))
-            if ref is not None and test is not None:
-                viewing.setdefault(pid, []).append((ref + test) / 1000.0)
-            ps.dropped_frames += int(_num(row.get("dropped_frames")) or 0)
-            if row.get("is_hidden_reference") and _num(row.get("rating")) is not None:
-                hidden.setdefault(pid, []).append(float(row["rating"]))
-        elif kind == "answer":
-            ps.answers += 1
-        elif kind == "screening":
-            ps.vision[str(body.get("test"))] = str(body.get("outcome"))
-        elif kind == "requeue":
-            ps.requeued += 1
-            details = body.get("presentation", {}).get("details", {})
-            ps.dropped_frames += int(_num(details.get("dropped_frames")) or 0)
-        elif kind == "preflight":
-            ps.preflight_skipped = bool(body.get("skipped"))
-            ps.preflight_failed = [str(r.get("name")) for r in body.get("results", [])
-                                   if isinstance(r, dict) and not r.get("ok")]
-        elif kind == "session":
-            settings = body.get("settings") or {}
-            ps.simulated = bool(settings.get("simulated"))
-            mode = settings.get("timing_mode")
-            if isinstance(mode, str):
-                ps.timing = mode
-        elif kind == "start":
-            display = body.get("display") or {}
-            if ps.timing is None and "vsync" in display:
-                ps.timing = "vsync" if display.get("vsync") else "no vsync"
-            elif ps.timing is None and display.get("simulated"):
-                ps.timing = "simulated"
+        acc = samples.setdefault(pid, _Samples())
+        try:
+            body = json.loads(text)
+            if not isinstance(body, dict):
+                raise TypeError("the body is not a JSON object")
+            _add_entry(ps, acc, kind, body)
+        except (ValueError, TypeError, KeyError, AttributeError, OverflowError):
+            ps.unreadable += 1
     for pid, ps in out.items():
-        if rts.get(pid):
-            ps.median_trial_s = statistics.median(rts[pid])
-        if toggles.get(pid):
-            ps.mean_toggles = statistics.fmean(toggles[pid])
-        if viewing.get(pid):
-            ps.mean_viewing_s = statistics.fmean(viewing[pid])
-        if hidden.get(pid):
-            ps.hidden_reference_mean = statistics.fmean(hidden[pid])
+        acc = samples[pid]
+        if acc.rts:
+            ps.median_trial_s = statistics.median(acc.rts)
+        if acc.toggles:
+            ps.mean_toggles = statistics.fmean(acc.toggles)
+        if acc.viewing:
+            ps.mean_viewing_s = statistics.fmean(acc.viewing)
+        if acc.hidden:
+            ps.hidden_reference_mean = statistics.fmean(acc.hidden)
     return out
+
+
+def _tidy(header: dict[str, Any], text: str) -> dict[str, Any] | None:
+    """The tidy row of one stored rating entry, or None when it cannot be read."""
+    try:
+        return tidy_row(header, _obj(json.loads(text)).get("row", {}))
+    except (ValueError, TypeError, KeyError, AttributeError, OverflowError):
+        return None
 
 
 def ratings_frame(rows: list[tuple[str, str, str, str, str]], study_id: str) -> Any:
     """The ratings received so far as the tidy ratings table (``cgvq-ratings/1``, each row
-    built by :func:`session_store.ratings_csv.tidy_row`, as in an export), for the analysis."""
+    built by :func:`session_store.ratings_csv.tidy_row`, as in an export), for the analysis;
+    a row that cannot be read is left out (and counted per participant by
+    :func:`participant_stats`)."""
     import pandas as pd
 
     records = []
@@ -168,7 +213,9 @@ def ratings_frame(rows: list[tuple[str, str, str, str, str]], study_id: str) -> 
         if kind != "rating":
             continue
         header = {"study_id": study_id, "session_id": session_id, "participant": pid}
-        records.append(tidy_row(header, json.loads(text).get("row", {})))
+        record = _tidy(header, text)
+        if record is not None:
+            records.append(record)
     return pd.DataFrame.from_records(records, columns=list(RATINGS_COLUMNS))
 
 

@@ -24,6 +24,7 @@ all, so every migration is exercised by every test):
 from __future__ import annotations
 
 import contextlib
+import os
 import sqlite3
 import threading
 from collections.abc import Callable, Iterator, Sequence
@@ -183,6 +184,24 @@ def state_path(study_folder: str | Path) -> Path:
     return Path(study_folder) / STATE_DIR / STATE_FILE
 
 
+def private_dir(path: Path) -> Path:
+    """``path`` as a folder only its owner can enter (0700): it holds personal data."""
+    path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    with contextlib.suppress(PermissionError):  # another user's folder: leave it as it is
+        path.chmod(0o700)
+    return path
+
+
+def private_file(path: Path) -> Path:
+    """``path`` created (empty) or tightened to 0600 before SQLite opens it; SQLite gives
+    its ``-wal`` and ``-shm`` files the database file's mode."""
+    fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o600)
+    os.close(fd)
+    with contextlib.suppress(PermissionError):
+        path.chmod(0o600)
+    return path
+
+
 def _connect(path: Path) -> sqlite3.Connection:
     con = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False, timeout=30)
     con.row_factory = sqlite3.Row
@@ -247,11 +266,12 @@ class ServerStore:
     def __init__(self, path: str | Path, *, create: bool = True,
                  target_version: int = SCHEMA_VERSION) -> None:
         self.path = Path(path)
-        if not self.path.exists():
-            if not create:
-                raise StudyError(f"no study-server database at {self.path}: run "
-                                 "'cgvq-study serve' or 'cgvq-study invite' on the study first")
-            self.path.parent.mkdir(parents=True, exist_ok=True)
+        if not self.path.exists() and not create:
+            raise StudyError(f"no study-server database at {self.path}: run "
+                             "'cgvq-study serve' or 'cgvq-study invite' on the study first")
+        if not self.path.parent.exists() or self.path.parent.name == STATE_DIR:
+            private_dir(self.path.parent)
+        private_file(self.path)
         self._local = threading.local()
         self._write_lock = threading.RLock()
         self._all: list[sqlite3.Connection] = []
@@ -514,10 +534,11 @@ class ServerStore:
         dest = Path(dest)
         if dest.exists():
             raise StudyError(f"{dest} exists already; choose another backup file")
-        dest.parent.mkdir(parents=True, exist_ok=True)
+        if not dest.parent.exists():
+            private_dir(dest.parent)
         tmp = dest.with_name(dest.name + ".partial")
         tmp.unlink(missing_ok=True)
-        out = sqlite3.connect(str(tmp))
+        out = sqlite3.connect(str(private_file(tmp)))
         try:
             self._con().backup(out, pages=256)
             check = out.execute("PRAGMA integrity_check").fetchone()[0]

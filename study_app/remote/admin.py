@@ -89,6 +89,7 @@ def _build(path: Path, entries: list[OutboxEntry]) -> None:
         for suffix in ("-wal", "-shm"):
             Path(f"{path}{suffix}").unlink(missing_ok=True)
         shutil.move(str(built), str(path))
+    path.chmod(0o600)
 
 
 def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | None = None,
@@ -103,7 +104,9 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise StudyError(f"--out {out} is a file; give a folder")
-    out.mkdir(parents=True, exist_ok=True)
+    if not out.exists():
+        out.mkdir(mode=0o700, parents=True)
+        out.chmod(0o700)  # the pulled data is personal: owner only
     sessions: list[PulledSession] = []
     not_started: list[str] = []
     rows: list[dict[str, Any]] = []
@@ -136,16 +139,20 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
             screening_table += screening_rows(record)
     listing_path = out / LISTING_FILE
     listing_path.write_text(json.dumps(listing, indent=2) + "\n", encoding="utf-8")
+    listing_path.chmod(0o600)
     result = PullResult(str(listing["study_id"]), sessions, not_started,
                         [w["participant"] for w in listing.get("withdrawn", [])], listing_path)
     if csv is not None:
         write_ratings_csv(rows, csv)
+        Path(csv).chmod(0o600)
         result.csv_path, result.n_csv_rows = Path(csv), len(rows)
     if answers is not None:
         answers = Path(answers)
         result.answers_path = write_answers_csv(answer_table, answers)
+        Path(result.answers_path).chmod(0o600)
         result.n_answer_rows = len(answer_table)
         if screening_table:
             result.screenings_path = write_screenings_csv(
                 screening_table, answers.with_name(f"{answers.stem}_screenings.csv"))
+            Path(result.screenings_path).chmod(0o600)
     return result

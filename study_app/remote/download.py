@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import re
 import shutil
 import time
 from collections.abc import Callable
@@ -60,7 +61,12 @@ class DownloadPlan:
         return sum(f.size for f in self.files)
 
     def local(self, f: RemoteFile) -> Path:
-        return self.folder.joinpath(*PurePosixPath(f.path).parts)
+        """Where ``f`` goes; never outside :attr:`folder` (checked again after joining)."""
+        dest = self.folder.joinpath(*PurePosixPath(_safe_relative(f.path)).parts)
+        if not dest.resolve().is_relative_to(self.folder.resolve()):
+            raise StudyError(f"the study server listed a file outside the study folder: "
+                             f"{f.path[:100]!r}")
+        return dest
 
     def cached(self, f: RemoteFile) -> bool:
         """Present with the right size and sha256 (the hash is remembered beside the file)."""
@@ -103,13 +109,37 @@ def _sha256(p: Path) -> str:
     return digest.hexdigest()
 
 
+UNSAFE_CHARS = re.compile(r'[\x00-\x1f<>:"|?*\\]')
+WINDOWS_RESERVED = frozenset({"con", "prn", "aux", "nul", *(f"com{i}" for i in range(10)),
+                              *(f"lpt{i}" for i in range(10))})
+
+
+def _safe_part(part: str) -> bool:
+    """One path segment that means the same file on every OS: no ``:`` (on Windows ``D:``
+    restarts the path on that drive), none of Windows' forbidden characters, not ``.`` or
+    ``..``, no trailing dot or space, no reserved device name (CON, NUL...)."""
+    return (part not in ("", ".", "..") and UNSAFE_CHARS.search(part) is None
+            and not part.endswith((".", " "))
+            and part.split(".")[0].strip().lower() not in WINDOWS_RESERVED)
+
+
 def _safe_relative(text: Any) -> str:
-    if not isinstance(text, str) or not text or "\\" in text or "\0" in text:
-        raise StudyError(f"the study server listed an invalid file name {text!r}")
-    parts = PurePosixPath(text).parts
-    if PurePosixPath(text).is_absolute() or any(p in ("..", ".", "") for p in parts):
-        raise StudyError(f"the study server listed a file outside the study folder: {text!r}")
+    """A listed file path, refused unless it stays inside the study folder on any OS."""
+    if not isinstance(text, str) or not text or len(text) > 1000:
+        raise StudyError(f"the study server listed an invalid file name {str(text)[:100]!r}")
+    if text.startswith("/") or not all(_safe_part(p) for p in text.split("/")):
+        raise StudyError("the study server listed a file outside the study folder or with "
+                         f"characters a file name cannot hold: {text[:100]!r}")
     return text
+
+
+def _remote_file(f: Any) -> RemoteFile:
+    """One listed file: a safe path, a size of 0 or more, a sha256 of 64 hex digits."""
+    size, sha = int(f["size"]), str(f["sha256"])
+    if size < 0 or re.fullmatch(r"[0-9a-f]{64}", sha) is None:
+        raise StudyError(f"the study server listed {str(f['path'])[:100]!r} with an invalid "
+                         "size or sha256")
+    return RemoteFile(_safe_relative(f["path"]), size, sha)
 
 
 def study_plan(client: ServerClient, participant: str, cache: str | Path) -> DownloadPlan:
@@ -118,8 +148,7 @@ def study_plan(client: ServerClient, participant: str, cache: str | Path) -> Dow
     try:
         study_id = str(info["study_id"])
         sha = str(info["manifest_sha256"])
-        files = tuple(RemoteFile(_safe_relative(f["path"]), int(f["size"]), str(f["sha256"]))
-                      for f in info["files"])
+        files = tuple(_remote_file(f) for f in info["files"])
     except (KeyError, TypeError, ValueError):
         raise StudyError("the study server's file list is malformed") from None
     from session_store.ids import check_participant_id

@@ -14,6 +14,7 @@ import logging
 import os
 import ssl
 import urllib.error
+import urllib.parse
 import urllib.request
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -91,6 +92,29 @@ def _retry_after(exc: urllib.error.HTTPError) -> float | None:
         return None
 
 
+def _origin(url: str) -> tuple[str, str, int | None]:
+    parts = urllib.parse.urlsplit(url)
+    port = parts.port or {"http": 80, "https": 443}.get(parts.scheme.lower())
+    return parts.scheme.lower(), (parts.hostname or "").lower(), port
+
+
+class SameOriginRedirects(urllib.request.HTTPRedirectHandler):
+    """Follows a redirect only within the study server's own origin (scheme, host, port):
+    urllib's default copies every header, the bearer token included, to any other host and
+    from https to http. The API never redirects elsewhere, so such an answer is refused."""
+
+    def redirect_request(self, req: urllib.request.Request, fp: Any, code: int, msg: str,
+                         headers: Any, newurl: str) -> urllib.request.Request | None:
+        if _origin(newurl) != _origin(req.full_url):
+            fp.close()
+            where = "{}://{}:{}".format(*_origin(newurl))
+            raise ServerRefused(
+                f"the study server redirected to another address ({where}); redirects to "
+                "another server are not followed (the token stays here): check the server "
+                "address", code)
+        return super().redirect_request(req, fp, code, msg, headers, newurl)
+
+
 class ServerClient:
     """Requests to one study server with one bearer token (a participant's or the admin's)."""
 
@@ -99,7 +123,7 @@ class ServerClient:
         self._token = token
         self.timeout = timeout
         handlers: list[urllib.request.BaseHandler] = [
-            urllib.request.HTTPSHandler(context=ssl_context())]
+            urllib.request.HTTPSHandler(context=ssl_context()), SameOriginRedirects()]
         self._opener = urllib.request.build_opener(*handlers)
 
     def _request(self, method: str, path: str, body: bytes | None = None,

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -53,11 +54,13 @@ def _no_constants(name: str) -> Any:
     raise ValueError(f"{name} is not valid JSON")
 
 
-async def read_json(request: Request, limit: int) -> Any:
-    """The request's JSON body, refused (413) beyond ``limit`` bytes before it is parsed."""
+async def read_body(request: Request, limit: int) -> bytes:
+    """The request's body, refused (413) beyond ``limit`` bytes: the declared
+    ``Content-Length`` first, then the bytes really sent, counted while they stream in, so
+    an oversized body is never held in memory (every route reads its body here)."""
     length = request.headers.get("content-length")
     if length is not None:
-        if not length.isdigit():
+        if not re.fullmatch(r"[0-9]{1,18}", length):
             raise Refused(400, "invalid Content-Length")
         if int(length) > limit:
             raise Refused(413, f"request body over {limit} bytes")
@@ -67,8 +70,14 @@ async def read_json(request: Request, limit: int) -> Any:
         if size > limit:
             raise Refused(413, f"request body over {limit} bytes")
         chunks.append(chunk)
+    return b"".join(chunks)
+
+
+async def read_json(request: Request, limit: int) -> Any:
+    """The request's JSON body, refused (413) beyond ``limit`` bytes before it is parsed."""
+    body = await read_body(request, limit)
     try:
-        return json.loads(b"".join(chunks), parse_constant=_no_constants)
+        return json.loads(body, parse_constant=_no_constants)
     except (ValueError, UnicodeDecodeError, RecursionError):
         raise Refused(400, "the request body is not valid JSON") from None
 

@@ -11,8 +11,9 @@ from starlette.requests import Request
 from starlette.responses import HTMLResponse, RedirectResponse, Response
 
 from .. import auth
+from ..ingest import Refused
 from .admin import admin_status
-from .common import HTML_HEADERS, SECURITY_HEADERS, error, server_of
+from .common import HTML_HEADERS, SECURITY_HEADERS, error, read_body, server_of
 
 MAX_LOGIN_BYTES = 4096
 
@@ -30,20 +31,33 @@ async def dashboard(request: Request) -> Response:
     return HTMLResponse(html, headers=HTML_HEADERS)
 
 
+def _login_key(request: Request) -> str:
+    """Login failures are counted per client address (the proxy's forwarded one behind
+    ``--behind-proxy``), so a stranger's wrong guesses cannot lock the experimenter out."""
+    return "login:" + (request.client.host if request.client is not None else "-")
+
+
+def _login_page(request: Request, message: str, status: int) -> Response:
+    return HTMLResponse(server_of(request).pages.login(message), status_code=status,
+                        headers=HTML_HEADERS)
+
+
 async def login(request: Request) -> Response:
-    """The login form's POST: a right token sets the cookie; attempts are rate-limited."""
+    """The login form's POST: a right token sets the cookie. Wrong tokens are rate-limited
+    per client address before the body is read; the body is read bounded (4 KiB)."""
     st = server_of(request)
-    body = await request.body()
-    if len(body) > MAX_LOGIN_BYTES:
-        return HTMLResponse(st.pages.login("Request too large."), status_code=413,
-                            headers=HTML_HEADERS)
-    if st.login_limiter.acquire("login") > 0:
-        return HTMLResponse(st.pages.login("Too many attempts; wait a minute."),
-                            status_code=429, headers=HTML_HEADERS)
+    key = _login_key(request)
+    if st.login_limiter.wait_time(key) > 0:
+        return _login_page(request, "Too many attempts; wait a minute.", 429)
+    try:
+        body = await read_body(request, MAX_LOGIN_BYTES)
+    except Refused as exc:
+        return _login_page(request, "Request too large." if exc.status == 413
+                           else "Invalid request.", exc.status)
     token = (parse_qs(body.decode("utf-8", "replace")).get("token") or [""])[0].strip()
     if not auth.token_matches(token, auth.token_sha256(st.admin_token)):
-        return HTMLResponse(st.pages.login("That is not the admin token."),
-                            status_code=403, headers=HTML_HEADERS)
+        st.login_limiter.acquire(key)
+        return _login_page(request, "That is not the admin token.", 403)
     resp = RedirectResponse("/dashboard", status_code=303, headers=SECURITY_HEADERS)
     resp.set_cookie(auth.COOKIE, auth.make_cookie(st.admin_token),
                     max_age=auth.COOKIE_LIFETIME_S, httponly=True, samesite="strict",

@@ -164,8 +164,9 @@ class Ingest:
             return self._locks[pid]
 
     def flag(self, pid: str, session_id: str | None, kind: str, message: str) -> None:
-        log.warning("flag %s for %s: %s", kind, pid, message)
-        self.store.add_flag(pid, session_id, kind, message, utc_now())
+        """Record a flag; the log gets each distinct flag once, not every repeat."""
+        if self.store.add_flag(pid, session_id, kind, message, utc_now()):
+            log.warning("flag %s for %s: %s", kind, pid, message)
 
     def _replica(self, sess: SessionRow) -> Replica:
         with self._cache_lock:

@@ -112,6 +112,8 @@ def _v3(con: sqlite3.Connection) -> None:
 MIGRATIONS: tuple[Callable[[sqlite3.Connection], None], ...] = (_v1, _v2, _v3)
 """``MIGRATIONS[i]`` takes the database from version ``i`` to ``i + 1``."""
 SCHEMA_VERSION = len(MIGRATIONS)
+MAX_FLAGS = 100
+"""Distinct flags kept per participant (see :meth:`ServerStore.add_flag`)."""
 
 
 @dataclass(frozen=True)
@@ -490,13 +492,28 @@ class ServerStore:
 
     # -- flags ------------------------------------------------------------------------
     def add_flag(self, participant: str, session_id: str | None, kind: str, message: str,
-                 at: str) -> None:
+                 at: str) -> bool:
+        """Record a flag (a repeat only counts up); True when it is a new one. A
+        participant's distinct flags stop at :data:`MAX_FLAGS` (their texts come from the
+        client's behaviour, so a client could otherwise add rows without end); later ones
+        count up one ``too_many_flags`` row."""
+        message = message[:500]
         with self._write() as con:
+            known = con.execute("SELECT 1 FROM flags WHERE participant=? AND kind=? AND "
+                                "message=?", (participant, kind, message)).fetchone()
+            if known is None:
+                (n,) = con.execute("SELECT COUNT(*) FROM flags WHERE participant=?",
+                                   (participant,)).fetchone()
+                if n >= MAX_FLAGS:
+                    kind, message = "too_many_flags", (
+                        f"more than {MAX_FLAGS} distinct flags; later ones are only counted "
+                        "here")
             con.execute(
                 "INSERT INTO flags (participant, session_id, kind, message, at, last_at) "
                 "VALUES (?,?,?,?,?,?) ON CONFLICT(participant, kind, message) DO UPDATE SET "
                 "count=count+1, last_at=excluded.last_at", (participant, session_id, kind,
-                                                            message[:500], at, at))
+                                                            message, at, at))
+        return known is None and kind != "too_many_flags"
 
     def flags(self, participant: str | None = None) -> list[Flag]:
         sql = ("SELECT participant, session_id, kind, message, at, last_at, count FROM flags"

@@ -56,9 +56,17 @@ def local_problems(path: Path) -> list[str]:
     """What the participant's own file says about itself: its tables against its change log,
     the change log's own chain. Reported to the server at the handshake."""
     try:
-        return [p[:500] for p in tables_match_outbox(path)][:50]
+        return [without_paths(p, path)[:500] for p in tables_match_outbox(path)][:50]
     except StudyError as exc:
-        return [f"the session file cannot be read ({exc})"[:500]]
+        return [without_paths(f"the session file cannot be read ({exc})", path)[:500]]
+
+
+def without_paths(text: str, path: Path) -> str:
+    """``text`` with the session file's folders left out: a participant's home folder
+    names their account, which is not the server's to know (only the file name is sent)."""
+    for full in {str(path.resolve()), str(path.absolute()), str(path)}:
+        text = text.replace(full, path.name)
+    return text.replace(str(Path.home()), "~")
 
 
 def _open(path: Path) -> sqlite3.Connection:
@@ -111,7 +119,8 @@ def sync_session(path: str | Path, client: ServerClient, participant: str, *,
         client.json("POST", participant_path(participant, "handshake"), {
             "protocol": PROTOCOL, "session_id": None, "client_time": utc_now(),
             "app_version": __version__, "log_hashes": [],
-            "local_problems": [f"the session file cannot be opened ({exc})"[:500]]})
+            "local_problems": [without_paths(f"the session file cannot be opened ({exc})",
+                                             path)[:500]]})
         raise
     try:
         con.execute("BEGIN")

@@ -7,6 +7,11 @@ import math
 import sys
 from pathlib import Path
 
+from session_store.protocol import CLIENT_BATCH_BYTES
+
+MIN_MAX_BODY = CLIENT_BATCH_BYTES + 64 * 1024
+"""The app's largest batch of entries plus room for the request around it."""
+
 NAME = "serve"
 EXTRA = "server"
 HELP = "serve a study to remote participants: downloads, live uploads, dashboard"
@@ -41,7 +46,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="keep no client addresses at all (default: the last one per "
                              "participant, for spotting abuse)")
     parser.add_argument("--max-body", type=int, default=None, metavar="BYTES",
-                        help="largest request body (default 1 MiB)")
+                        help="largest request body (default 1 MiB; at least 576 KiB, the "
+                             "app's upload batches)")
     stop = parser.add_argument_group("stopping rule (shown on the dashboard)")
     stop.add_argument("--target-mean-ci", type=float, default=None, metavar="W",
                       help="target: mean DMOS 95%% CI width over the conditions at most W "
@@ -86,8 +92,10 @@ def run(args: argparse.Namespace) -> int:
         raise StudyError("--close-at-target needs a target (--target-mean-ci, --target-max-ci "
                          "or --target-ratings)")
     if args.max_body is not None:
-        if args.max_body < 64 * 1024:
-            raise StudyError("--max-body below 64 KiB would refuse ordinary uploads")
+        if args.max_body < MIN_MAX_BODY:
+            raise StudyError(f"--max-body below {MIN_MAX_BODY // 1024} KiB would refuse the "
+                             f"app's upload batches (up to {CLIENT_BATCH_BYTES // 1024} KiB of "
+                             "entries), and a refused batch stops that participant's uploads")
         config.max_body_bytes = args.max_body
     listen = Listen(host=args.host, port=args.port, certfile=args.certfile,
                     keyfile=args.keyfile, insecure=args.insecure, proxy=args.behind_proxy)

@@ -58,6 +58,14 @@ def test_serve_refuses_plain_http_on_a_public_address(served_study):
     assert proc.returncode == 2 and "TLS file not found" in proc.stderr
 
 
+def test_serve_refuses_a_body_limit_below_the_apps_batches(served_study):
+    from session_store.protocol import CLIENT_BATCH_BYTES
+
+    proc = run_cli("serve", str(served_study), "--port", "0", "--max-body",
+                   str(CLIENT_BATCH_BYTES))
+    _one_line_refusal(proc, "would refuse the app's upload batches (up to 512 KiB")
+
+
 def _change_manifest(study):
     m = json.loads((study / "manifest.json").read_text())
     m["conditions"] = m["conditions"][:-1]  # one condition dropped

@@ -190,8 +190,10 @@ class Ingest:
                 old.close()
             self._replicas[session_id] = rep
             while len(self._replicas) > self.limits.cached_sessions:
-                _, evicted = self._replicas.popitem(last=False)
-                evicted.close()
+                # only dropped, not closed: its owner's upload may be using it right now
+                # (this holds the cache lock, not theirs); it closes when the last user
+                # lets go of it
+                self._replicas.popitem(last=False)
 
     def forget(self, session_id: str) -> None:
         with self._cache_lock:

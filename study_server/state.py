@@ -115,12 +115,15 @@ class ServerState:
     def check_participant(self, pid: str, token: str) -> None:
         """Refuse (403/410/429) unless ``token`` is ``pid``'s; writes nothing. Failures are
         rate-limited per participant id (a right token always passes, so a stranger
-        guessing cannot lock a participant out)."""
-        if self.store.tombstone(pid) is not None:
-            raise Refused(410, f"participant {pid} has withdrawn; their data was deleted")
+        guessing cannot lock a participant out). A withdrawn id answers 410 to its own token
+        only; to anybody else it is a wrong token like any other."""
         p = self.store.participant(pid)
         if p is not None and auth.token_matches(token, p.token_sha256):
             return
+        tomb = self.store.tombstone(pid)  # told only to the one who withdrew
+        if tomb is not None and tomb.token_sha256 and auth.token_matches(token,
+                                                                          tomb.token_sha256):
+            raise Refused(410, f"participant {pid} has withdrawn; their data was deleted")
         wait = self.failed_auth.acquire(pid)
         if wait > 0:
             raise Refused(429, "too many failed attempts; try again later", wait)
@@ -128,7 +131,9 @@ class ServerState:
 
     def check_open(self, pid: str) -> None:
         """Refuse (403) a participant who has not started when the study closed at its
-        target (``serve --close-at-target``); those who started finish."""
+        target (``serve --close-at-target``); those who started finish. Asked only when
+        the study is fetched (starting), never of uploads: a participant who downloaded
+        before the close and rated offline has done the work, and it is kept."""
         if not self.config.stopping.close_at_target:
             return
         status = self.stats.snapshot().stopping

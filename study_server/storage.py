@@ -18,7 +18,8 @@ all, so every migration is exercised by every test):
     with the client's time of the change and the server's receive time (UTC).
 ``flags``: what the experimenter should look at, per participant (deduplicated: count, first
     and last time).
-``tombstones``: a withdrawn participant's id, when, and how much was deleted (nothing else).
+``tombstones``: a withdrawn participant's id, when, how much was deleted, and the sha256 of
+    their token (so that only they are told they withdrew; nothing else).
 """
 
 from __future__ import annotations
@@ -109,7 +110,14 @@ def _v3(con: sqlite3.Connection) -> None:
     """)
 
 
-MIGRATIONS: tuple[Callable[[sqlite3.Connection], None], ...] = (_v1, _v2, _v3)
+def _v4(con: sqlite3.Connection) -> None:
+    """A tombstone keeps the sha256 of the withdrawn participant's token, so that only
+    they learn that they withdrew: for anybody else the id answers as a wrong token does
+    (ids are sequential, and withdrawing is personal)."""
+    _script(con, "ALTER TABLE tombstones ADD COLUMN token_sha256 TEXT;")
+
+
+MIGRATIONS: tuple[Callable[[sqlite3.Connection], None], ...] = (_v1, _v2, _v3, _v4)
 """``MIGRATIONS[i]`` takes the database from version ``i`` to ``i + 1``."""
 SCHEMA_VERSION = len(MIGRATIONS)
 MAX_FLAGS = 100
@@ -180,7 +188,7 @@ class Tombstone:
     withdrawn_at: str
     entries_deleted: int
     reason: str
-
+    token_sha256: str | None = None  # None: withdrawn before schema version 4
 
 def state_path(study_folder: str | Path) -> Path:
     return Path(study_folder) / STATE_DIR / STATE_FILE
@@ -542,9 +550,12 @@ class ServerStore:
             con.execute("DELETE FROM sessions WHERE participant=?", (pid,))
             con.execute("DELETE FROM flags WHERE participant=?", (pid,))
             con.execute("DELETE FROM allocation_blocks WHERE participant=?", (pid,))
+            (token_sha256,) = con.execute("SELECT token_sha256 FROM participants WHERE "
+                                          "participant=?", (pid,)).fetchone()
             con.execute("DELETE FROM participants WHERE participant=?", (pid,))
-            con.execute("INSERT INTO tombstones VALUES (?,?,?,?)", (pid, at, n, reason))
-        return Tombstone(pid, at, n, reason)
+            con.execute("INSERT INTO tombstones VALUES (?,?,?,?,?)",
+                        (pid, at, n, reason, token_sha256))
+        return Tombstone(pid, at, n, reason, token_sha256)
 
     def backup(self, dest: str | Path) -> Path:
         """An online copy (SQLite's backup API: consistent while the server writes)."""

@@ -54,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"  not started: {', '.join(result.not_started)}")
     if result.withdrawn:
         print(f"  withdrawn (data deleted): {', '.join(result.withdrawn)}")
+    for path in result.removed:
+        print(f"  deleted {path}: an earlier pull's copy of a participant who has withdrawn")
     flagged = sum(1 for s in result.sessions if s.flags)
     print(f"{flagged} participant(s) flagged; server listing: {result.listing_path}")
     if result.csv_path is not None:

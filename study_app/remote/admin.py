@@ -63,6 +63,21 @@ class PullResult:
     answers_path: Path | None = None
     n_answer_rows: int = 0
     screenings_path: Path | None = None
+    removed: list[Path] = field(default_factory=list)
+    """Copies an earlier pull left of participants who have withdrawn since (deleted)."""
+
+
+def _remove_withdrawn(out: Path, withdrawn: list[str]) -> list[Path]:
+    """Delete the session files an earlier pull into ``out`` wrote for participants who have
+    withdrawn since: their data is deleted on the server, and an analysis of ``out`` would
+    otherwise still use it."""
+    removed = []
+    for pid in withdrawn:
+        path = out / f"{pid}.sqlite"
+        if path.is_file():
+            path.unlink()
+            removed.append(path)
+    return removed
 
 
 def _entries(client: ServerClient, pid: str) -> list[OutboxEntry]:
@@ -140,8 +155,9 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
     listing_path = out / LISTING_FILE
     listing_path.write_text(json.dumps(listing, indent=2) + "\n", encoding="utf-8")
     listing_path.chmod(0o600)
-    result = PullResult(str(listing["study_id"]), sessions, not_started,
-                        [w["participant"] for w in listing.get("withdrawn", [])], listing_path)
+    withdrawn = [check_participant_id(w["participant"]) for w in listing.get("withdrawn", [])]
+    result = PullResult(str(listing["study_id"]), sessions, not_started, withdrawn,
+                        listing_path, removed=_remove_withdrawn(out, withdrawn))
     if csv is not None:
         write_ratings_csv(rows, csv)
         Path(csv).chmod(0o600)

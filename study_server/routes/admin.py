@@ -53,9 +53,12 @@ async def participant_entries(request: Request) -> Response:
         try:
             check_participant_id(pid)
             after = int(request.query_params.get("after", "0"))
-            limit = min(int(request.query_params.get("limit", "1000")), MAX_ENTRIES_PER_PAGE)
+            limit = int(request.query_params.get("limit", "1000"))
+            if after < 0 or not 1 <= limit <= MAX_ENTRIES_PER_PAGE:
+                raise ValueError  # SQLite reads LIMIT -1 as no limit at all
         except (StudyError, ValueError):
-            raise Refused(400, "invalid participant id, after or limit") from None
+            raise Refused(400, f"invalid participant id, after (>= 0) or limit (1.."
+                          f"{MAX_ENTRIES_PER_PAGE})") from None
         answer = await run_in_threadpool(server_of(request).entries_listing, pid, after, limit)
         if answer is None:
             raise Refused(404, f"no session of {pid} on the server")

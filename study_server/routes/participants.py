@@ -10,6 +10,7 @@ so nothing is written for a request refused before that point.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictStr
@@ -35,8 +36,9 @@ def client_address(request: Request) -> str | None:
     return request.client.host
 
 
-def participant_of(request: Request) -> str:
-    """The participant id of the path, once id, token and rate limit pass (blocking: SQLite)."""
+def participant_of(request: Request, *, starting: bool = False) -> str:
+    """The participant id of the path, once id, token and rate limit pass (blocking: SQLite);
+    ``starting`` (fetching the study) also needs the study to be open."""
     st = server_of(request)
     pid = request.path_params["pid"]
     try:
@@ -50,14 +52,16 @@ def participant_of(request: Request) -> str:
     wait = st.limiter.acquire(pid)
     if wait > 0:
         raise Refused(429, f"too many requests; try again in {wait:.1f} s", wait)
-    st.check_open(pid)
+    if starting:
+        st.check_open(pid)
     return pid
 
 
 async def study(request: Request) -> Response:
-    """The file list of the study version the participant's session is pinned to."""
+    """The file list of the study version the participant's session is pinned to (fetching
+    it is starting: refused once a study closed at its target)."""
     async def work() -> Response:
-        pid = await run_in_threadpool(participant_of, request)
+        pid = await run_in_threadpool(partial(participant_of, request, starting=True))
         version = await run_in_threadpool(server_of(request).version_for, pid)
         return JSONResponse(version.listing(), headers=SECURITY_HEADERS)
     return await guarded(work)

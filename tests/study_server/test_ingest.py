@@ -3,6 +3,7 @@ sessions, foreign headers are refused, flagged, and write nothing; times and gap
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sqlite3
 from datetime import UTC, datetime, timedelta
@@ -222,3 +223,21 @@ def test_malformed_uploads_write_nothing(state, payload, status):
         state.ingest.upload("P01", payload, "127.0.0.1")
     assert exc.value.status == status
     assert state.store.sessions() == [] and state.store.flags() == []
+
+
+def test_an_evicted_replica_stays_usable_by_the_upload_holding_it(state, served_study,
+                                                                   tmp_path):
+    """The replica cache evicts under its own lock, not the owner's: an upload of P01 that
+    holds P01's replica while P02's upload evicts it must still be able to use it."""
+    state.ingest.limits = dataclasses.replace(state.ingest.limits, cached_sessions=1)
+    files = {}
+    for pid in ("P01", "P02"):
+        files[pid] = tmp_path / f"{pid}.sqlite"
+        write_session(served_study, files[pid], pid, ratings=2).close()
+    first = session_entries(files["P01"])
+    _upload(state, "P01", first[:2])
+    held = state.ingest._replica(state.store.session_of("P01"))  # as P01's upload holds it
+    _upload(state, "P02", session_entries(files["P02"]))  # evicts P01's replica
+    assert held.head()[0] == 2  # not closed under its user
+    _upload(state, "P01", first[2:])
+    assert state.store.session_of("P01").acked_seq == len(first)

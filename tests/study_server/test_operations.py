@@ -132,14 +132,25 @@ def test_withdraw_while_serving(served_study, tmp_path, invites, server_factory)
     with pytest.raises(ServerRefused) as exc:
         sync_session(paths[0], ServerClient(srv.url, inv[0].token), "P01")
     assert exc.value.status == 410
+    # to anybody else (P02's token, a made-up one) P01 answers as a wrong token does for
+    # P02: who withdrew is not told to strangers
+    answers = []
+    for token, pid in ((inv[1].token, "P01"), ("x" * 43, "P01"), ("x" * 43, "P02")):
+        with pytest.raises(ServerRefused) as exc:
+            ServerClient(srv.url, token).json("GET", f"/api/v1/participants/{pid}/study")
+        answers.append((exc.value.status, str(exc.value).replace(pid, "P")))
+    assert answers == [answers[0]] * 3 and answers[0][0] == 403, answers
     dump = db_dump(served_study)
     assert dump["tombstones"][0][:1] == ("P01",)
     assert not any("P01" in repr(r) for t in ("participants", "sessions", "flags")
                    for r in dump[t])
     assert len(dump["entries"]) == 8  # P02's only
+    (tmp_path / "p").mkdir()  # an earlier pull left P01's copy there
+    (tmp_path / "p" / "P01.sqlite").write_bytes(paths[0].read_bytes())
     proc = run_cli("pull", srv.url, "--admin-token", ADMIN, "--out", str(tmp_path / "p"),
                    "--csv", str(tmp_path / "r.csv"))
     assert "withdrawn (data deleted): P01" in proc.stdout
+    assert f"deleted {tmp_path / 'p' / 'P01.sqlite'}" in proc.stdout
     assert sorted(p.name for p in (tmp_path / "p").glob("*.sqlite")) == ["P02.sqlite"]
     assert len(read_session(tmp_path / "p" / "P02.sqlite").ratings) == 4
     proc = run_cli("withdraw", str(served_study), "P01")

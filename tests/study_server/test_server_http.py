@@ -160,6 +160,11 @@ def test_admin_api_and_dashboard_need_the_admin_token(running):
             "Authorization": f"Bearer {tokens['P01']}"})[0] == 403
         assert raw_request(srv.url, "GET", path, headers={
             "Authorization": f"Bearer {ADMIN}"})[0] == 200
+    admin = {"Authorization": f"Bearer {ADMIN}"}
+    for query in ("limit=-1", "limit=0", "limit=5001", "after=-1", "limit=x"):
+        status, _, body = raw_request(
+            srv.url, "GET", f"/api/v1/admin/participants/P01/entries?{query}", headers=admin)
+        assert status == 400 and b"limit (1..5000)" in body, (query, status)  # -1: no limit
     status, _, page = raw_request(srv.url, "GET", "/dashboard")
     assert status == 401 and b'name="token"' in page  # the page asks for the token
     status, headers, _ = raw_request(

@@ -9,12 +9,12 @@ import time
 import pytest
 
 from session_store.protocol import PROTOCOL
-from study_app.remote import ServerClient
+from study_app.remote import ServerClient, sync_session
 from study_app.remote.http import ServerRefused
 from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
 from study_server.stopping import StoppingTarget, WidthPoint, evaluate, fit_decay
 
-from .conftest import make_served_study
+from .conftest import make_served_study, write_session
 
 
 def _law(c: float, alpha: float, raters: range) -> list[WidthPoint]:
@@ -57,14 +57,19 @@ def test_a_study_closes_to_new_participants_at_its_target(tmp_path, invites, ser
              "client_time": "2026-01-01T00:00:00Z", "local_problems": []}
     deadline = time.monotonic() + 60
     while True:  # the statistics notice the target in the background
-        try:
+        try:  # fetching the study is starting it
             ServerClient(srv.url, inv[3].token).json(
-                "POST", f"/api/v1/participants/{inv[3].participant}/handshake", hello)
+                "GET", f"/api/v1/participants/{inv[3].participant}/study")
         except ServerRefused as exc:
             assert exc.status == 403 and "reached its target" in str(exc)
             break
         assert time.monotonic() < deadline, "the study never closed"
         time.sleep(0.5)
+    # one who downloaded before the close and rated offline: the work is kept
+    offline = tmp_path / "P05.sqlite"
+    write_session(study, offline, inv[4].participant, ratings=4).close()
+    synced = sync_session(offline, ServerClient(srv.url, inv[4].token), inv[4].participant)
+    assert synced.complete and synced.acked_seq == synced.local_seq
     # a participant who started goes on
     answer = ServerClient(srv.url, inv[0].token).json(
         "POST", f"/api/v1/participants/{inv[0].participant}/handshake",

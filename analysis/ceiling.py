@@ -4,7 +4,8 @@ Raters are split at random into two halves many times (seeded); each half's DMOS
 means, P.910 differencing against the hidden reference) is computed for all splits at once
 with matrix products, then PLCC/SRCC/KRCC/RMSE between halves over the distorted stimuli.
 A split-half r underestimates the full panel's reliability; the Spearman-Brown corrected
-PLCC is reported beside it. The CI-width curve subsamples n raters (seeded) and fits a power
+PLCC (projected to all n raters, also when n is odd and one rater rests in each split) is
+reported beside it. The CI-width curve subsamples n raters (seeded) and fits a power
 law width(n) = a * n^(-b) (from 5 raters on, when there are enough points).
 """
 
@@ -32,6 +33,7 @@ class SplitHalf:
     values: dict[str, np.ndarray]
     n_stimuli: int = 0  # distorted stimuli in the rating set
     median_used: float = float("nan")  # stimuli a split could use (both halves rated them)
+    n_raters: int = 0  # the panel split (0: unknown, then taken as twice a half)
 
     def summary(self) -> dict[str, dict[str, float]]:
         out = {}
@@ -40,8 +42,18 @@ class SplitHalf:
             out[key] = {"median": float(np.nanmedian(v)), "mean": float(np.nanmean(v)),
                         "ci95_low": lo, "ci95_high": hi}
         r = float(np.nanmedian(self.values["plcc"]))
-        out["plcc_spearman_brown"] = {"median": 2 * r / (1 + r) if r > -1 else float("nan")}
+        out["plcc_spearman_brown"] = {"median": spearman_brown(r, self.n_raters)}
         return out
+
+
+def spearman_brown(r: float, n_raters: int) -> float:
+    """The split-half r projected to the whole panel of ``n_raters``: each half holds
+    floor(n/2) raters (an odd panel rests one in every split), so the panel is
+    k = n / floor(n/2) halves long and r_n = k r / (1 + (k - 1) r) (k = 2 for even n)."""
+    if not r > -1:
+        return float("nan")
+    k = n_raters / (n_raters // 2) if n_raters >= 2 else 2.0
+    return k * r / (1 + (k - 1) * r)
 
 
 def _sums(rs: RatingSet) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -85,7 +97,7 @@ def split_half(rs: RatingSet, n_splits: int = 1000, seed: int = 0) -> SplitHalf:
     if not np.isfinite(values["plcc"]).any():
         raise AnalysisError("too few stimuli rated by both halves of the panel for a "
                             "split-half ceiling")
-    return SplitHalf(n_splits, values, int(rows.sum()), float(np.median(used)))
+    return SplitHalf(n_splits, values, int(rows.sum()), float(np.median(used)), n)
 
 
 @dataclass

@@ -176,6 +176,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.command in ("dmos", "export"):
         _, screen, kept = prepare(rs, config)
         _say([str(x) for x in kept.exclusions if x not in rs.exclusions], "excluded")
+        _say([str(p) for p in kept.problems if p not in rs.problems], "input problem")
         res = fit_scores(kept, args.model, n_boot=config.n_boot, seed=config.seed)
         if res.fallback:
             print(f"warning: {res.fallback}", file=sys.stderr)
@@ -193,6 +194,7 @@ def _run(args: argparse.Namespace) -> int:
         metrics = load_metric_scores(args.metric)
     analysis = run_analysis(rs, config, metrics, progress=sys.stderr.isatty())
     _say([str(x) for x in analysis.exclusions if x not in rs.exclusions], "excluded")
+    _say([str(p) for p in analysis.screened.problems if p not in rs.problems], "input problem")
     if analysis.scores.fallback:
         print(f"warning: {analysis.scores.fallback}", file=sys.stderr)
     print(summary_text(analysis))

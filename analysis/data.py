@@ -13,6 +13,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from .errors import AnalysisError
+
 STIMULUS_COLUMNS = ("reference", "scene", "method", "level", "is_hidden_reference")
 
 ALLOCATIONS = ("full", "adaptive", "unbalanced")
@@ -233,3 +235,25 @@ def balanced_subset(rs: RatingSet) -> tuple[RatingSet, str]:
     text = subset_text(rs)
     return replace(rs, scores=rs.scores[:, :, :1].copy(), problems=list(rs.problems),
                    exclusions=list(rs.exclusions), subset=text), text
+
+
+def drop_unrated(rs: RatingSet, source: str, why: str) -> RatingSet:
+    """``rs`` without the stimuli that no rater left in it rated, each one named in an
+    :class:`InputProblem` from ``source`` saying ``why`` (the rule that removed their raters).
+
+    Every step that removes raters calls this: a stimulus with no rating has no score, and
+    one NaN DMOS would otherwise turn every metric statistic into NaN downstream.
+    """
+    rated = np.isfinite(rs.scores).any(axis=(1, 2))
+    if rated.all():
+        return rs
+    lost = [s for s, r in zip(rs.stimulus_ids, rated, strict=True) if not r]
+    if not rated.any():
+        raise AnalysisError(f"no stimulus has a rating left after {why}; keep more raters "
+                            "(e.g. --outliers none or --min-completeness 0)")
+    noun = "stimulus" if len(lost) == 1 else "stimuli"
+    problem = InputProblem(source, None, f"{len(lost)} {noun} left out: no remaining rater "
+                                         f"rated {'it' if len(lost) == 1 else 'them'} "
+                                         f"({why}): {', '.join(lost)}")
+    return replace(rs, stimuli=rs.stimuli.loc[rated], scores=rs.scores[rated],
+                   problems=[*rs.problems, problem], exclusions=list(rs.exclusions))

@@ -22,7 +22,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize
+from scipy import optimize, stats
+
+from .stats import percentile_interval
 
 
 @dataclass
@@ -161,27 +163,85 @@ def variance_components(means: np.ndarray, start: np.ndarray | None = None
         consistency_target=_ratio(lg_c[0]) * err_c * s2, consistency_error=err_c * s2)
 
 
+def interval_text(n_boot: int) -> str:
+    """How :func:`icc_unbalanced`'s intervals are made, in the words ``Reliability.method``
+    uses."""
+    return ("95% CI of ICC(2,*) (raters random): McGraw & Wong's F-based interval from the "
+            f"REML components; of ICC(3,*) (raters fixed): {n_boot} resamples of the stimuli")
+
+
+def _usable(table: np.ndarray) -> np.ndarray:
+    """The raters (columns) of a resampled table that rated something there."""
+    return np.isfinite(table).any(axis=0)
+
+
+def _fixed_rater_iccs(table: np.ndarray) -> dict[str, float]:
+    """ICC(3,1) and ICC(3,k) of a table (model C only: the bootstrap needs no model A)."""
+    ok = np.isfinite(table)
+    t_idx, r_idx = np.nonzero(ok)
+    y = table[ok].astype(float)
+    scale = float(np.std(y)) or 1.0
+    lg, e = _Reml((y - y.mean()) / scale, t_idx, r_idx, *table.shape,
+                  raters_random=False).fit()
+    t = _ratio(lg[0]) * e
+    k = float(y.size) / float(ok.any(axis=1).sum())
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return {"ICC(3,1)": t / (t + e), "ICC(3,k)": t / (t + e / k)}
+
+
+def random_rater_interval(vc: VarianceComponents, n_targets: int,
+                          alpha: float = 0.05) -> dict[str, tuple[float, float]]:
+    """McGraw & Wong's (1996, case 2A) interval of ICC(2,1) and ICC(2,k), from the mean
+    squares the REML components imply (MSR = e + k t, MSC = e + n r, MSE = e; Satterthwaite's
+    degrees of freedom), as pingouin computes it on complete data, where the REML
+    components are the ANOVA ones and the intervals equal pingouin's.
+
+    Why not a bootstrap: a stimuli-only bootstrap keeps the rater variance fixed and
+    undercovers (0.79 of 95% in the audit's simulation); a two-way bootstrap (raters drawn
+    with replacement too) repeats raters, shrinks the rater variance it sees and shifted the
+    intervals far above the F-based ones (upper bound 0.81 against 0.52 on a 30 x 5 table).
+    """
+    n, k = float(n_targets), float(vc.k)
+    msb, msj, mse = vc.error + k * vc.target, vc.error + n * vc.rater, vc.error
+    icc = vc.icc()["ICC(2,1)"]
+    nan = (float("nan"), float("nan"))
+    if not (n > 1 and k > 1 and mse > 0 and np.isfinite(icc)):
+        return {"ICC(2,1)": nan, "ICC(2,k)": nan}
+    fc = msj / mse
+    base = n * (1 + (k - 1) * icc) - k * icc
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v = ((k - 1) * (n - 1) * (k * icc * fc + base) ** 2
+             / ((n - 1) * k ** 2 * icc ** 2 * fc ** 2 + base ** 2))
+        f_up = stats.f.ppf(1 - alpha / 2, n - 1, v)
+        f_low = stats.f.ppf(1 - alpha / 2, v, n - 1)
+        lo = n * (msb - f_up * mse) / (f_up * (k * msj + (k * n - k - n) * mse) + n * msb)
+        hi = n * (f_low * msb - mse) / (k * msj + (k * n - k - n) * mse + n * f_low * msb)
+    one = (float(lo), float(hi))
+    mean_k = tuple(float(x * k / (1 + x * (k - 1))) for x in one)
+    return {"ICC(2,1)": one, "ICC(2,k)": mean_k}  # type: ignore[dict-item]
+
+
 def icc_unbalanced(means: np.ndarray, *, n_boot: int = 200, seed: int = 0
                    ) -> tuple[dict[str, float], dict[str, tuple[float, float]]]:
-    """REML ICCs of a stimuli x raters table with gaps, and 95% percentile CIs from a
-    bootstrap over stimuli (seeded)."""
+    """REML ICCs of a stimuli x raters table with gaps, and their 95% CIs.
+
+    ICC(2,*) treats the raters as a random sample, so its interval must carry the rater
+    variance: :func:`random_rater_interval`. ICC(3,*) treats the raters as fixed: the
+    percentile interval of ``n_boot`` resamples of the stimuli (seeded).
+    """
     keep = np.isfinite(means).sum(axis=1) >= 1
     means = means[keep][:, np.isfinite(means[keep]).any(axis=0)]
     components = variance_components(means)
     point = components.icc()
     rng = np.random.default_rng([seed, 31])
-    draws = {k: [] for k in point}
+    draws: dict[str, list[float]] = {"ICC(3,1)": [], "ICC(3,k)": []}
     for _ in range(n_boot):
         sample = means[rng.integers(0, means.shape[0], means.shape[0])]
-        sample = sample[:, np.isfinite(sample).any(axis=0)]
+        sample = sample[:, _usable(sample)]
         if sample.shape[1] < 2:
             continue
-        for key, val in variance_components(sample, components.log_ratios).icc().items():
+        for key, val in _fixed_rater_iccs(sample).items():
             draws[key].append(val)
-    ci = {}
-    for key, vals in draws.items():
-        v = np.array(vals, dtype=float)
-        v = v[np.isfinite(v)]
-        ci[key] = (float(np.percentile(v, 2.5)), float(np.percentile(v, 97.5))) if v.size \
-            else (float("nan"), float("nan"))
-    return point, ci
+    ci = random_rater_interval(components, means.shape[0])
+    ci.update({key: percentile_interval(np.array(v, dtype=float)) for key, v in draws.items()})
+    return point, {key: ci[key] for key in point}

@@ -38,7 +38,7 @@ from stimuli_manifests.tables import DIRECTIONS, FORMAT_COLUMN, SCORES
 
 from .data import InputProblem
 from .errors import AnalysisError
-from .mapping import Mapping, fit_mapping, logistic5, refit_batch
+from .mapping import N_PARAMS, Mapping, fit_mapping, logistic5, refit_batch
 from .p1401 import (
     dependent_correlation_tests,
     outlier_ratio,
@@ -256,9 +256,36 @@ def load_metric_scores(paths: list[str | Path]) -> MetricScores:
 
 
 # -- resampling ------------------------------------------------------------------------------
-def stratified_indices(groups: np.ndarray, n_boot: int,
-                       rng: np.random.Generator) -> tuple[np.ndarray, dict[str, slice]]:
-    """Bootstrap indices (B, n) drawn within each group; columns are grouped in blocks."""
+#: the fewest stimuli a distortion method needs to be a bootstrap stratum of its own. A
+#: stratum of one stimulus adds no resampling variability at all (it is the same in every
+#: resample) and one of two only half its variance, from 4 distinct draws; when every method
+#: is that small the stratified bootstrap collapses (zero-width CIs, a paired test p of 0 or
+#: 1). From 3 on a stratum keeps (m - 1) / m >= 2/3 of its variance, a loss that
+#: :func:`small_sample_factor` corrects, and 3 is also the fewest stimuli a per-method
+#: statistic is reported for, so every method that gets its own row keeps its own block.
+MIN_STRATUM = 3
+
+#: the block of the stimuli of methods smaller than :data:`MIN_STRATUM`, resampled together
+#: (no method is named so: it starts with a character no manifest id holds)
+POOLED = "\x00pooled"
+
+
+def strata(groups: np.ndarray, min_size: int = MIN_STRATUM) -> np.ndarray:
+    """The bootstrap stratum of every stimulus: its method, or :data:`POOLED` for methods with
+    fewer than ``min_size`` stimuli. A pool that is itself small (one method of 1-2 stimuli
+    beside large ones) stays a stratum: the large methods keep their per-method blocks, and
+    :func:`small_sample_factor`, counting the pool as a stratum, makes up for its variance."""
+    groups = np.asarray(groups).astype(str)
+    labels, counts = np.unique(groups, return_counts=True)
+    small = labels[counts < min_size]
+    return np.where(np.isin(groups, small), POOLED, groups) if small.size else groups
+
+
+def stratified_indices(groups: np.ndarray, n_boot: int, rng: np.random.Generator, *,
+                       min_size: int = MIN_STRATUM) -> tuple[np.ndarray, dict[str, slice]]:
+    """Bootstrap indices (B, n) drawn within each stratum of :func:`strata`; columns are
+    grouped in blocks, one per stratum, keyed by method (:data:`POOLED` for the pool)."""
+    groups = strata(groups, min_size)
     blocks, parts, start = {}, [], 0
     for g in dict.fromkeys(groups):
         members = np.flatnonzero(groups == g)
@@ -268,12 +295,21 @@ def stratified_indices(groups: np.ndarray, n_boot: int,
     return np.concatenate(parts, axis=1), blocks
 
 
+def resamples_vary(blocks: dict[str, slice]) -> bool:
+    """Whether stimulus resamples can differ from the data: some stratum holds 2 or more."""
+    return any(b.stop - b.start >= 2 for b in blocks.values())
+
+
 def small_sample_factor(n: int, strata: int) -> float:
     """How much wider than the bootstrap spread an interval of a statistic of ``n`` stimuli
     resampled within ``strata`` groups must be: the within-group bootstrap variance is
     ``(n - strata) / n`` of the sampling variance, and the 97.5% quantile is Student's with
-    n - 3 degrees of freedom (Fisher's z of a correlation) rather than the normal one."""
-    if n - strata < 1 or n <= 3:
+    n - 3 degrees of freedom (Fisher's z of a correlation) rather than the normal one.
+    NaN when every stratum holds one stimulus: the resamples carry no information about the
+    sampling of stimuli, so no interval can be given (not a zero-width one)."""
+    if n - strata < 1:
+        return float("nan")
+    if n <= 3:
         return 1.0
     return float(np.sqrt(n / (n - strata)) * stats.t.ppf(0.975, n - 3) / stats.norm.ppf(0.975))
 
@@ -287,7 +323,8 @@ def _basic_interval(point: float, ref: float, boot: np.ndarray, kind: str, *,
     quantiles (reversed, as the basic interval does); ``factor`` is the small-sample
     correction of :func:`small_sample_factor`."""
     boot = boot[np.isfinite(boot)]
-    if boot.size < 10 or not np.isfinite(point) or not np.isfinite(ref):
+    if boot.size < 10 or not np.isfinite(point) or not np.isfinite(ref) or \
+            not np.isfinite(factor):
         return float("nan"), float("nan")
     if kind == "corr":
         fwd, inv = (lambda x: np.arctanh(np.clip(x, -0.999999, 0.999999))), np.tanh
@@ -306,13 +343,23 @@ def _point_stats(y: np.ndarray, q: np.ndarray, pred: np.ndarray, d: int) -> dict
             "rmse": rmse_dof(y, pred, d)}
 
 
-def _boot_stats(yb: np.ndarray, qb: np.ndarray, pb: np.ndarray, d: int) -> dict[str, np.ndarray]:
-    """Statistics of every resample (rows of (B, n) arrays)."""
+def _boot_stats(yb: np.ndarray, qb: np.ndarray, pb: np.ndarray,
+                d: int | np.ndarray) -> dict[str, np.ndarray]:
+    """Statistics of every resample (rows of (B, n) arrays); ``d``, the mapping's parameter
+    count for P.1401's rmse, per row where some resamples fell back to the line."""
     n = yb.shape[1]
     err = ((yb - pb) ** 2).sum(axis=1)
+    dof = n - np.broadcast_to(np.asarray(d, dtype=float), err.shape)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rmse = np.where(dof > 0, np.sqrt(err / np.where(dof > 0, dof, 1.0)), np.nan)
     return {"plcc": pearson_columns(yb.T, pb.T), "srcc": spearman_columns(yb.T, qb.T),
-            "krcc": kendall_columns(yb.T, qb.T),
-            "rmse": np.sqrt(err / (n - d)) if n > d else np.full(yb.shape[0], np.nan)}
+            "krcc": kendall_columns(yb.T, qb.T), "rmse": rmse}
+
+
+def resample_params(mapping: Mapping, kept: np.ndarray) -> np.ndarray:
+    """Per resample, the parameters its refit used: the mapping's, or the line's (2) where
+    the refit fell back to it (P.1401's rmse divides by N - d of the fit actually made)."""
+    return np.where(kept, mapping.n_params, N_PARAMS["linear (fallback)"])
 
 
 # -- validation ----------------------------------------------------------------------------
@@ -372,8 +419,11 @@ def validate_metrics(
     order). Without it only the stimuli are resampled (DMOS held fixed).
     """
     hidden = dmos["is_hidden_reference"].astype(bool).to_numpy()
-    target = dmos[~hidden].reset_index(drop=True)
-    positions = np.flatnonzero(~hidden)
+    finite = np.isfinite(pd.to_numeric(dmos["dmos"], errors="coerce").to_numpy(dtype=float))
+    problems = list(scores.problems) + no_dmos_problems(dmos, ~hidden & ~finite)
+    use = ~hidden & finite
+    target = dmos[use].reset_index(drop=True)
+    positions = np.flatnonzero(use)
     y_all = target["dmos"].to_numpy(dtype=float)
     ci_all = ((target["ci95_high"] - target["ci95_low"]) / 2).to_numpy(dtype=float)
     methods_all = target["method"].astype(str).to_numpy()
@@ -388,7 +438,6 @@ def validate_metrics(
     # One set of stimulus draws shared by every metric that covers all stimuli, so paired
     # comparisons pair the same resamples.
     shared_idx = stratified_indices(methods_all, n_boot, np.random.default_rng([seed, 23]))
-    problems = list(scores.problems)
     fitted: dict[str, _Fitted] = {}
     refs: dict[str, dict[str, float]] = {}
     rows, method_rows = [], []
@@ -469,6 +518,19 @@ def validate_metrics(
                             dict(scores.not_applicable))
 
 
+def no_dmos_problems(dmos: pd.DataFrame, bad: np.ndarray) -> list[InputProblem]:
+    """The stimuli whose DMOS is not a number (no rating left, a model gap): they are left out
+    of every metric statistic, which one NaN would otherwise turn into NaN; said, never
+    silent."""
+    if not bad.any():
+        return []
+    ids = dmos["stimulus"].astype(str).to_numpy()[bad].tolist()
+    msg = (f"{len(ids)} stimul{'us' if len(ids) == 1 else 'i'} without a finite DMOS left out "
+           f"of the metric statistics: {', '.join(ids)}")
+    log.warning(msg)
+    return [InputProblem("DMOS", None, msg)]
+
+
 def _nothing_compared(skipped: list[str], not_applicable: dict[str, str]) -> str:
     """The error when no metric could be compared with DMOS, saying why for each metric."""
     why = skipped + [f"{m}: does not apply ({n})" for m, n in not_applicable.items()]
@@ -493,8 +555,8 @@ def _fit_one(name: str, pos: np.ndarray, q: np.ndarray, y_all: np.ndarray,
     rows_b = np.arange(idx.shape[0])[:, None]
     yb = yb_all[:, pos][rows_b, idx]
     qb = q[idx]
-    pb, _ = refit_batch(mapping, qb, yb)
-    boot = _boot_stats(yb, qb, pb, mapping.n_params)
+    pb, kept = refit_batch(mapping, qb, yb)
+    boot = _boot_stats(yb, qb, pb, resample_params(mapping, kept))
     return _Fitted(name, pos, q, y, mapping, pred, idx, blocks, boot, pb, yb)
 
 
@@ -579,7 +641,8 @@ def _comparisons(fitted: dict[str, _Fitted], y_all: np.ndarray, yb_all: np.ndarr
                 "scope": scope, "metric_a": a, "metric_b": b, "n": int(sel.sum()),
                 "plcc_a": float(pearson_columns(y[sel], pa[sel])[0]),
                 "plcc_b": float(pearson_columns(y[sel], pb[sel])[0]),
-                "boot_p": float(np.mean(diff <= 0)) if diff.size else float("nan"),
+                "boot_p": float(np.mean(diff <= 0)) if diff.size and resamples_vary(
+                    {scope: blk} if scope != "all" else blocks) else float("nan"),
                 **tests,
                 "rmse_F": f_rmse, "rmse_p": p_rmse, "rmse_star_F": f_star,
                 "rmse_star_p": p_star,

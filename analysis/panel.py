@@ -19,7 +19,7 @@ import numpy as np
 
 from stimuli_manifests.panel import PREFER_NOT_TO_SAY, Likert, Number, Panel, Text
 
-from .data import Exclusion, PanelAnswers, RatingSet
+from .data import Exclusion, PanelAnswers, RatingSet, drop_unrated
 from .errors import AnalysisError
 from .sessions import Session
 
@@ -208,12 +208,9 @@ def drop_failed_vision(rs: RatingSet) -> RatingSet:
             "failed vision check", rater,
             f"failed the remote {' and '.join(tests)} check (a screening, not a diagnosis)",
             "--exclude-failed-vision"))
-    out = rs.with_raters(keep)
-    rated = np.isfinite(out.scores).any(axis=(1, 2))
-    out = replace(out, exclusions=exclusions, rater_info=info)
-    if not rated.all():
-        out = replace(out, stimuli=out.stimuli.loc[rated], scores=out.scores[rated])
-    return out
+    out = replace(rs.with_raters(keep), exclusions=exclusions, rater_info=info)
+    return drop_unrated(out, "vision check",
+                        "their raters failed a vision check; --exclude-failed-vision")
 
 
 def vision_column(rs: RatingSet, raters: list[str]) -> list[str]:

@@ -12,7 +12,7 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from .ceiling import CiCurve, SplitHalf, ci_width_curve, split_half
-from .data import Exclusion, InputProblem, RatingSet
+from .data import Exclusion, InputProblem, RatingSet, drop_unrated
 from .errors import AnalysisError, check_resamples
 from .metrics import MetricScores, MetricValidation, validate_metrics
 from .panel import PanelSummary, drop_failed_vision, summarise_panel, vision_column
@@ -95,7 +95,8 @@ def prepare(rs: RatingSet, config: AnalysisConfig) -> tuple[RatingSet, OutlierRe
     used = drop_incomplete(rs, config.min_completeness)
     check_not_constant(used)
     outliers = screen_raters(used, config.outliers, alpha=config.alpha)
-    screened = used.with_raters(outliers.kept)
+    screened = drop_unrated(used.with_raters(outliers.kept), "screening",
+                            f"their raters were screened out by --outliers {outliers.method}")
     exclusions = list(used.exclusions) + [
         Exclusion("screened out", r.rater, r.reason, f"--outliers {outliers.method}")
         for r in outliers.removed]
@@ -121,7 +122,7 @@ def run_analysis(rs: RatingSet, config: AnalysisConfig | None = None,
 
     step("outliers")
     used, outliers, screened = prepare(rs, config)
-    problems = list(used.problems)
+    problems = list(screened.problems)  # used's, plus the stimuli the screening emptied
     exclusions = list(screened.exclusions)
     done("outliers")
     step("reliability")

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .data import Exclusion, InputProblem, RatingSet, balanced_subset
+from .data import Exclusion, RatingSet, balanced_subset, drop_unrated
 from .errors import AnalysisError
 from .reliability import repetition_correlation
 
@@ -270,12 +270,5 @@ def drop_incomplete(rs: RatingSet, min_completeness: float) -> RatingSet:
             "(e.g. --min-completeness 0) to analyse partial sessions")
     out = rs.with_raters(keep)
     out = replace(out, exclusions=exclusions, rater_info=info)
-    rated = np.isfinite(out.scores).any(axis=(1, 2))
-    if not rated.all():
-        lost = [s for s, r in zip(out.stimulus_ids, rated, strict=True) if not r]
-        out = replace(out, stimuli=out.stimuli.loc[rated], scores=out.scores[rated],
-                      problems=[*out.problems, InputProblem(
-                          "completeness", None,
-                          f"{len(lost)} stimulus/stimuli rated only by dropped partial raters "
-                          f"are left out (e.g. {', '.join(lost[:5])})")])
-    return out
+    return drop_unrated(out, "completeness",
+                        f"their raters are below --min-completeness {min_completeness:g}")

@@ -11,7 +11,7 @@ import pandas as pd
 
 from .data import RatingSet, balanced_subset
 from .errors import AnalysisError
-from .icc import icc_unbalanced
+from .icc import icc_unbalanced, interval_text
 
 # pingouin >= 0.7 names the two-way ICCs after McGraw & Wong; older versions after Shrout & Fleiss.
 _ICC_NAMES = {"ICC(2,k)": ("ICC(A,k)", "ICC2k"), "ICC(3,k)": ("ICC(C,k)", "ICC3k"),
@@ -122,7 +122,7 @@ def _agreement(rs: RatingSet, intra: pd.Series, *, n_boot: int, seed: int) -> Re
         cc_icc, cc_ci = icc_from_long(long, "stimulus", "rater", "rating")
         cc = {"icc": cc_icc, "ci": cc_ci, "n_stimuli": complete}
     method = (f"REML variance components on all {cells} stimulus-rater cells "
-              f"({cells / (n_stim * rs.n_raters):.0%} of {n_stim} x {rs.n_raters}); 95% CI from "
-              f"{n_boot} resamples of the stimuli")
+              f"({cells / (n_stim * rs.n_raters):.0%} of {n_stim} x {rs.n_raters}); "
+              f"{interval_text(n_boot)}")
     return Reliability(icc, ci, complete, inter, intra, method=method, n_stimuli=n_stim,
                        n_raters=rs.n_raters, n_cells=cells, complete_case=cc)

@@ -28,6 +28,7 @@ from .errors import AnalysisError
 from .intervals import estimator_weights, rater_bootstrap
 from .subject_models import (
     bt500_rejection,
+    implausible,
     mos_and_t,
     plausible,
     rater_stats_from_means,
@@ -104,6 +105,9 @@ def fit_scores(rs: RatingSet, model: str = "mle", *, n_boot: int = 1000,
         flags, _, _ = bt500_rejection(rs)
         rejected = [r for r, f in zip(rs.raters, flags, strict=True) if f]
         work = rs.with_raters([s for s, f in enumerate(flags) if not f])
+        if work.n_raters < 2:
+            raise AnalysisError(f"BT.500 rejected {len(rejected)} of {rs.n_raters} raters, "
+                                "leaving fewer than 2; use --model mos")
     mos, mos_half, n = mos_and_t(work.scores)
     result = ScoreResult(
         model=model, quality=mos, quality_halfwidth=mos_half, mos=mos, n_ratings=n,
@@ -113,6 +117,7 @@ def fit_scores(rs: RatingSet, model: str = "mle", *, n_boot: int = 1000,
         b, bci, v, vci = rater_stats_from_means(work, mos)
         result.rater_bias, result.rater_bias_ci = b, bci
         result.rater_inconsistency, result.rater_inconsistency_ci = v, vci
+        result.problems += unrated_after_rejection(rs, work, rejected)
     else:
         from sureal.subjective_model import (
             MaximumLikelihoodEstimationModel,
@@ -122,20 +127,21 @@ def fit_scores(rs: RatingSet, model: str = "mle", *, n_boot: int = 1000,
         cls = (MaximumLikelihoodEstimationModel if model == "mle"
                else MaximumLikelihoodEstimationModelContentObliviousAlternativeProjection2)
         out = run_sureal(cls, work)
-        if model == "mle" and not plausible(out, work):
+        why = unusable(out, work)
+        if model == "mle" and why is not None:
             # SUREAL's full MLE can diverge (content ambiguity -> inf) when one rater is far
             # noisier than the rest; the P.910 model is the stable fallback.
-            msg = ("SUREAL MLE did not converge to plausible values (content ambiguity or "
-                   "inconsistency beyond the scale range); fell back to MLE_CO_AP2 (p910)")
+            msg = (f"SUREAL MLE did not converge to plausible values ({why}); fell back to "
+                   "MLE_CO_AP2 (p910)")
             log.warning(msg)
             result.problems.append(InputProblem("score model", None, msg))
             result.fallback = msg
             result.model = model = "p910"
             out = run_sureal(
                 MaximumLikelihoodEstimationModelContentObliviousAlternativeProjection2, work)
-            if not plausible(out, work):
-                raise AnalysisError("SUREAL's score models did not converge on these ratings; "
-                                    "try --model mos")
+            why = unusable(out, work)
+        if why is not None:
+            raise sureal_failure(model, why, fell_back=result.fallback is not None)
         q = np.asarray(out["quality_scores"], dtype=float)
         result.quality = q
         result.quality_halfwidth = np.asarray(out["quality_scores_ci95"][1], dtype=float)
@@ -158,6 +164,37 @@ def fit_scores(rs: RatingSet, model: str = "mle", *, n_boot: int = 1000,
     result.dmos_halfwidth = np.where(rs.hidden_reference_mask, 0.0, half)
     result.bootstrap = boot
     return result
+
+
+def unusable(out: dict, rs: RatingSet) -> str | None:
+    """Why the SUREAL result ``out`` cannot be used (None: it can), for every model."""
+    if plausible(out, rs):
+        return None
+    return implausible(out, rs) or "values outside the plausible range"
+
+
+def sureal_failure(model: str, why: str, *, fell_back: bool) -> AnalysisError:
+    """The error for a SUREAL model whose result cannot be used: SUREAL's own words and what
+    to try (plain means need no convergence)."""
+    which = "SUREAL MLE and its fallback MLE_CO_AP2 (p910)" if fell_back else \
+        MODEL_NAMES.get(model, model)
+    return AnalysisError(
+        f"{which} gave no usable scores on these ratings ({why}); try --model mos, and check "
+        "for stimuli or raters with very few ratings (tables/problems.csv)")
+
+
+def unrated_after_rejection(rs: RatingSet, work: RatingSet,
+                            rejected: list[str]) -> list[InputProblem]:
+    """BT.500's rejection removes raters inside the model: the stimuli only they rated get no
+    score (NaN DMOS, left out of the metric statistics); name them rather than stay silent."""
+    lost = [s for s, r in zip(rs.stimulus_ids, np.isfinite(work.scores).any(axis=(1, 2)),
+                              strict=True) if not r]
+    if not lost:
+        return []
+    return [InputProblem("score model", None, (
+        f"{len(lost)} stimul{'us' if len(lost) == 1 else 'i'} rated only by the raters BT.500 "
+        f"rejected ({', '.join(rejected)}) have no score (DMOS NaN, left out of the metric "
+        f"statistics): {', '.join(lost)}"))]
 
 
 def dmos_from_quality(

@@ -15,6 +15,7 @@ import numpy as np
 from scipy import stats
 
 from .data import RatingSet
+from .errors import AnalysisError
 from .sureal_io import sureal_namespace
 
 
@@ -64,27 +65,41 @@ def run_sureal(cls: type, rs: RatingSet) -> dict:
         return {"error": str(exc) or type(exc).__name__}
 
 
-def plausible(out: dict, rs: RatingSet) -> bool:
-    """Finite quality inside a generous band around the scale, spreads below its range."""
+def implausible(out: dict, rs: RatingSet) -> str | None:
+    """Why a SUREAL result cannot be used (its own error, non-finite or absurd values), or
+    None when it can: finite quality inside a generous band around the scale, spreads below
+    its range. Every SUREAL fit goes through this, since a diverged fit returns numbers."""
     if "error" in out:
-        return False
+        return f"SUREAL failed: {out['error']}"
     span = rs.scale_max - rs.scale_min
-    q = np.asarray(out["quality_scores"], dtype=float)
-    if not np.isfinite(q).all() or (q < rs.scale_min - span).any() or \
-            (q > rs.scale_max + span).any():
-        return False
+    q = np.asarray(out.get("quality_scores", []), dtype=float)
+    if q.size != rs.n_stimuli:
+        return f"SUREAL returned {q.size} quality scores for {rs.n_stimuli} stimuli"
+    if not np.isfinite(q).all():
+        return f"{int((~np.isfinite(q)).sum())} quality score(s) are not finite"
+    if (q < rs.scale_min - span).any() or (q > rs.scale_max + span).any():
+        return (f"quality scores reach {q.min():g}..{q.max():g}, far outside the scale "
+                f"{rs.scale_min:g}..{rs.scale_max:g}")
     for key in ("observer_inconsistency", "content_ambiguity"):
         v = np.asarray(out.get(key, []), dtype=float)
         if v.size and (not np.isfinite(v).all() or (v > span).any()):
-            return False
-    return True
+            return f"{key.replace('_', ' ')} is not finite or exceeds the scale's range"
+    return None
+
+
+def plausible(out: dict, rs: RatingSet) -> bool:
+    """True when :func:`implausible` finds nothing wrong with the SUREAL result ``out``."""
+    return implausible(out, rs) is None
 
 
 def bt500_rejection(rs: RatingSet) -> tuple[list[bool], list[float], list[float]]:
     """SUREAL's ITU-R BT.500 screening: (rejected?, P+Q ratio, |P-Q|/(P+Q)) per rater."""
     from sureal.subjective_model import SubjrejMosModel
 
-    result = quiet_sureal(SubjrejMosModel, rs)
+    result = run_sureal(SubjrejMosModel, rs)
+    if "error" in result:
+        raise AnalysisError(f"SUREAL's BT.500 screening failed on these ratings "
+                            f"({result['error']}); use another --outliers or --model")
     return (list(map(bool, result["observer_rejected"])),
             [float(v) for v in result["observer_rejected_1st_stats"]],
             [float(v) for v in result["observer_rejected_2nd_stats"]])

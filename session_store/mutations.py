@@ -221,5 +221,5 @@ def apply(con: sqlite3.Connection, kind: str, body: Body) -> None:
         raise StudyError(f"unknown kind of session change {kind!r}")
     try:
         fn(con, body)
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         raise StudyError(f"malformed {kind} change ({exc!r})") from None

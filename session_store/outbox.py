@@ -15,6 +15,7 @@ settings), and lets a reader check that a file's tables are what its log says.
 
 from __future__ import annotations
 
+import json
 import sqlite3
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -82,15 +83,21 @@ def insert_verbatim(con: sqlite3.Connection, entry: OutboxEntry) -> None:
 def read_entries(con: sqlite3.Connection, after: int = 0, limit: int | None = None
                  ) -> list[OutboxEntry]:
     """Stored entries with ``seq > after`` in order (the stored hashes, not re-checked)."""
-    import json
-
     sql = "SELECT * FROM outbox WHERE seq > ? ORDER BY seq"
     args: tuple[Any, ...] = (after,)
     if limit is not None:
         sql += " LIMIT ?"
         args = (after, limit)
-    return [OutboxEntry(r["seq"], r["kind"], json.loads(r["body"]), r["prev_hash"],
+    return [OutboxEntry(r["seq"], r["kind"], _body(r["body"]), r["prev_hash"],
                         r["entry_hash"]) for r in con.execute(sql, args)]
+
+
+def _body(text: str) -> dict[str, Any]:
+    """An entry's body; one that is not a JSON object (a damaged file) is a ValueError."""
+    body = json.loads(text)
+    if not isinstance(body, dict):
+        raise ValueError(f"an outbox entry's body is {type(body).__name__}, not an object")
+    return body
 
 
 def chain_problem(entries: Iterable[OutboxEntry], session_id: str, *,

@@ -17,7 +17,7 @@ from typing import Any
 from .chain import follow_chain
 from .errors import StudyError
 from .records import PlannedTrial, SessionInfo, SessionProblem
-from .schema import has_table, open_existing
+from .schema import DAMAGE_ERRORS, has_table, open_existing
 
 _INFO_JSON = {"settings": "{}", "display": "{}", "preflight": "[]"}
 
@@ -106,14 +106,14 @@ def _rows_if_present(con: sqlite3.Connection, table: str) -> list[sqlite3.Row]:
 def _value(text: str) -> Any:
     try:
         return json.loads(text)
-    except (json.JSONDecodeError, TypeError):
+    except (ValueError, TypeError, RecursionError):
         return {"unreadable": True}
 
 
 def _json(path: Path, name: str, text: str | None, default: str) -> Any:
     try:
         return json.loads(text or default)
-    except (json.JSONDecodeError, TypeError):
+    except (ValueError, TypeError, RecursionError):
         raise StudyError(f"{path}: the session record's {name} is not valid JSON (the file "
                          "was edited outside the app)") from None
 
@@ -147,17 +147,32 @@ def session_info(path: Path, header: dict[str, Any],
 def _details(path: Path, text: str) -> dict[str, Any]:
     try:
         value = json.loads(text)
-    except (json.JSONDecodeError, TypeError):
+    except (ValueError, TypeError, RecursionError):
         return {"unreadable": True}
     return value if isinstance(value, dict) else {"value": value}
 
 
 def record_from(con: sqlite3.Connection, path: Path) -> SessionRecord:
-    """Read a whole session from an open connection (one snapshot)."""
+    """Read a whole session from an open connection (one snapshot). Whatever a damaged file
+    makes the read raise is a :class:`StudyError` naming the file, never a crash."""
+    try:
+        return _record_from(con, path)
+    except DAMAGE_ERRORS as exc:
+        raise StudyError(f"{path}: session tables unreadable ({_reason(exc)})") from None
+
+
+def _reason(exc: BaseException) -> str:
+    try:
+        return str(exc) or type(exc).__name__
+    except ValueError:
+        return type(exc).__name__
+
+
+def _record_from(con: sqlite3.Connection, path: Path) -> SessionRecord:
     try:
         snap = _snapshot(con)
-    except (sqlite3.DatabaseError, KeyError) as exc:
-        raise StudyError(f"{path}: session tables unreadable ({exc})") from None
+    except DAMAGE_ERRORS as exc:
+        raise StudyError(f"{path}: session tables unreadable ({_reason(exc)})") from None
     kinds = {str(e["kind"]) for e in snap.events}
     info = session_info(path, snap.header, kinds)
     try:
@@ -165,8 +180,9 @@ def record_from(con: sqlite3.Connection, path: Path) -> SessionRecord:
                   if e["kind"] == "block"]
         rows, problems = follow_chain(path, snap.header, snap.plan, snap.ratings,
                                       first_block_end=min(firsts) if firsts else None)
-    except (KeyError, TypeError, ValueError) as exc:
-        rows, problems = [], [SessionProblem(path, None, f"session tables unreadable ({exc})")]
+    except DAMAGE_ERRORS as exc:
+        rows, problems = [], [SessionProblem(path, None,
+                                             f"session tables unreadable ({_reason(exc)})")]
     presentations = [{"trial": r["trial"], "outcome": r["outcome"], "logged_at": r["logged_at"],
                       **_details(path, r["details"])} for r in snap.presentations]
     events = [{"at": r["at"], "kind": r["kind"], **_details(path, r["details"])}

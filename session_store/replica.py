@@ -32,7 +32,7 @@ from .outbox import (
     outbox_genesis,
     read_entries,
 )
-from .schema import connect, has_table, open_existing
+from .schema import DAMAGE_ERRORS, connect, has_table, open_existing
 
 
 class ContradictionError(StudyError):
@@ -230,20 +230,36 @@ def _dump(con: sqlite3.Connection) -> dict[str, list[tuple[Any, ...]]]:
 
 def tables_match_outbox(path: str | Path) -> list[str]:
     """Differences between a session file's tables and the replay of its own outbox
-    (empty when they agree, or when the file predates the outbox)."""
+    (empty when they agree, or when the file predates the outbox). A change log that a
+    damaged file makes unreadable is a difference of its own, never an exception."""
     path = Path(path)
     con = open_existing(path, readonly=True)
     try:
-        con.execute("BEGIN")
-        try:
-            if not has_outbox(con):
-                return []
-            entries = read_entries(con)
-            actual = _dump(con)
-        finally:
-            con.execute("COMMIT")
+        return _compare_with_log(con)
+    except DAMAGE_ERRORS as exc:
+        return [f"the change log is unreadable ({_reason(exc)})"]
     finally:
         con.close()
+
+
+def _reason(exc: BaseException) -> str:
+    try:
+        return str(exc) or type(exc).__name__
+    except ValueError:
+        return type(exc).__name__
+
+
+def _compare_with_log(con: sqlite3.Connection) -> list[str]:
+    con.execute("BEGIN")
+    try:
+        if not has_outbox(con):  # a file older than the change log has neither table
+            return ([] if not has_table(con, "upload_state") else
+                    ["the change log (outbox) is missing from a file written with one (its "
+                     "upload_state table is there): it was removed outside the app"])
+        entries = read_entries(con)
+        actual = _dump(con)
+    finally:
+        con.execute("COMMIT")
     if not entries:
         return ["the outbox is empty"]
     session_id = str(entries[0].body.get("header", {}).get("session_id", ""))
@@ -259,7 +275,7 @@ def tables_match_outbox(path: str | Path) -> list[str]:
             apply_change(mem, e.kind, e.body)
         mem.execute("COMMIT")
         expected = _dump(mem)
-    except StudyError as exc:
+    except (StudyError, sqlite3.Error) as exc:
         return [f"the change log does not replay: {exc}"]
     finally:
         mem.close()

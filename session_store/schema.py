@@ -40,7 +40,9 @@ committed rating even when the process was killed before it could close.
 
 from __future__ import annotations
 
+import shutil
 import sqlite3
+import tempfile
 from pathlib import Path
 
 from stimuli_manifests.formats import FormatVersionError, VersionedFormat
@@ -141,21 +143,76 @@ def has_table(con: sqlite3.Connection, name: str) -> bool:
                        (name,)).fetchone() is not None
 
 
+#: what reading a damaged session file can raise besides :class:`StudyError`: SQLite's own
+#: errors, text that is not UTF-8 or JSON (ValueError), rows missing fields (KeyError,
+#: TypeError, IndexError), numbers out of range (OverflowError), nesting too deep
+DAMAGE_ERRORS: tuple[type[BaseException], ...] = (
+    sqlite3.Error, ValueError, KeyError, TypeError, IndexError, OverflowError, RecursionError)
+
+
+def _tolerant_text(data: bytes) -> str:
+    """Text columns of a damaged file decode with U+FFFD instead of failing the read, so
+    the damage shows up as a hash mismatch (a problem in the report), never a crash."""
+    return data.decode("utf-8", "replace")
+
+
+def _open_read_only(path: Path) -> sqlite3.Connection:
+    """A read-only connection that sees the WAL; raises OperationalError where the folder
+    cannot be written (SQLite then cannot make the ``-shm`` it needs to read the WAL)."""
+    con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, isolation_level=None)
+    try:
+        con.execute("SELECT count(*) FROM sqlite_master").fetchone()
+    except BaseException:
+        con.close()
+        raise
+    return con
+
+
+def _folded_copy(path: Path) -> sqlite3.Connection:
+    """The file with its ``-wal`` folded in, held in memory: what a read-only folder (a USB
+    stick, a read-only share) holds, read in full. The two files are copied to a private
+    temporary folder, read there (SQLite replays the WAL), and copied into memory."""
+    with tempfile.TemporaryDirectory(prefix="cgvq-readonly-") as tmp:
+        copy = Path(tmp) / path.name
+        shutil.copyfile(path, copy)
+        shutil.copyfile(f"{path}-wal", f"{copy}-wal")
+        disk = sqlite3.connect(str(copy), isolation_level=None)
+        mem = sqlite3.connect(":memory:", isolation_level=None)
+        try:
+            disk.backup(mem)
+        except BaseException:
+            mem.close()
+            raise
+        finally:
+            disk.close()
+    mem.execute("PRAGMA query_only=ON")
+    return mem
+
+
 def connect(path: Path, *, readonly: bool) -> sqlite3.Connection:
     """A connection in autocommit mode (transactions are explicit).
 
-    Read-only connections see the WAL (committed ratings not yet checkpointed); only where
-    the folder cannot be written (a read-only medium) is the file opened as immutable, which
-    ignores a WAL: :func:`wal_pending_bytes` tells the reader when that loses data.
+    Read-only connections see the WAL (committed ratings not yet checkpointed). Where the
+    folder cannot be written (a read-only medium) SQLite cannot read a WAL in place: the file
+    and its ``-wal`` are then read from a private copy (see :func:`_folded_copy`), and a file
+    without a ``-wal`` is opened as immutable. Text that is not UTF-8 is read with U+FFFD.
     """
     if readonly:
-        uri = f"{path.resolve().as_uri()}?mode=ro"
         try:
-            con = sqlite3.connect(uri, uri=True, isolation_level=None)
-            con.execute("SELECT count(*) FROM sqlite_master").fetchone()
+            con = _open_read_only(path)
         except sqlite3.OperationalError:
-            con = sqlite3.connect(f"{path.resolve().as_uri()}?immutable=1", uri=True,
-                                  isolation_level=None)
+            if wal_pending_bytes(path) > 0:
+                try:
+                    con = _folded_copy(path)
+                except OSError as exc:
+                    raise StudyError(
+                        f"{path.name}-wal beside {path} cannot be read from this folder "
+                        f"({exc}); copy both files ({path.name} and {path.name}-wal) to a "
+                        "folder you can write to and try again") from None
+            else:
+                con = sqlite3.connect(f"{path.resolve().as_uri()}?immutable=1", uri=True,
+                                      isolation_level=None)
+        con.text_factory = _tolerant_text
     else:
         con = sqlite3.connect(str(path), isolation_level=None)
         con.execute("PRAGMA journal_mode=WAL")
@@ -169,7 +226,7 @@ def check_schema(con: sqlite3.Connection, path: Path) -> None:
     """Refuse files that are not session files or have another major schema version."""
     try:
         row = con.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
-    except sqlite3.DatabaseError:
+    except (sqlite3.DatabaseError, ValueError):
         raise StudyError(
             f"{path} is not a cgvq-study session file (no session schema found); pass the "
             "<participant>.sqlite file written by 'cgvq-study run' or 'simulate'"
@@ -177,29 +234,51 @@ def check_schema(con: sqlite3.Connection, path: Path) -> None:
     if row is None:
         raise StudyError(f"{path} is not a cgvq-study session file (schema version missing)")
     try:
-        SESSION_FORMAT.check(row[0])
+        SESSION_FORMAT.check(str(row[0]))
     except FormatVersionError as exc:
         raise StudyError(f"{path}: {exc}") from None
 
 
 def open_existing(path: str | Path, *, readonly: bool) -> sqlite3.Connection:
-    """Open a session file after checking it exists and has the right schema."""
+    """Open a session file after checking it exists and has the right schema; a file that
+    cannot be read as one is a :class:`StudyError` (with a hint when its ``-wal`` is
+    missing: a full disk can leave the main file readable only together with it)."""
     path = Path(path)
     if not path.is_file():
         raise StudyError(f"session file not found: {path}")
     try:
         con = connect(path, readonly=readonly)
-    except sqlite3.DatabaseError as exc:
-        raise StudyError(f"{path} is not a readable SQLite session file ({exc})") from None
+    except DAMAGE_ERRORS as exc:
+        raise StudyError(unreadable_message(path, exc)) from None
     try:
         check_schema(con, path)
     except StudyError:
         con.close()
         raise
-    except sqlite3.DatabaseError as exc:
+    except DAMAGE_ERRORS as exc:
         con.close()
-        raise StudyError(f"{path} is not a readable SQLite session file ({exc})") from None
+        raise StudyError(unreadable_message(path, exc)) from None
     return con
+
+
+def unreadable_message(path: Path, exc: BaseException) -> str:
+    """Why ``path`` is not a readable session file; when no ``-wal`` lies beside it, the
+    hint to ask for one (the main file of a session interrupted by a full disk is
+    readable only with its ``-wal``)."""
+    text = f"{path} is not a readable SQLite session file ({_reason(exc)})"
+    if wal_pending_bytes(path) == 0:
+        text += (f"; if {path.name}-wal was beside it where it was written, ask for that "
+                 "file too and put it next to this one (after a full disk the file is "
+                 "readable only together with it)")
+    return text
+
+
+def _reason(exc: BaseException) -> str:
+    """The error's text, or its type when even that is damaged."""
+    try:
+        return str(exc) or type(exc).__name__
+    except ValueError:
+        return type(exc).__name__
 
 
 def wal_pending_bytes(path: str | Path) -> int:

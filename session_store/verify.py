@@ -21,7 +21,7 @@ from .ratings_csv import ratings_csv_difference
 from .reader import SessionRecord, read_header, read_session, record_from
 from .records import SessionInfo, SessionProblem
 from .replica import tables_match_outbox
-from .schema import open_existing, wal_pending_bytes
+from .schema import DAMAGE_ERRORS, open_existing, wal_pending_bytes
 from .sources import CHECKSUM_MEMBER, MAX_MEMBER_BYTES, SESSION_SUFFIX, ZIP_READ_ERRORS
 
 #: the ratings CSV an export writes beside ``<stem>.sqlite`` (older exports: ``ratings.csv``
@@ -78,7 +78,7 @@ def unmerged_wal_warning(path: Path, record: SessionRecord) -> str | None:
             alone = read_header(con)
         finally:
             con.close()
-    except sqlite3.DatabaseError:
+    except (sqlite3.DatabaseError, ValueError):
         alone = None
     full = (record.info.finished_at, len(record.ratings))
     if alone is not None and (alone["finished_at"], int(alone["n_ratings"])) == full:
@@ -113,26 +113,58 @@ def verify_record(record: SessionRecord, integrity: str = "ok") -> VerifyReport:
     finished = record.info.finished_at is not None
     complete = (intact and finished and not record.info.withdrawn and not unanswered
                 and seen == wanted)
-    return VerifyReport(path, intact, complete, len(rows), len(wanted), finished, problems,
-                        record.info)
+    report = VerifyReport(path, intact, complete, len(rows), len(wanted), finished, problems,
+                          record.info)
+    missing = consent_missing(record)
+    if missing:
+        report.warnings.append(missing)
+    return report
+
+
+def consent_missing(record: SessionRecord) -> str | None:
+    """A warning when a session the participant's app wrote holds no consent event (a run
+    of an older app killed between creating the file and recording the consent): its
+    ratings carry no consent record. Simulated sessions and files of other tools, which ask
+    no consent, are left alone."""
+    if "timing_mode" not in record.info.settings or record.info.settings.get("simulated"):
+        return None
+    if any(e.get("kind") == "consent" for e in record.events):
+        return None
+    return (f"{record.path.name} holds no consent record (the app was stopped between "
+            "creating the session and recording the consent): confirm the participant's "
+            "consent before using these ratings")
 
 
 def verify_session(path: str | Path) -> VerifyReport:
-    """Check a session file: schema, hash chain, plan consistency, completeness."""
+    """Check a session file: schema, hash chain, plan consistency, completeness.
+
+    Raises :class:`StudyError` only when the file is not a readable session file at all;
+    anything else a damaged file makes the checks raise is reported as damage (state
+    ``damaged``, exit code 2), never an exception."""
     path = Path(path)
     con = open_existing(path, readonly=True)
     try:
-        try:
-            record = record_from(con, path)
-        except StudyError as exc:
-            return VerifyReport(path, False, False, 0, 0, False,
-                                [SessionProblem(path, None, str(exc))])
-        try:
-            integrity = con.execute("PRAGMA integrity_check").fetchone()[0]
-        except sqlite3.DatabaseError as exc:
-            integrity = str(exc)
+        return _verify_open(con, path)
+    except DAMAGE_ERRORS as exc:
+        return damaged_report(path, f"the file is damaged and cannot be checked ({exc!r})")
     finally:
         con.close()
+
+
+def damaged_report(path: Path, message: str) -> VerifyReport:
+    """The report of a file that could not be checked: damaged, with one problem."""
+    return VerifyReport(path, False, False, 0, 0, False, [SessionProblem(path, None, message)])
+
+
+def _verify_open(con: sqlite3.Connection, path: Path) -> VerifyReport:
+    try:
+        record = record_from(con, path)
+    except StudyError as exc:
+        return damaged_report(path, str(exc))
+    try:
+        integrity = con.execute("PRAGMA integrity_check").fetchone()[0]
+    except (sqlite3.DatabaseError, ValueError) as exc:
+        integrity = repr(exc)
     report = verify_record(record, integrity)
     for difference in tables_match_outbox(path):
         report.problems.append(SessionProblem(path, None, difference))
@@ -141,7 +173,6 @@ def verify_session(path: str | Path) -> VerifyReport:
     if warning:
         report.warnings.append(warning)
     return report
-
 
 
 # -- exported zips -------------------------------------------------------------------------

@@ -4,6 +4,10 @@ Both the participant's app and the simulated participants write through :class:`
 Every write transaction is followed by a WAL checkpoint, so the main ``.sqlite`` file holds
 every committed rating on its own: a participant who sends only that file after a crash
 loses nothing.
+
+A checkpoint that fails for a reason other than a busy reader (a full disk, an I/O error)
+can leave the main file consistent only together with its ``-wal``; it is never reported as
+a saved rating: the write raises :class:`StudyError` saying which files hold the ratings.
 """
 
 from __future__ import annotations
@@ -26,12 +30,35 @@ from .outbox import append as append_to_outbox
 from .outbox import has_outbox
 from .reader import SessionRecord, read_header, record_from, session_info
 from .records import PlannedTrial, SessionInfo, TrialResult, utc_now
-from .schema import CHAINED, PANEL_DDL, connect, open_existing
+from .schema import CHAINED, PANEL_DDL, connect, open_existing, wal_pending_bytes
 
 log = logging.getLogger(__name__)
 
 _FINITE_FIELDS = ("rating", "rt_ms", "ms_on_reference", "ms_on_test", "slider_first_move_ms",
                   "max_flip_interval_ms")
+
+
+_BUSY_CODES = (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED)
+
+
+def is_busy(exc: sqlite3.Error) -> bool:
+    """Whether ``exc`` only means another connection holds the file for now (retry later),
+    not that writing failed (a full disk, an I/O error)."""
+    code = getattr(exc, "sqlite_errorcode", None)
+    if code is None:
+        return "locked" in str(exc) or "busy" in str(exc)
+    return code & 0xFF in _BUSY_CODES
+
+
+def _is_disk_full(exc: sqlite3.Error) -> bool:
+    code = getattr(exc, "sqlite_errorcode", None)
+    return (code is not None and code & 0xFF == sqlite3.SQLITE_FULL) or "disk is full" in str(exc)
+
+
+def _is_io_error(exc: sqlite3.Error) -> bool:
+    code = getattr(exc, "sqlite_errorcode", None)
+    return code is not None and code & 0xFF in (sqlite3.SQLITE_IOERR, sqlite3.SQLITE_CANTOPEN,
+                                                 sqlite3.SQLITE_READONLY)
 
 
 def _check_finite(name: str, value: float | None) -> None:
@@ -72,13 +99,18 @@ class SessionStore:
         session_id: str | None = None,
         created_at: str | None = None,
         durable: bool = True,
+        preflight: Sequence[dict[str, Any]] | None = None,
+        preflight_skipped: bool = False,
+        events: Sequence[tuple[str, dict[str, Any]]] = (),
     ) -> SessionStore:
         """Create a new session file with its trial order; refuses to overwrite a file.
 
         The file appears under its real name only once the plan is stored, so a crash during
-        creation leaves no half-made session behind. ``durable=False`` (simulated
-        participants only) skips the per-rating fsync and checkpoint; the file is complete
-        once closed.
+        creation leaves no half-made session behind. ``preflight`` (results, with
+        ``preflight_skipped``) and ``events`` (kind, details; e.g. the consent) are stored
+        in the same transaction, so a session never exists without them. ``durable=False``
+        (simulated participants only) skips the per-rating fsync and checkpoint; the file is
+        complete once closed.
         """
         path = Path(path)
         check_participant_id(participant)
@@ -108,19 +140,24 @@ class SessionStore:
                           int(p.is_hidden_reference)] for p in plan]}
         tmp = path.with_name(path.name + ".creating")
         tmp.unlink(missing_ok=True)
+        changes = [("session", body), *_first_changes(preflight, preflight_skipped, events)]
         con = connect(tmp, readonly=False)
         try:
             con.execute("BEGIN IMMEDIATE")
             create_tables(con)
-            apply_change(con, "session", body)
-            append_to_outbox(con, "session", body, session_id)
+            for kind, change in changes:
+                apply_change(con, kind, change)
+                append_to_outbox(con, kind, change, session_id)
             con.execute("COMMIT")
             con.execute("PRAGMA wal_checkpoint(TRUNCATE)")
             con.close()
-        except BaseException:
+        except BaseException as exc:
             con.close()
             for suffix in ("", "-wal", "-shm"):
                 Path(str(tmp) + suffix).unlink(missing_ok=True)
+            if isinstance(exc, sqlite3.Error):
+                raise StudyError(f"could not create the session file {path} ({exc}); "
+                                 f"{_space_advice(exc)}") from None
             raise
         for suffix in ("-wal", "-shm"):
             Path(str(tmp) + suffix).unlink(missing_ok=True)
@@ -135,10 +172,14 @@ class SessionStore:
         return cls(con, path, durable=durable)
 
     def close(self) -> None:
-        """Checkpoint the WAL into the main file and close."""
-        with contextlib.suppress(sqlite3.Error):
-            self._con.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-        self._con.close()
+        """Checkpoint the WAL into the main file and close. A checkpoint that fails (a full
+        disk) is a :class:`StudyError` after the connection is closed: the ``-wal`` then
+        stays beside the file and holds ratings the main file lacks, which the participant
+        must be told."""
+        try:
+            self._checkpoint(always=True)
+        finally:
+            self._con.close()
 
     def __enter__(self) -> SessionStore:
         return self
@@ -201,26 +242,77 @@ class SessionStore:
     @contextlib.contextmanager
     def _transaction(self) -> Iterator[None]:
         """``BEGIN IMMEDIATE`` ... ``COMMIT`` (``ROLLBACK`` on error), then a checkpoint so the
-        main file holds what was committed."""
-        self._con.execute("BEGIN IMMEDIATE")
+        main file holds what was committed. A failed write (full disk, I/O error, file held
+        by another program) is a :class:`StudyError` saying what was kept, never a raw
+        sqlite3 error."""
+        try:
+            self._con.execute("BEGIN IMMEDIATE")
+        except sqlite3.Error as exc:
+            raise StudyError(self._write_failure(exc, committed=False)) from None
         try:
             yield
-        except BaseException:
-            self._con.execute("ROLLBACK")
+            self._con.execute("COMMIT")
+        except BaseException as exc:
+            self._rollback()
+            if isinstance(exc, sqlite3.Error):
+                raise StudyError(self._write_failure(exc, committed=False)) from None
             raise
-        self._con.execute("COMMIT")
         self._checkpoint()
 
-    def _checkpoint(self) -> None:
-        if not self.durable:
+    def _rollback(self) -> None:
+        """Undo an open transaction; SQLite may already have rolled it back itself (after a
+        full disk or an I/O error)."""
+        if self._con.in_transaction:
+            with contextlib.suppress(sqlite3.Error):
+                self._con.execute("ROLLBACK")
+
+    def _checkpoint(self, *, always: bool = False) -> None:
+        """Copy the WAL into the main file. Busy readers only postpone it (the next one
+        catches up, and the WAL is the file's to read until then); any other failure means
+        the main file may now be readable only together with its ``-wal``: a
+        :class:`StudyError` that says so."""
+        if not (self.durable or always):
             return
         try:
             busy, frames, done = self._con.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()
-        except sqlite3.Error as exc:  # a reader holds the WAL: the next checkpoint catches up
+        except sqlite3.Error as exc:
+            if not is_busy(exc):
+                raise StudyError(self._write_failure(exc, committed=True)) from None
             log.debug("checkpoint of %s postponed: %s", self.path, exc)
             return
         if busy:
             log.debug("checkpoint of %s incomplete (%s of %s frames)", self.path, done, frames)
+
+    def _ratings_so_far(self) -> int | None:
+        """Committed ratings (None when the file cannot even be read any more)."""
+        try:
+            return int(self._con.execute("SELECT n_ratings FROM session").fetchone()[0])
+        except (sqlite3.Error, TypeError, ValueError):
+            return None
+
+    def _write_failure(self, exc: sqlite3.Error, *, committed: bool) -> str:
+        """The one-line message of a failed write: what failed, which files hold the ratings
+        given so far, and what to do (free space and run again; never send the main file
+        without its ``-wal`` when one is there)."""
+        name = self.path.name
+        if is_busy(exc):
+            return (f"the session file {name} is held by another program ({exc}); close "
+                    "other copies of cgvq-study and run the same command again")
+        n = self._ratings_so_far()
+        told = ("your ratings so far" if n is None else
+                f"your {n} rating(s) so far (up to trial {n})")
+        what = ("the disk is full" if _is_disk_full(exc)
+                else f"the disk could not be written ({exc})" if _is_io_error(exc)
+                else f"the session file could not be written ({exc})")
+        lost = "" if committed else "; the rating on screen was not saved"
+        if committed or wal_pending_bytes(self.path) > 0:
+            kept = (f"{told} are kept in the two files {name} and {name}-wal together in "
+                    f"{self.path.parent}: do not send {name} alone and do not delete "
+                    f"{name}-wal; {_space_advice(exc)} (that merges them into {name}); if "
+                    "you cannot, send both files to the experimenter")
+        else:
+            kept = f"{told} are kept in {name} in {self.path.parent}; {_space_advice(exc)}"
+        return f"{what} while saving to {name}{lost}: {kept}"
 
     def _require_open(self) -> None:
         if self.is_finished:
@@ -359,6 +451,27 @@ class SessionStore:
         answered, total = self.progress()
         self._change("withdrawn", {"at": utc_now(), "reason": reason, "answered": answered,
                                    "total": total})
+
+
+def _space_advice(exc: sqlite3.Error) -> str:
+    """What the participant can do about a failed write."""
+    if _is_disk_full(exc):
+        return "free some disk space and run the same command again"
+    return "check the disk (is it still connected?) and run the same command again"
+
+
+def _first_changes(preflight: Sequence[dict[str, Any]] | None, skipped: bool,
+                   events: Sequence[tuple[str, dict[str, Any]]]
+                   ) -> list[tuple[str, dict[str, Any]]]:
+    """The changes stored with a new session in its creation transaction (the same bodies
+    :meth:`SessionStore.save_preflight` and :meth:`SessionStore.log_event` write)."""
+    changes: list[tuple[str, dict[str, Any]]] = []
+    if preflight is not None:
+        changes.append(("preflight", {"at": utc_now(), "results": list(preflight),
+                                      "skipped": bool(skipped)}))
+    changes += [("event", {"at": utc_now(), "kind": kind, "details": details})
+                for kind, details in events]
+    return changes
 
 
 def _presentation(result: TrialResult, **extra: Any) -> dict[str, Any]:

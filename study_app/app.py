@@ -22,6 +22,7 @@ import contextlib
 import logging
 import math
 import os
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,6 +61,7 @@ from .preflight import (
     check_refresh,
     check_screen,
 )
+from .resume_check import check_resumable
 from .reveal import reveal_in_file_manager
 from .run_lock import RunLock
 from .screens import content
@@ -249,7 +251,7 @@ class App:
         finally:
             self.prefetch.close()
             if self.store is not None:
-                self.store.close()
+                self._close_store()
             if self.display is not None:
                 self.display.close()
             lock.release()
@@ -258,29 +260,26 @@ class App:
                     folder.rmdir()
 
     def _check_existing(self) -> bool:
-        """True when the participant's session exists and can be resumed."""
+        """True when the participant's session exists and can be resumed; a file that is
+        someone else's, of another study, closed or damaged is refused (one line) before
+        any window opens (see :mod:`.resume_check`)."""
         if not self.session_path.exists():
             return False
-        with SessionStore.open(self.session_path) as store:
-            info = store.info
-        if info.withdrawn:
-            raise StudyError(
-                f"participant {self.opts.participant} withdrew from this study "
-                f"({self.session_path}); nothing left to do: send that file to the experimenter")
-        if info.finished_at is not None:
-            raise StudyError(
-                f"the session of participant {self.opts.participant} is already finished "
-                f"({self.session_path}); nothing left to do: send that file to the experimenter")
-        if info.manifest_sha256 and info.manifest_sha256 != self.study.loaded.sha256:
-            raise StudyError(
-                f"the study's manifest changed since this session started "
-                f"({self.session_path}); resume with the original study folder")
-        if self.opts.seed is not None and self.opts.seed != info.seed:
-            raise StudyError(
-                f"--seed {self.opts.seed}: this session was started with seed {info.seed} "
-                f"(kept in {self.session_path.name}); a resumed session keeps its plan: "
-                "leave --seed out")
+        check_resumable(self.session_path, participant=self.opts.participant,
+                        study_id=self.m.study_id, manifest_sha256=self.study.loaded.sha256,
+                        seed=self.opts.seed)
         return True
+
+    def _close_store(self) -> None:
+        """Close the session file. A checkpoint that fails there (a full disk) is raised
+        unless an error is already on its way out (which says the same or matters more)."""
+        on_its_way = sys.exc_info()[1]  # called from a ``finally``: the error propagating
+        try:
+            self.store.close()
+        except StudyError:
+            if on_its_way is None:
+                raise
+            log.warning("closing %s failed as well", self.session_path, exc_info=True)
 
     def _window_for(self) -> tuple[int, int]:
         """Windowed mode: room for the largest reference video plus labels and hints."""
@@ -395,16 +394,16 @@ class App:
             "seed_source": "option" if self.opts.seed is not None else "participant",
             "timing_mode": d.timing_mode,
         }
-        store = SessionStore.create(
+        consent = {"consent_sha256": self.study.text_sha256(CONSENT_NAME),
+                   "briefing_sha256": self.study.text_sha256(BRIEFING_NAME),
+                   "asked": self.study.consent is not None}
+        # one transaction: a session never exists without its pre-flight and consent
+        return SessionStore.create(
             self.session_path, participant=self.opts.participant, study_id=self.m.study_id,
             manifest_sha256=self.study.loaded.sha256, seed=self._seed(),
-            app_version=__version__, plan=plan, settings=settings)
-        store.save_preflight(preflight, skipped=self.opts.skip_preflight)
-        store.log_event("consent", consent_sha256=self.study.text_sha256(CONSENT_NAME),
-                        briefing_sha256=self.study.text_sha256(BRIEFING_NAME),
-                        asked=self.study.consent is not None)
-        store.log_event("created", pid=os.getpid())
-        return store
+            app_version=__version__, plan=plan, settings=settings, preflight=preflight,
+            preflight_skipped=self.opts.skip_preflight,
+            events=[("consent", consent), ("created", {"pid": os.getpid()})])
 
     # -- pre-flight -------------------------------------------------------------------
     def _preflight(self, first: PlannedTrial | None

@@ -29,6 +29,7 @@ from session_store import (
     write_ratings_csv,
 )
 from session_store.errors import StudyError
+from session_store.schema import DAMAGE_ERRORS, open_existing
 from session_store.sources import CHECKSUM_MEMBER
 from session_store.verify import check_export_copy
 
@@ -36,14 +37,21 @@ CSV_SUFFIX = "_ratings.csv"
 
 
 def _snapshot(src: Path, dest: Path) -> None:
-    source = sqlite3.connect(f"{src.resolve().as_uri()}?mode=ro", uri=True)
-    target = sqlite3.connect(dest)
+    """Copy ``src`` with everything committed (its ``-wal`` folded in, from a read-only
+    folder too) into ``dest``; a file damaged beyond copying is a :class:`StudyError`."""
+    source = open_existing(src, readonly=True)
     try:
-        source.backup(target)
-        target.execute("PRAGMA journal_mode=DELETE")
-        target.commit()
+        target = sqlite3.connect(dest)
+        try:
+            source.backup(target)
+            target.execute("PRAGMA journal_mode=DELETE")
+            target.commit()
+        finally:
+            target.close()
+    except DAMAGE_ERRORS as exc:
+        raise StudyError(f"{src} cannot be copied, it is damaged ({exc!r}); send the file "
+                         "itself as it is") from None
     finally:
-        target.close()
         source.close()
 
 
@@ -177,7 +185,7 @@ def verify_many(paths: list[str | Path]) -> list[VerifyReport]:
         for source in sources:
             try:
                 report = verify_session(source.path)
-            except StudyError as exc:
+            except (StudyError, *DAMAGE_ERRORS) as exc:  # one bad file never stops the rest
                 reports.append(VerifyReport(Path(source.origin), False, False, 0, 0, False,
                                             [SessionProblem(Path(source.origin), None,
                                                             str(exc))]))

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 NAME = "export"
 HELP = ("pack a session file into one zip to send back, <participant>_<session>.zip in the "
-        "current folder (and optionally write the ratings CSV)")
+        "current folder (and optionally write the ratings CSV); a damaged file is exported "
+        "as it is and exits 2")
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -48,4 +50,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"{out}  ({report.n_ratings} of {report.n_planned} ratings, {report.state.upper()})")
     for problem in report.problems:
         print(f"  problem: {problem}")
+    for warning in report.warnings:
+        print(f"  warning: {warning}")
+    if report.state == "damaged":  # exported anyway; scripts see it by the exit code (2)
+        sys.stdout.flush()
+        first = report.problems[0].message if report.problems else "damaged"
+        raise StudyError(f"{args.session} is damaged ({first}); the zip {out} was written "
+                         "anyway: send it to the experimenter as it is")
     return 0

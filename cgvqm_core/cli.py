@@ -219,10 +219,8 @@ def _cmd_score(args: argparse.Namespace) -> int:
         if args.timing:
             raise CGVQMError(f"--timing is offered for CGVQM only, not {name}")
         return _cmd_score_peer(args, name)
+    (name,) = _variant_of_weights(args, [name], bool(args.metric or args.variant))
     (metric,) = _metrics(args, [name])
-    if (args.metric or args.variant) and metric.variant != name:
-        raise CGVQMError(f"--weights {args.weights} holds {metric.variant} weights, but {name} "
-                         f"was asked for: drop --variant/--metric, or give {name} weights")
     clock = StageClock(metric.net.device) if args.timing else None
     res = metric.score(args.ref, args.test, pool=args.pool, fps=args.fps,
                        allow_resample=args.allow_resample, emap=args.emap or False,

@@ -195,7 +195,7 @@ class CGVQM:
 
     def __init__(
         self,
-        variant: str = "cgvqm-2",
+        variant: str | None = None,
         *,
         weights: str | Path | FeatureWeights | None = None,
         backbone: str | Path | Backbone | Mapping[str, torch.Tensor] | None = None,
@@ -219,10 +219,16 @@ class CGVQM:
         stem_2d: bool = False,
         stem_s2d: bool = False,
     ) -> None:
-        self.weights = resolve_weights(weights, variant, allow_download=allow_download)
+        self.weights = resolve_weights(weights, variant or "cgvqm-2",
+                                       allow_download=allow_download)
         self.variant = self.weights.variant
-        if patch_scale < 1:
-            raise CGVQMError(f"patch scale must be at least 1, got {patch_scale}")
+        if variant is not None and weights is not None and self.variant != variant:
+            raise CGVQMError(f"variant {variant} asked for, but the weights are {self.variant}'s;"
+                             " leave the variant out (it follows the weights) or pass its "
+                             "weights")
+        if isinstance(patch_scale, bool) or int(patch_scale) != patch_scale or patch_scale < 1:
+            raise CGVQMError(f"patch scale must be a whole number of at least 1, got "
+                             f"{patch_scale!r}")
         if batch_size is not None and batch_size < 1:
             raise CGVQMError(f"batch size (videos per network pass) must be at least 1, "
                              f"got {batch_size}")

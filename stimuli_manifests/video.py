@@ -176,6 +176,7 @@ class VideoSource:
             )
         if arr.dtype == np.uint16:
             bits = 16
+            _refuse_low_bit_samples(self.path, arr)
         elif arr.dtype == np.uint8:
             bits = 8
         else:
@@ -311,6 +312,20 @@ class VideoSource:
             log.warning("%s: probe said %d frames, decoded %d", self.path, total, n)
             out = out[:n]
         return out
+
+
+def _refuse_low_bit_samples(path: Path, arr: np.ndarray) -> None:
+    """uint16 frames are read as 16-bit (the high byte kept); 10- or 12-bit samples stored in
+    uint16 (values up to 1023 or 4095, as many renderers and decoders write them) would come
+    out nearly black, and both videos alike, so every metric would call them identical.
+    Judged on the first, middle and last frame (a whole pass would read the whole file)."""
+    n = arr.shape[0]
+    peak = max(int(arr[i].max()) for i in {0, n // 2, n - 1})
+    if 0 < peak <= 4095:
+        bits = 10 if peak <= 1023 else 12
+        raise VideoError(f"{path}: uint16 values reach only {peak}: {bits}-bit samples? they "
+                         f"would read as 16-bit and come out nearly black; scale them to 16 "
+                         f"bits (x << {16 - bits}) or convert to uint8 first")
 
 
 def _refuse_non_square_pixels(path: Path, stream: av.video.stream.VideoStream) -> None:

@@ -62,12 +62,17 @@ DEFS = (
          "default)", "Zhang et al. 2017", "ms_gmsd", 17),
     _Def("vsi", "VSI", HIGHER, (0, 1), "RGB: SDSP saliency in CIELAB, gradient and chroma in "
          "LMN", "Zhang et al. 2014", "vsi", 8),
-    _Def("dss", "DSS", HIGHER, (0, 1), "luma (Y of YIQ)", "Balanis et al. 2015", "dss", 8),
+    # DSS pools the worst 5 % of its 8x8 DCT blocks: fewer than 11 blocks give none (NaN)
+    _Def("dss", "DSS", HIGHER, (0, 1), "luma (Y of YIQ)", "Balanis et al. 2015", "dss", 32),
     _Def("haarpsi", "HaarPSI", HIGHER, (0, 1), "YIQ: Haar wavelets on Y, I and Q",
          "Reisenhofer et al. 2018", "haarpsi", 16),
     _Def("mdsi", "MDSI", LOWER, (0, None), "LHM: gradient on L, chroma on H and M",
          "Nafchi et al. 2016", "mdsi", 8),
 )
+
+
+ROUNDING = 1e-5
+"""The most a score may pass its metric's range by float32 rounding."""
 
 
 class IQAScorer(FrameScorer):
@@ -84,7 +89,16 @@ class IQAScorer(FrameScorer):
         return {"implementation": f"cgvqm_core {__version__} (PIQ 0.8 definitions)"}
 
     def score_frames(self, test: Any, ref: Any) -> np.ndarray:
-        return self.fn(test, ref).double().cpu().numpy()
+        """Per-frame scores, held to the metric's registered range where they pass it by
+        float rounding only (DSS gives 1.000002 on identical frames: 17 sub-band weights
+        each with its epsilon); a larger excess is kept as computed."""
+        values = self.fn(test, ref).double().cpu().numpy()
+        lo, hi = self.spec.value_range
+        if lo is not None:
+            values = np.where((values < lo) & (values >= lo - ROUNDING), lo, values)
+        if hi is not None:
+            values = np.where((values > hi) & (values <= hi + ROUNDING), hi, values)
+        return values
 
 
 class IQAEntry(Entry):

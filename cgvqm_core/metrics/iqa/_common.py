@@ -13,13 +13,32 @@ LMN = ((0.06, 0.63, 0.27), (0.30, 0.04, -0.35), (0.34, -0.60, 0.17))
 LHM = ((0.2989, 0.587, 0.114), (0.30, 0.04, -0.35), (0.34, -0.60, 0.17))
 
 
+#: How far outside [0, 1] a value may lie and still be rounding, not another range.
+RANGE_SLACK = 1e-4
+
+
 def check_pair(test: torch.Tensor, ref: torch.Tensor) -> None:
-    """Both (B, C, H, W) of the same shape, floating point."""
+    """Both (B, C, H, W) of one shape, C 1 or 3, float32 or float64 alike, finite, in [0, 1].
+
+    Every formula here assumes that range (their constants are set for it): 0..255 input
+    gives PSNR -26 dB and a wrong SSIM without any error, and a NaN pixel a plausible
+    VIF or DSS; half precision overflows in several of them. So each is refused here."""
     if test.shape != ref.shape or test.dim() != 4:
         raise ValueError(f"expected two (B, C, H, W) tensors of one shape, got {tuple(test.shape)}"
                          f" and {tuple(ref.shape)}")
-    if not (test.is_floating_point() and ref.is_floating_point()):
-        raise ValueError("image metrics take floating-point images in [0, 1]")
+    if test.size(1) not in (1, 3):
+        hint = " (channels last? use .permute(0, 3, 1, 2))" if test.size(-1) in (1, 3) else ""
+        raise ValueError(f"expected (B, C, H, W) with C 1 or 3, got {tuple(test.shape)}{hint}")
+    if test.dtype not in (torch.float32, torch.float64) or ref.dtype != test.dtype:
+        raise ValueError(f"image metrics take float32 or float64 images in [0, 1], both of "
+                         f"one type; got {test.dtype} and {ref.dtype} (uint8: divide by 255)")
+    for name, x in (("test", test), ("reference", ref)):
+        lo, hi = torch.aminmax(x)
+        if not (torch.isfinite(lo) and torch.isfinite(hi)):
+            raise ValueError(f"the {name} image holds NaN or infinite values")
+        if lo < -RANGE_SLACK or hi > 1 + RANGE_SLACK:
+            raise ValueError(f"the {name} image spans {float(lo):g}..{float(hi):g}; image "
+                             "metrics take [0, 1] (uint8: divide by 255)")
 
 
 def colour_transform(x: torch.Tensor, matrix: tuple[tuple[float, ...], ...]) -> torch.Tensor:

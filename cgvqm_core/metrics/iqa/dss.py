@@ -41,6 +41,9 @@ def _subband(x: torch.Tensor, y: torch.Tensor, dc: bool, ksize: int, sigma: floa
     syy = torch.clamp(F.conv2d(y * y, k, padding=p) - my**2, min=0)
     left = (2 * torch.sqrt(sxx * syy) + c) / (sxx + syy + c)
     n = round(percentile * left.size(-2) * left.size(-1))
+    if n < 1:
+        raise ValueError(f"DSS pools the worst {percentile:.0%} of {left.size(-2)}x"
+                         f"{left.size(-1)} DCT blocks, which is none: the image is too small")
     sim = torch.sort(left.flatten(1)).values[:, :n].mean(1)
     if dc:
         sxy = F.conv2d(x * y, k, padding=p) - mx * my

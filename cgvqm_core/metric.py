@@ -30,6 +30,7 @@ from .stage_clock import StageClock
 from .stream import (
     StreamOutput,
     VideoInput,
+    as_video_list,
     check_fps,
     check_frame_count,
     open_input,
@@ -50,6 +51,8 @@ LABELS = ("very annoying", "annoying", "slightly annoying", "perceptible but not
 
 def quality_label(q: float) -> str:
     """The impairment label of q: round(q / 25), clamped to the five labels."""
+    if not np.isfinite(q):
+        raise CGVQMError(f"q must be a finite number to have a label, got {q}")
     return LABELS[int(np.clip(np.round(q / 25.0), 0, len(LABELS) - 1))]
 
 
@@ -303,6 +306,7 @@ class CGVQM:
         if pool not in POOLINGS:
             raise CGVQMError(f"unknown pooling {pool!r}; choose max or mean")
         t0 = time.perf_counter()
+        tests = as_video_list(tests)
         rsrc = open_input(ref, fps=fps, name="reference", on_conversion=on_conversion)
         geom = reference_geometry(rsrc, self.patch_scale)
         tsrcs = [open_input(t, fps=fps, name=f"test {i}", on_conversion=on_conversion,

@@ -450,6 +450,16 @@ def _score_clip(scorer: PatchScorer, rt: torch.Tensor, tts: list[torch.Tensor],
     return m, s, e
 
 
+def as_video_list(tests: VideoInput | Sequence[VideoInput]) -> list[VideoInput]:
+    """``tests`` as a list of videos: one path, or one (T, H, W, 3) array or tensor, is one
+    video (iterating it would take a path's characters or an array's frames for videos)."""
+    if isinstance(tests, str | Path):
+        return [tests]
+    if isinstance(tests, np.ndarray | torch.Tensor) and tests.ndim != 5:
+        return [tests]
+    return list(tests)  # type: ignore[arg-type]
+
+
 def patch_channel_msd(ref: VideoInput, tests: VideoInput | Sequence[VideoInput], net: FeatureNet,
                       *, patch_scale: int = 4, fps: float | None = None,
                       allow_resample: bool = False, batch_size: int | None = None,
@@ -463,8 +473,10 @@ def patch_channel_msd(ref: VideoInput, tests: VideoInput | Sequence[VideoInput],
     calibration caches: it does not depend on omega or alpha. ``strict`` refuses a test whose
     frame count differs from the reference's instead of resampling it.
     """
-    single = isinstance(tests, str | Path | np.ndarray | torch.Tensor)
-    test_list = [tests] if single else list(tests)  # type: ignore[list-item]
+    if not isinstance(net, FeatureNet):
+        raise CGVQMError(f"patch_channel_msd takes the metric's FeatureNet, not a "
+                         f"{type(net).__name__}; with a CGVQM object call its channel_msd")
+    test_list = as_video_list(tests)
     rsrc = open_input(ref, fps=fps, name="reference", on_conversion=on_conversion)
     geom = reference_geometry(rsrc, patch_scale)
     tsrcs = [open_input(t, fps=fps, name=f"test {i}", on_conversion=on_conversion,

@@ -92,3 +92,21 @@ def test_patch_scale_must_be_whole_and_the_variant_must_be_the_weights(backbone)
     with pytest.raises(CGVQMError, match="cgvqm-5 asked for, but the weights are cgvqm-2's"):
         CGVQM("cgvqm-5", weights=uniform_weights("cgvqm-2"), backbone=backbone)
     assert CGVQM(weights=uniform_weights("cgvqm-5"), backbone=backbone).variant == "cgvqm-5"
+
+
+def test_one_test_video_is_one_video_and_a_nan_q_has_no_label(backbone):
+    from cgvqm_core import patch_channel_msd, quality_label
+
+    ref = (RNG.random((8, 64, 64, 3)) * 255).astype(np.uint8)
+    test = np.clip(ref.astype(int) + RNG.integers(-20, 21, ref.shape), 0, 255).astype(np.uint8)
+    metric = CGVQM(weights=uniform_weights("cgvqm-2"), backbone=backbone)
+    [as_list] = metric.score_many(ref, [test])
+    [alone] = metric.score_many(ref, test)  # one array: one video, not 8 frame "videos"
+    assert alone.q == as_list.q
+    with pytest.raises(CGVQMError, match="not a CGVQM; with a CGVQM object call its channel_msd"):
+        patch_channel_msd(ref, test, metric)
+    [msd] = metric.channel_msd(ref, test)
+    assert msd.msd.shape[1] == 131
+    with pytest.raises(CGVQMError, match="finite"):
+        quality_label(float("nan"))
+    assert quality_label(100.0) == metric.score(ref, ref).label

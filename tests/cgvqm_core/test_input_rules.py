@@ -8,6 +8,7 @@ from pathlib import Path
 
 import av
 import numpy as np
+from support.encode import encode
 
 from cgvq_cli.study_cli import main as study_main
 from cgvqm_core.cli import main
@@ -41,18 +42,7 @@ def test_ntsc_against_thirty_fps_needs_allow_resample(tmp_path, capsys):
 
 
 def write_10bit(path: Path, frames: np.ndarray) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("ffv1", rate=30)
-        stream.width, stream.height, stream.pix_fmt = SIZE[1], SIZE[0], "yuv444p10le"
-        for i, frame in enumerate(frames):
-            vf = av.VideoFrame.from_ndarray(frame, format="rgb24").reformat(format="yuv444p10le")
-            vf.pts = i
-            for packet in stream.encode(vf):
-                container.mux(packet)
-        for packet in stream.encode():
-            container.mux(packet)
-    return path
+    return encode(path, frames, pix_fmt="yuv444p10le")
 
 
 def test_a_batch_refused_before_scoring_writes_no_csv(tmp_path, capsys):

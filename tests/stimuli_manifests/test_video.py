@@ -9,6 +9,7 @@ import av
 import numpy as np
 import pytest
 from PIL import Image
+from support.encode import encode
 
 from stimuli_manifests import (
     VideoError,
@@ -170,19 +171,8 @@ def test_corrupted_payload_raises_with_path(tmp_path):
 
 
 def _write_10bit(path, n=3, size=16):
-    with av.open(str(path), "w", format="matroska") as c:
-        s = c.add_stream("ffv1", rate=30)
-        s.width = s.height = size
-        s.pix_fmt = "yuv420p10le"
-        for i in range(n):
-            rgb = np.full((size, size, 3), 40 * i, np.uint8)
-            f = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(format="yuv420p10le")
-            f.pts = i
-            for p in s.encode(f):
-                c.mux(p)
-        for p in s.encode():
-            c.mux(p)
-    return path
+    frames = np.stack([np.full((size, size, 3), 40 * i, np.uint8) for i in range(n)])
+    return encode(path, frames, pix_fmt="yuv420p10le")
 
 
 def test_high_bit_depth_is_converted_with_warning_or_refused(tmp_path, caplog):

@@ -12,6 +12,7 @@ import av
 import numpy as np
 import pytest
 from PIL import Image
+from support.encode import encode
 
 from stimuli_manifests import VideoError, probe_video, read_video
 from stimuli_manifests.pairs import same_frame_rate
@@ -22,22 +23,13 @@ FRAMES = np.random.default_rng(7).integers(0, 256, (4, 32, 48, 3), dtype=np.uint
 def write_h264(path: Path, *, rotation: int | None = None, hflip: bool = False,
                sar: Fraction | None = None) -> Path:
     """Lossless x264 (RGB mode) with an optional display matrix or pixel aspect ratio."""
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("libx264rgb", rate=30)
-        stream.width, stream.height, stream.pix_fmt = 48, 32, "bgr0"
-        stream.options = {"qp": "0"}
+    def setup(stream: av.video.stream.VideoStream) -> None:
         if rotation is not None:
             stream.set_display_rotation(rotation, hflip=hflip)
         if sar is not None:
             stream.sample_aspect_ratio = sar
-        for i, frame in enumerate(FRAMES):
-            vf = av.VideoFrame.from_ndarray(frame, format="rgb24")
-            vf.pts = i
-            for packet in stream.encode(vf):
-                container.mux(packet)
-        for packet in stream.encode():
-            container.mux(packet)
-    return path
+
+    return encode(path, FRAMES, codec="libx264rgb", options={"qp": "0"}, setup=setup)
 
 
 @pytest.mark.parametrize(("rotation", "hflip", "what"), [

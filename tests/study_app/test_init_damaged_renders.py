@@ -12,8 +12,8 @@ import os
 from fractions import Fraction
 from pathlib import Path
 
-import av
 import numpy as np
+from support.encode import encode
 
 from cgvq_cli.study_cli import main
 from stimuli_manifests import load_manifest, write_video
@@ -42,19 +42,8 @@ def scene(folder: Path) -> Path:
 def write_timed(path: Path, frames: np.ndarray, pts_ms: list[int], *, codec: str = "ffv1",
                 pix_fmt: str = "bgr0", options: dict[str, str] | None = None) -> None:
     """Frames with the given presentation times in milliseconds."""
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream(codec, rate=30)
-        stream.width, stream.height, stream.pix_fmt = SIZE[1], SIZE[0], pix_fmt
-        stream.time_base = Fraction(1, 1000)
-        if options:
-            stream.options = options
-        for frame, pts in zip(frames, pts_ms, strict=True):
-            vf = av.VideoFrame.from_ndarray(frame, format="rgb24")
-            vf.pts, vf.time_base = pts, Fraction(1, 1000)
-            for packet in stream.encode(vf):
-                container.mux(packet)
-        for packet in stream.encode():
-            container.mux(packet)
+    encode(path, frames, codec=codec, pix_fmt=pix_fmt, options=options, pts=pts_ms,
+           time_base=Fraction(1, 1000))
 
 
 def test_a_truncated_file_is_a_problem_not_a_shorter_video(tmp_path, capsys):
@@ -72,18 +61,8 @@ def test_a_header_promising_more_frames_than_decode_is_a_problem(tmp_path, capsy
     The player and the metrics take the container's count, so init must not accept it."""
     renders = tmp_path / "renders"
     folder = scene(renders)
-    whole = tmp_path / "whole.mp4"
-    with av.open(str(whole), "w", options={"movflags": "+faststart"}) as container:
-        stream = container.add_stream("libx264rgb", rate=30)
-        stream.width, stream.height, stream.pix_fmt = SIZE[1], SIZE[0], "bgr0"
-        stream.options = {"qp": "0"}
-        for i, frame in enumerate(clip(3)):
-            vf = av.VideoFrame.from_ndarray(frame, format="rgb24")
-            vf.pts = i
-            for packet in stream.encode(vf):
-                container.mux(packet)
-        for packet in stream.encode():
-            container.mux(packet)
+    whole = encode(tmp_path / "whole.mp4", clip(3), codec="libx264rgb", options={"qp": "0"},
+                   container_options={"movflags": "+faststart"})
     data = whole.read_bytes()
     (folder / "cut_L2.mp4").write_bytes(data[: len(data) * 6 // 10])
     code, out, _ = init(capsys, renders, "--out", tmp_path / "study")

@@ -11,9 +11,9 @@ import csv
 import json
 from pathlib import Path
 
-import av
 import numpy as np
 import pytest
+from support.encode import encode
 
 from cgvq_cli.study_cli import main
 from session_store.study_folder import load_study
@@ -185,16 +185,7 @@ def test_transcode_writes_exact_player_ready_copies(tmp_path, capsys):
     scene = renders / "bistro"
     scene.mkdir(parents=True)
     # a lossy source: the copy must hold exactly the frames the source decodes to
-    with av.open(str(scene / "reference.mp4"), "w") as container:
-        stream = container.add_stream("libx264", rate=FPS)
-        stream.pix_fmt, stream.width, stream.height = "yuv420p", SIZE[1], SIZE[0]
-        for i, frame in enumerate(clip(7)):
-            vf = av.VideoFrame.from_ndarray(frame, format="rgb24")
-            vf.pts = i
-            for packet in stream.encode(vf):
-                container.mux(packet)
-        for packet in stream.encode():
-            container.mux(packet)
+    encode(scene / "reference.mp4", clip(7), codec="libx264", pix_fmt="yuv420p", rate=FPS)
     write_video(scene / "blur_L1.mkv", clip(8), FPS)
     code, out, _ = init(capsys, renders, "--out", study, "--transcode")
     assert code == 0, out

@@ -17,7 +17,7 @@ from tqdm import tqdm
 from ..checksums import sha256_file
 from ..errors import StimuliError
 from ..video import VideoInfo, VideoSource
-from .timing import decoder_errors, uneven_timing
+from .timing import decoder_errors, uneven_timing, video_streams
 
 
 @dataclass(frozen=True)
@@ -68,11 +68,13 @@ def probe_file(path: Path) -> ProbedVideo:
             f"damaged: the decoder reported {errors[0]}"
             + (f" and {len(errors) - 1} more error(s)" if len(errors) > 1 else "")
             + "; frames may show wrong pixels: re-export or re-encode it"))
-    warnings = ()
+    warnings: list[str] = []
     if info.kind == "video" and (gap := uneven_timing(path)) is not None:
-        warnings = (f"{gap}; the player and the metrics show every frame for "
-                    f"1/{info.fps:g} s, so the file's own timing is not reproduced",)
-    return ProbedVideo(path, sha, size, info, seconds, warnings=warnings)
+        warnings.append(f"{gap}; the player and the metrics show every frame for "
+                        f"1/{info.fps:g} s, so the file's own timing is not reproduced")
+    if info.kind == "video" and (n := video_streams(path)) > 1:
+        warnings.append(f"{n} video streams; only the first is shown and scored")
+    return ProbedVideo(path, sha, size, info, seconds, warnings=tuple(warnings))
 
 
 def probe_files(paths: Iterable[Path], *, progress: bool = False,

@@ -70,3 +70,13 @@ def uneven_timing(path: Path) -> str | None:
     return (f"uneven timestamps: {steps[worst] * 1000:.0f} ms between frames {worst} and "
             f"{worst + 1}, where most are {typical * 1000:.0f} ms (variable frame rate or "
             "dropped frames)")
+
+
+def video_streams(path: Path) -> int:
+    """How many video streams the file holds (a second one, e.g. an alternate render or a
+    thumbnail track, is never shown: only the first is read)."""
+    try:
+        with av.open(str(path)) as container:
+            return len(container.streams.video)
+    except av.error.FFmpegError:
+        return 1

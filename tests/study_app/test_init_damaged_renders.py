@@ -12,6 +12,7 @@ import os
 from fractions import Fraction
 from pathlib import Path
 
+import av
 import numpy as np
 from support.encode import encode
 
@@ -197,3 +198,27 @@ def test_display_advice_names_init_options(tmp_path, capsys):
     code, out, _ = init(capsys, renders, "--out", tmp_path / "study")
     assert code == 2
     assert "pass a higher --min-refresh-hz" in out and "in the manifest" not in out
+
+
+def test_a_second_video_stream_is_named(tmp_path, capsys):
+    renders = tmp_path / "renders"
+    folder = scene(renders)
+    path = folder / "two_L2.mkv"
+    with av.open(str(path), "w") as container:
+        streams = [container.add_stream("ffv1", rate=30) for _ in range(2)]
+        for stream in streams:
+            stream.width, stream.height, stream.pix_fmt = SIZE[1], SIZE[0], "bgr0"
+        for i, frame in enumerate(clip(12)):
+            for stream in streams:
+                vf = av.VideoFrame.from_ndarray(frame, format="rgb24")
+                vf.pts = i
+                for packet in stream.encode(vf):
+                    container.mux(packet)
+        for stream in streams:
+            for packet in stream.encode():
+                container.mux(packet)
+    code, out, err = init(capsys, renders, "--out", tmp_path / "study")
+    assert code == 0
+    warned = [line for line in (out + err).splitlines() if "video streams" in line]
+    assert len(warned) == 1 and "2 video streams; only the first" in warned[0]
+    assert "two_L2.mkv" in warned[0]

@@ -59,7 +59,7 @@ def _failure_line(reports) -> str:
         return "no session file was given (see the report on stdout)"
     first = damaged[0]
     problem = first.problems[0].message if first.problems else "damaged"
-    if not first.path.exists():
+    if not first.path.exists() and ".zip:" not in str(first.path):  # not a zip's member
         what = (f"{first.path} not found; give a session file (.sqlite), an exported .zip or "
                 "a folder of them")
     elif first.path.is_dir():

@@ -100,8 +100,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="W",
                    help="weights file to write (.json; not with --features-only)")
     p.add_argument("--cache", metavar="DIR",
-                   help="feature cache folder (default $CGVQM_FEATURE_CACHE or "
-                        "~/.cache/cgvqm/features); reruns reuse it")
+                   help="feature cache folder (default $CGVQM_FEATURE_CACHE, else features/ "
+                        "in the metric's cache: $CGVQM_CACHE or ~/.cache/cgvqm); reruns "
+                        "reuse it")
     p.add_argument("--features-only", action="store_true",
                    help="fill the feature cache and stop")
     p.add_argument("--dmos-scale", choices=DMOS_SCALES, default="quality",

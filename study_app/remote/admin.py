@@ -77,6 +77,8 @@ def _remove_withdrawn(out: Path, withdrawn: list[str]) -> list[Path]:
         if path.is_file():
             path.unlink()
             removed.append(path)
+        for side in ("-wal", "-shm"):  # SQLite's side files hold the same data
+            Path(f"{path}{side}").unlink(missing_ok=True)
     return removed
 
 

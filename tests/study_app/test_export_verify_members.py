@@ -116,3 +116,13 @@ def test_a_forged_session_is_not_called_authoritative(exported, capsys):
     code, out = _verify(capsys, exported)
     assert code == 2 and "checksum mismatch" in out
     assert "intact and authoritative" not in out
+
+
+def test_the_error_line_of_a_damaged_member_names_the_damage_not_a_missing_file(exported,
+                                                                               capsys):
+    name = _csv_name(exported)
+    rewrite_zip(exported, _edit_rating(name))
+    code = main(["verify", str(exported)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert "not found;" not in err[0] and "differs from its SHA256SUMS entry" in err[0], err[0]

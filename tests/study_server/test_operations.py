@@ -147,10 +147,12 @@ def test_withdraw_while_serving(served_study, tmp_path, invites, server_factory)
     assert len(dump["entries"]) == 8  # P02's only
     (tmp_path / "p").mkdir()  # an earlier pull left P01's copy there
     (tmp_path / "p" / "P01.sqlite").write_bytes(paths[0].read_bytes())
+    (tmp_path / "p" / "P01.sqlite-wal").write_bytes(b"wal")  # SQLite's side file too
     proc = run_cli("pull", srv.url, "--admin-token", ADMIN, "--out", str(tmp_path / "p"),
                    "--csv", str(tmp_path / "r.csv"))
     assert "withdrawn (data deleted): P01" in proc.stdout
     assert f"deleted {tmp_path / 'p' / 'P01.sqlite'}" in proc.stdout
+    assert not (tmp_path / "p" / "P01.sqlite-wal").exists()
     assert sorted(p.name for p in (tmp_path / "p").glob("*.sqlite")) == ["P02.sqlite"]
     assert len(read_session(tmp_path / "p" / "P02.sqlite").ratings) == 4
     proc = run_cli("withdraw", str(served_study), "P01")

@@ -28,6 +28,7 @@ def graded(tmp_path_factory):
     return r, paths
 
 
+@pytest.mark.slow  # about 50 s: run by CI after `make test` (.ci/run) and by `make test-slow`
 def test_every_metric_orders_blur_and_noise(graded):
     ref, paths = graded
     names = [e.spec.name for e in entries() if e.availability().ok]

@@ -47,6 +47,12 @@ def write_timed(path: Path, frames: np.ndarray, pts_ms: list[int], *, codec: str
            time_base=Fraction(1, 1000))
 
 
+def problem_line(out: str, file: str) -> str:
+    """The row of init's problem table that names ``file``."""
+    problems = out.split("problems (", 1)[1]
+    return next(row for row in problems.splitlines() if file in row)
+
+
 def test_a_truncated_file_is_a_problem_not_a_shorter_video(tmp_path, capsys):
     renders = tmp_path / "renders"
     folder = scene(renders)
@@ -68,8 +74,7 @@ def test_a_header_promising_more_frames_than_decode_is_a_problem(tmp_path, capsy
     (folder / "cut_L2.mp4").write_bytes(data[: len(data) * 6 // 10])
     code, out, _ = init(capsys, renders, "--out", tmp_path / "study")
     assert code == 2
-    problems = out.split("problems (", 1)[1]
-    line = next(row for row in problems.splitlines() if "cut_L2.mp4" in row)
+    line = problem_line(out, "cut_L2.mp4")
     assert "truncated or damaged: its container lists 30 frames but" in line
 
 
@@ -87,8 +92,7 @@ def test_a_checksum_error_inside_a_frame_is_a_problem(tmp_path, capsys):
     (folder / "garbled_L3.mkv").write_bytes(bytes(data))
     code, out, _ = init(capsys, renders, "--out", tmp_path / "study")
     assert code == 2
-    problems = out.split("problems (", 1)[1]
-    line = next(row for row in problems.splitlines() if "garbled_L3.mkv" in row)
+    line = problem_line(out, "garbled_L3.mkv")
     assert "damaged: the decoder reported ffv1" in line
 
 

@@ -1,7 +1,8 @@
 """What the server hands a participant: a version of the study and the files it needs.
 
 The current version is the study folder as it is (``manifest.json``, ``briefing.md`` and
-``consent.md`` when present, every stimulus under the manifest's root). Every manifest the
+``consent.md`` when present, every stimulus under the manifest's root; of a stimulus
+that is a folder, only its numbered ``.png`` frames). Every manifest the
 server has served is kept in its database, so a participant whose session is pinned to an
 older version is still given that manifest; its videos are served from the folder and checked
 by the client against that manifest's sha256 (change a video under a new name, never in
@@ -19,6 +20,8 @@ from pathlib import Path, PurePosixPath
 from session_store.errors import StudyError
 from session_store.study_folder import BRIEFING_NAME, CONSENT_NAME, MANIFEST_NAME
 from stimuli_manifests import Manifest, StimuliError, parse_manifest
+from stimuli_manifests.errors import VideoError
+from stimuli_manifests.frame_files import ordered_frames
 
 
 @dataclass(frozen=True)
@@ -108,7 +111,14 @@ def build_version(folder: Path, manifest_bytes: bytes, hashes: FileHashes, *,
         rel = root / PurePosixPath(item.path.replace("\\", "/"))
         local = folder.joinpath(*rel.parts)
         if local.is_dir():
-            members = sorted(p for p in local.iterdir() if p.is_file())
+            # Only the frames the player reads: notes or a .DS_Store beside them stay private.
+            try:
+                members = ordered_frames(local)
+            except VideoError as exc:
+                raise StudyError(f"{item.id}: {exc}") from None
+            if not members:
+                raise StudyError(f"{item.id}: {local} holds no .png frames; the study cannot "
+                                 "be served (run 'cgvq-study check' on it)")
         elif local.is_file():
             members = [local]
         else:

@@ -17,8 +17,10 @@ LHM = ((0.2989, 0.587, 0.114), (0.30, 0.04, -0.35), (0.34, -0.60, 0.17))
 RANGE_SLACK = 1e-4
 
 
-def check_pair(test: torch.Tensor, ref: torch.Tensor) -> None:
-    """Both (B, C, H, W) of one shape, C 1 or 3, float32 or float64 alike, finite, in [0, 1].
+def check_pair(test: torch.Tensor, ref: torch.Tensor, *, channels: tuple[int, ...] = (1, 3)
+               ) -> None:
+    """Both (B, C, H, W) of one shape, C in ``channels``, float32 or float64 alike, finite,
+    in [0, 1].
 
     Every formula here assumes that range (their constants are set for it): 0..255 input
     gives PSNR -26 dB and a wrong SSIM without any error, and a NaN pixel a plausible
@@ -26,9 +28,11 @@ def check_pair(test: torch.Tensor, ref: torch.Tensor) -> None:
     if test.shape != ref.shape or test.dim() != 4:
         raise ValueError(f"expected two (B, C, H, W) tensors of one shape, got {tuple(test.shape)}"
                          f" and {tuple(ref.shape)}")
-    if test.size(1) not in (1, 3):
-        hint = " (channels last? use .permute(0, 3, 1, 2))" if test.size(-1) in (1, 3) else ""
-        raise ValueError(f"expected (B, C, H, W) with C 1 or 3, got {tuple(test.shape)}{hint}")
+    if test.size(1) not in channels:
+        hint = " (channels last? use .permute(0, 3, 1, 2))" if test.size(-1) in channels else ""
+        allowed = " or ".join(str(c) for c in channels)
+        raise ValueError(f"expected (B, C, H, W) with C {allowed}, got {tuple(test.shape)}"
+                         f"{hint}")
     if test.dtype not in (torch.float32, torch.float64) or ref.dtype != test.dtype:
         raise ValueError(f"image metrics take float32 or float64 images in [0, 1], both of "
                          f"one type; got {test.dtype} and {ref.dtype} (uint8: divide by 255)")

@@ -16,6 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..iqa._common import check_pair
 from .lpips import IMAGENET_MEAN, IMAGENET_STD
 from .vgg import TAPS, tapped
 
@@ -53,6 +54,7 @@ class DISTS(nn.Module):
 
     def forward(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         """(N,) DISTS of x and y, (N, 3, H, W) RGB in [0, 1]."""
+        check_pair(x, y, channels=(3,))
         h, w = x.shape[-2:]
         if min(h, w) > RESIZE_TO:
             scale = RESIZE_TO / min(h, w)

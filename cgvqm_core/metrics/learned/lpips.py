@@ -15,6 +15,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
+from ..iqa._common import check_pair
 from .vgg import tapped
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
@@ -44,6 +45,7 @@ class LPIPS(nn.Module):
 
     def forward(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         """(N,) distances of x and y, (N, 3, H, W) RGB in [0, 1]."""
+        check_pair(x, y, channels=(3,))
         n = x.shape[0]
         z = (torch.cat([x, y]) - self.mean) / self.std  # one pass for both images
         total = x.new_zeros(n, dtype=torch.float64)

@@ -18,6 +18,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..iqa._common import check_pair
+
 PATCH = 64
 STRIDE = 27
 FEATURES = 64
@@ -74,6 +76,7 @@ def pieapp(net: PieAPPNet, x: torch.Tensor, y: torch.Tensor, *, stride: int = ST
            chunk: int = 64) -> torch.Tensor:
     """(N,) float64 PieAPP of test images ``x`` against references ``y`` ((N, 3, H, W) in
     [0, 1]), about ``chunk`` patches per image side and pass."""
+    check_pair(x, y, channels=(3,))
     n, c, h, w = x.shape
     if min(h, w) < PATCH:
         raise ValueError(f"PieAPP needs at least {PATCH}x{PATCH} pixels, got {w}x{h}")

@@ -611,3 +611,20 @@ def test_batch_rows_carry_weights_hashes_and_resume(capsys, tmp_path, wfiles, mo
                          *_weights_args(wfiles, "vgg16"), "--learned-weights", f"dists={other}")
     assert rc == 0 and "2 scored" in stdout
     assert len(read_table(out, SCORES)) == 8
+
+
+def test_learned_metrics_refuse_another_range_grey_and_half(wfiles):
+    """0..255 input gave LPIPS and DISTS a plausible number (the ImageNet normalisation
+    assumes [0, 1]); the networks themselves refuse it, as the image metrics do."""
+    t, r = _frames(80, 96)
+    opts = wfiles.options()
+    for name in ("lpips", "lpips-alex", "dists", "pieapp"):
+        s = _scorer(name, opts)
+        fine = s.score_frames(t, r)
+        assert np.isfinite(fine).all(), name
+        for bad, words in [((t * 255, r * 255), r"spans 0\.?\d*\.\.2\d\d"),
+                           ((t, r.half()), "float32 or float64"),
+                           ((t[:, :1], r[:, :1]), "C 3"),
+                           ((t.permute(0, 2, 3, 1), r.permute(0, 2, 3, 1)), "channels last")]:
+            with pytest.raises(ValueError, match=words):
+                s.score_frames(*bad)

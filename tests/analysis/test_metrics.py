@@ -82,6 +82,21 @@ def test_fallback_when_too_few_points() -> None:
                                                   [10, 20, 30, 41], 1), 5.0))
 
 
+@pytest.mark.parametrize("n", [6, 9])
+def test_too_few_stimuli_for_five_parameters_get_a_line(n: int) -> None:
+    """Below 2 stimuli per parameter, the logistic follows the noise: its in-sample PLCC
+    beats the true curve's, so the table would flatter the metric. A line is fitted."""
+    rng = np.random.default_rng(4)
+    q = np.linspace(0, 1, n)
+    y = 20 + 60 * q + rng.normal(0, 8, n)
+    m = fit_mapping(q, y)
+    assert m.kind == "linear (fallback)" and m.n_params == 2
+    slope, intercept = np.polyfit(q, y, 1)
+    np.testing.assert_allclose(m(q), slope * q + intercept, rtol=1e-9)
+    q10 = np.linspace(0, 1, 10)
+    assert fit_mapping(q10, 20 + 60 * q10 + rng.normal(0, 8, 10)).kind == "logistic5"
+
+
 def test_batched_refit_matches_fitting_each_resample_alone() -> None:
     """refit_batch (all resamples at once, warm-started) against fit_mapping called on each
     resample: the PLCC the interval is built from agrees to well within its own precision."""

@@ -28,10 +28,21 @@ def rmse_dof(y: np.ndarray, pred: np.ndarray, d: int) -> float:
     return float(np.sqrt((e * e).sum() / (n - d)))
 
 
-def rmse_star(y: np.ndarray, pred: np.ndarray, ci95: np.ndarray, d: int) -> float:
-    """P.1401 epsilon-insensitive rmse*: ``sqrt(sum(max(0, |y - pred| - ci95)^2) / (N - d))``."""
+def _with_interval(y: np.ndarray, pred: np.ndarray, ci95: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """|y - pred| and the CI half-width of the stimuli that have one: a stimulus behind which
+    fewer than two raters stand has no interval, so it can be neither inside nor outside it."""
     e = np.abs(np.asarray(y, dtype=float) - np.asarray(pred, dtype=float))
-    e = np.maximum(0.0, e - np.asarray(ci95, dtype=float))
+    ci = np.asarray(ci95, dtype=float)
+    has = np.isfinite(ci)
+    return e[has], ci[has]
+
+
+def rmse_star(y: np.ndarray, pred: np.ndarray, ci95: np.ndarray, d: int) -> float:
+    """P.1401 epsilon-insensitive rmse*: ``sqrt(sum(max(0, |y - pred| - ci95)^2) / (N - d))``
+    over the N stimuli that have a CI."""
+    e, ci = _with_interval(y, pred, ci95)
+    e = np.maximum(0.0, e - ci)
     n = e.size
     if n - d <= 0:
         return float("nan")
@@ -39,9 +50,9 @@ def rmse_star(y: np.ndarray, pred: np.ndarray, ci95: np.ndarray, d: int) -> floa
 
 
 def outlier_ratio(y: np.ndarray, pred: np.ndarray, ci95: np.ndarray) -> float:
-    """Share of stimuli whose prediction error is larger than their 95% CI half-width."""
-    e = np.abs(np.asarray(y, dtype=float) - np.asarray(pred, dtype=float))
-    return float(np.mean(e > np.asarray(ci95, dtype=float))) if e.size else float("nan")
+    """Share of the stimuli with a CI whose prediction error is larger than its half-width."""
+    e, ci = _with_interval(y, pred, ci95)
+    return float(np.mean(e > ci)) if e.size else float("nan")
 
 
 def rmse_f_test(rmse_a: float, n_a: int, d_a: int, rmse_b: float, n_b: int,

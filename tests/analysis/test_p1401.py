@@ -96,6 +96,20 @@ def test_rmse_and_rmse_star_by_the_p1401_definitions() -> None:
     assert np.isnan(rmse_dof(y[:4], pred[:4], 4))  # N - d must be positive
 
 
+def test_stimuli_without_an_interval_are_left_out_of_both_ci_statistics() -> None:
+    """A stimulus rated by one rater has no DMOS CI. It used to count as inside its CI for
+    the outlier ratio and to make rmse* NaN. Both now use the stimuli that have a CI: here
+    the five of the example above without the third (error 2.0): Perror* = 0.1, 0.6, 0, 0, 0,
+    so rmse* = sqrt(0.37 / (5 - 2)), outliers 2 of 5."""
+    y = np.array([3.0, 2.0, 4.0, 1.5, 2.2, 3.3])
+    err = np.array([0.5, -1.0, 2.0, 0.0, -0.3, 1.2])
+    ci = np.array([0.4, 0.4, np.nan, 0.2, 0.5, 1.5])
+    pred = y - err
+    assert rmse_star(y, pred, ci, 2) == pytest.approx(np.sqrt(0.37 / 3))
+    assert outlier_ratio(y, pred, ci) == pytest.approx(2 / 5)
+    assert np.isnan(outlier_ratio(y, pred, np.full(6, np.nan)))
+
+
 def test_rmse_f_test_matches_scipy() -> None:
     f, p = rmse_f_test(0.6, 80, 5, 0.5, 80, 5)
     assert f == pytest.approx(1.44)

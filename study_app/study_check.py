@@ -13,14 +13,16 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
+from tqdm import tqdm
+
 from session_store.study_folder import Study
 from stimuli_manifests import (
     DisplayRequirements,
     StimuliError,
     VideoInfo,
-    probe_video,
     validate_manifest,
 )
+from stimuli_manifests.from_folder.probe import decode_findings
 from stimuli_manifests.lossless import LOSSLESS_DECODER_NAMES
 from stimuli_manifests.pairs import pair_mismatches
 
@@ -64,10 +66,9 @@ def check_study(study: Study, *, progress: bool = False) -> StudyCheck:
     if len(stimuli) < 2 and m.protocol.repetitions > 1:
         out.errors.append("with one stimulus and repetitions > 1 the same stimulus would be "
                           "shown twice in a row; add stimuli or set repetitions to 1")
-    for ref in m.references:
-        _probe(study, str(ref.id), ref.path, out)
-    for cond in m.conditions:
-        _probe(study, str(cond.id), cond.path, out)
+    items = [(str(s.id), s.path) for s in [*m.references, *m.conditions]]
+    for sid, rel in tqdm(items, desc="decoding videos", unit="video", disable=not progress):
+        _probe(study, sid, rel, out)
     for cond in m.conditions:
         a, b = out.videos.get(str(cond.id)), out.videos.get(cond.reference)
         if a is not None and b is not None:
@@ -169,10 +170,20 @@ def _label_fits(window: tuple[int, int], video: tuple[int, int]) -> bool:
 
 
 def _probe(study: Study, sid: str, rel: str, out: StudyCheck) -> None:
+    """Decode the video in full, as ``init`` does: a file whose container promises more
+    frames than decode, or whose decoder reports damage, is an error here too, and the
+    frame count compared across a pair is the one the player will show."""
     try:
         path = study.loaded.resolve(rel, field=f"{sid}.path")
-        if not path.exists():
-            return  # already reported by validate_manifest
-        out.videos[sid] = probe_video(path)
     except StimuliError as exc:
         out.errors.append(f"{sid}: {exc}")
+        return
+    if not path.exists():
+        return  # already reported by validate_manifest
+    found = decode_findings(path)
+    if found.error is not None:
+        out.errors.append(f"{sid}: {path.name} {found.error}")
+        return
+    assert found.info is not None
+    out.videos[sid] = found.info
+    out.warnings += [f"{sid}: {w}" for w in found.warnings]

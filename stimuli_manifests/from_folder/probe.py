@@ -40,15 +40,24 @@ class ProbedVideo:
         return self.info.frame_count / self.decode_seconds
 
 
-def probe_file(path: Path) -> ProbedVideo:
-    """Probe and fully decode one file; problems land in ``error``, never raise.
+@dataclass(frozen=True)
+class DecodeFindings:
+    """What decoding one file in full says: its info (None when it cannot be read), how long
+    the decode took, the reason it is unusable, and what only deserves a warning."""
+
+    info: VideoInfo | None
+    decode_seconds: float = 0.0
+    error: str | None = None
+    warnings: tuple[str, ...] = ()
+
+
+def decode_findings(path: Path) -> DecodeFindings:
+    """Decode one file in full; problems land in ``error``, never raise.
 
     The player and the metrics take the container's frame count as the video's length, so
     a file that decodes fewer (or more) frames is damaged for them, and FFmpeg's own error
     messages while decoding (a bad checksum, a broken slice) mean frames that decode to the
     wrong pixels without failing."""
-    sha = sha256_file(path)
-    size = path.stat().st_size
     try:
         source = VideoSource(path, on_conversion="quiet")  # init's table reports it
         with decoder_errors() as errors:
@@ -57,14 +66,14 @@ def probe_file(path: Path) -> ProbedVideo:
             seconds = time.perf_counter() - start
     except StimuliError as exc:
         message = str(exc).removeprefix(f"{path}: ")
-        return ProbedVideo(path, sha, size, error=f"cannot be decoded: {message}")
+        return DecodeFindings(None, error=f"cannot be decoded: {message}")
     info = source.info
     if count != info.frame_count:
-        return ProbedVideo(path, sha, size, error=(
+        return DecodeFindings(None, error=(
             f"truncated or damaged: its container lists {info.frame_count} frames but "
             f"{count} decode; re-export or re-encode it"))
     if errors:
-        return ProbedVideo(path, sha, size, error=(
+        return DecodeFindings(None, error=(
             f"damaged: the decoder reported {errors[0]}"
             + (f" and {len(errors) - 1} more error(s)" if len(errors) > 1 else "")
             + "; frames may show wrong pixels: re-export or re-encode it"))
@@ -74,7 +83,16 @@ def probe_file(path: Path) -> ProbedVideo:
                         f"1/{info.fps:g} s, so the file's own timing is not reproduced")
     if info.kind == "video" and (n := video_streams(path)) > 1:
         warnings.append(f"{n} video streams; only the first is shown and scored")
-    return ProbedVideo(path, sha, size, info, seconds, warnings=tuple(warnings))
+    return DecodeFindings(info, seconds, warnings=tuple(warnings))
+
+
+def probe_file(path: Path) -> ProbedVideo:
+    """Checksum and fully decode one file (:func:`decode_findings`); never raises."""
+    sha = sha256_file(path)
+    size = path.stat().st_size
+    found = decode_findings(path)
+    return ProbedVideo(path, sha, size, found.info, found.decode_seconds, found.error,
+                       found.warnings)
 
 
 def probe_files(paths: Iterable[Path], *, progress: bool = False,

@@ -217,6 +217,10 @@ def connect(path: Path, *, readonly: bool) -> sqlite3.Connection:
         con = sqlite3.connect(str(path), isolation_level=None)
         con.execute("PRAGMA journal_mode=WAL")
         con.execute("PRAGMA synchronous=FULL")
+        # On macOS fsync() leaves the data in the drive's cache, where a power cut loses
+        # it; F_FULLFSYNC (these two) reaches the platter. Elsewhere they change nothing.
+        con.execute("PRAGMA fullfsync=ON")
+        con.execute("PRAGMA checkpoint_fullfsync=ON")
         con.execute("PRAGMA foreign_keys=ON")
     con.row_factory = sqlite3.Row
     return con

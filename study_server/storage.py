@@ -217,6 +217,8 @@ def _connect(path: Path) -> sqlite3.Connection:
     con.row_factory = sqlite3.Row
     con.execute("PRAGMA journal_mode=WAL")
     con.execute("PRAGMA synchronous=FULL")
+    con.execute("PRAGMA fullfsync=ON")  # macOS: through the drive's cache (as session files)
+    con.execute("PRAGMA checkpoint_fullfsync=ON")
     con.execute("PRAGMA foreign_keys=ON")
     con.execute("PRAGMA busy_timeout=30000")
     con.execute("PRAGMA secure_delete=ON")  # withdrawn data is overwritten, not just freed

@@ -172,3 +172,17 @@ def test_a_real_partial_checkpoint_keeps_every_rating_in_the_pair(tmp_path):
     ratings = read_session(path).ratings
     assert len(ratings) >= acked and verify_session(path).intact
     assert signal.SIGXFSZ  # (the child ignored it; a write past the limit fails instead)
+
+
+def test_commits_reach_the_platter_on_macos_too(tmp_path):
+    """fsync() on macOS stops at the drive's cache, so a power cut can lose ratings that
+    synchronous=FULL reported as written; the writer asks SQLite for F_FULLFSYNC. SQLite keeps
+    both settings on every platform, so they can be read back here."""
+    store = bare_session(tmp_path / "P01.sqlite")
+    try:
+        con = store._con
+        assert con.execute("PRAGMA synchronous").fetchone()[0] == 2  # FULL
+        assert con.execute("PRAGMA fullfsync").fetchone()[0] == 1
+        assert con.execute("PRAGMA checkpoint_fullfsync").fetchone()[0] == 1
+    finally:
+        store.close()

@@ -176,3 +176,11 @@ def test_withdraw_deletes_rows_and_keeps_a_tombstone(tmp_path):
     raw = path.read_bytes() + (Path(f"{path}-wal").read_bytes()
                                if Path(f"{path}-wal").exists() else b"")
     assert b"192.0.2.7" not in raw  # overwritten, not just unlinked (secure_delete)
+
+
+def test_the_server_database_asks_for_full_fsync(tmp_path):
+    """As session files: on macOS fsync() alone stops at the drive's cache."""
+    with ServerStore(tmp_path / "server.sqlite") as store:
+        con = store._con()
+        assert [con.execute(f"PRAGMA {p}").fetchone()[0]
+                for p in ("synchronous", "fullfsync", "checkpoint_fullfsync")] == [2, 1, 1]

@@ -181,6 +181,13 @@ class SessionStore:
         finally:
             self._con.close()
 
+    def save_to_file(self) -> None:
+        """Checkpoint the WAL into the main file now, so that the file alone holds every
+        rating: the player calls it before its end screen, which must say so when it fails
+        (the ``-wal`` then holds ratings the main file lacks). Raises :class:`StudyError`
+        then; a busy reader only postpones it to :meth:`close`."""
+        self._checkpoint(always=True)
+
     def __enter__(self) -> SessionStore:
         return self
 

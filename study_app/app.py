@@ -688,13 +688,19 @@ class App:
                     return None
 
     def _end_screen(self, total: int, *, withdrawn: bool, screened_out: str = "") -> None:
+        in_two_files = False
+        try:  # the end screen tells what to send, so the file must be whole before it shows
+            self.store.save_to_file()
+        except StudyError as exc:
+            log.warning("%s", exc)
+            in_two_files = True
         upload = None
         if self.opts.upload_report is not None:
             upload = self._background(self.opts.upload_report,
                                       "Sending your last answers to the study server...")
             self._state("uploaded", arrived=int(upload[0]))
         spec = content.end(self.session_path, total, withdrawn, self._name_keys, upload=upload,
-                           screened_out=screened_out)
+                           screened_out=screened_out, in_two_files=in_two_files)
         while self._screen(spec) == "show":
             reveal_in_file_manager(self.session_path)
 

@@ -232,10 +232,13 @@ def acuity_trials_intro(distance_cm: float, name_keys: NameKeys) -> ScreenSpec:
 
 
 def end(session_path: Path, total: int, withdrawn: bool, name_keys: NameKeys,
-        upload: tuple[bool, str] | None = None, *, screened_out: str = "") -> ScreenSpec:
+        upload: tuple[bool, str] | None = None, *, screened_out: str = "",
+        in_two_files: bool = False) -> ScreenSpec:
     """The last screen. ``upload`` (with a study server): whether everything arrived and the
     sentence saying so; when it all arrived there is nothing to send. ``screened_out``: the
-    vision check (colour or acuity) that ended the study (the manifest's ``on_fail: end``)."""
+    vision check (colour or acuity) that ended the study (the manifest's ``on_fail: end``).
+    ``in_two_files``: the answers could not be written into the session file alone (a full
+    disk), so they are in it and its ``-wal`` together, and both must reach the experimenter."""
     keys = keymap(close=["enter", "esc"], show=["o"])
     path = session_path.resolve()
     title = "You have withdrawn" if withdrawn else "Thank you!"
@@ -247,22 +250,39 @@ def end(session_path: Path, total: int, withdrawn: bool, name_keys: NameKeys,
         first = (f"Thank you for your time. This study needs {what} that your screen and "
                  "eyes did not show clearly in the check, so it ends here. This is not a "
                  "medical result: screens differ a lot.")
-    where = (f"**{_md_escape(str(path))}**\n\n"
-             f"(the file *{_md_escape(path.name)}* in the folder "
-             f"*{_md_escape(str(path.parent))}*)")
-    if upload is not None and upload[0]:
-        body = (f"{first}\n\n## {_md_escape(upload[1])}\n\n"
-                "There is nothing to send. A copy of your answers stays on this computer:\n\n"
-                f"{where}")
+    wal = path.with_name(path.name + "-wal")
+    split = ""
+    if in_two_files:
+        where = (f"**{_md_escape(str(path))}**\n\n**{_md_escape(str(wal))}**\n\n"
+                 f"(the files *{_md_escape(path.name)}* and *{_md_escape(wal.name)}* in the "
+                 f"folder *{_md_escape(str(path.parent))}*)")
+        split = ("Your computer could not finish writing your answers into one file (is its "
+                 "disk full?). They are all saved, in two files that belong together:")
     else:
-        sent = f"{_md_escape(upload[1])}\n\n" if upload is not None else ""
+        where = (f"**{_md_escape(str(path))}**\n\n"
+                 f"(the file *{_md_escape(path.name)}* in the folder "
+                 f"*{_md_escape(str(path.parent))}*)")
+    sent = f"{_md_escape(upload[1])}\n\n" if upload is not None else ""
+    if upload is not None and upload[0]:
+        kept = (f"{split}\n\n{where}\n\nKeep both files together." if in_two_files else
+                f"A copy of your answers stays on this computer:\n\n{where}")
+        body = f"{first}\n\n## {_md_escape(upload[1])}\n\nThere is nothing to send. {kept}"
+    elif in_two_files:
+        body = (f"{first}\n\n{sent}"
+                "## Send these two files to the experimenter\n\n"
+                f"{split}\n\n{where}\n\n"
+                "Attach both to an e-mail to the experimenter, or upload both where the "
+                "experimenter told you. Do not delete or rename either of them: one without "
+                "the other is missing answers.")
+    else:
         body = (f"{first}\n\n{sent}"
                 "## Send this one file to the experimenter\n\n"
                 f"{where}\n\n"
                 "Attach it to an e-mail to the experimenter, or upload it where the "
                 "experimenter told you. Send only this file: it holds all your answers.")
     return _spec("end", title, body, keys,
-                 [("show", "Show the file in its folder"), ("close", "Close")], name_keys,
+                 [("show", "Show the files in their folder" if in_two_files else
+                   "Show the file in its folder"), ("close", "Close")], name_keys,
                  close_action="close", primary="close")
 
 

@@ -230,8 +230,8 @@ def _dump(con: sqlite3.Connection) -> dict[str, list[tuple[Any, ...]]]:
 
 def tables_match_outbox(path: str | Path) -> list[str]:
     """Differences between a session file's tables and the replay of its own outbox
-    (empty when they agree, or when the file predates the outbox). A change log that a
-    damaged file makes unreadable is a difference of its own, never an exception."""
+    (empty when they agree). A change log that is missing, or that a damaged file makes
+    unreadable, is a difference of its own, never an exception."""
     path = Path(path)
     con = open_existing(path, readonly=True)
     try:
@@ -252,10 +252,9 @@ def _reason(exc: BaseException) -> str:
 def _compare_with_log(con: sqlite3.Connection) -> list[str]:
     con.execute("BEGIN")
     try:
-        if not has_outbox(con):  # a file older than the change log has neither table
-            return ([] if not has_table(con, "upload_state") else
-                    ["the change log (outbox) is missing from a file written with one (its "
-                     "upload_state table is there): it was removed outside the app"])
+        if not has_outbox(con):  # every version of the writer creates it with the file
+            return ["the change log (outbox) is missing: every session file is written with "
+                    "one, so it was removed outside the app"]
         entries = read_entries(con)
         actual = _dump(con)
     finally:

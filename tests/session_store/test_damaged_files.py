@@ -203,3 +203,18 @@ def test_dropping_the_change_log_is_damage(finished, tmp_path, capsys):
     con.close()
     assert main(["verify", str(path)]) == 2
     assert "change log (outbox) is missing" in capsys.readouterr().out
+
+
+def test_dropping_the_change_log_and_its_upload_table_is_damage_too(finished, tmp_path, capsys):
+    """With both tables gone the file looked like one older than the change log, and an
+    edit with a recomputed rating chain passed; every writer creates the change log with the
+    file, so its absence is damage whatever else is there."""
+    path = tmp_path / "P01.sqlite"
+    path.write_bytes(finished.read_bytes())
+    con = sqlite3.connect(path)
+    con.execute("DROP TABLE outbox")
+    con.execute("DROP TABLE upload_state")
+    con.commit()
+    con.close()
+    assert main(["verify", str(path)]) == 2
+    assert "change log (outbox) is missing" in capsys.readouterr().out

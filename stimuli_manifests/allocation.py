@@ -31,7 +31,8 @@ class AdaptiveAllocation(BaseModel):
                                description="times one stimulus may appear in a later block")
     warmup_participants: int = Field(
         default=2, ge=2, le=100,
-        description="participants whose later blocks are uniform before the server adapts")
+        description="sessions that must have finished block 1 before the server adapts; "
+                    "blocks issued before then are uniform")
     refit_seconds: float = Field(default=30.0, ge=1.0, le=3600.0,
                                  description="the server refits at most this often")
     bootstrap: int = Field(default=200, ge=50, le=5000,

@@ -234,6 +234,14 @@ class Manifest(_Strict):
     @model_validator(mode="after")
     def _check_blocks(self) -> Manifest:
         adaptive = self.protocol.adaptive_settings()
+        if adaptive is not None and not self.protocol.hidden_reference:
+            # The planner sizes each condition's DMOS interval from its reference's ratings;
+            # without hidden references every interval reads as zero and all adapted trials
+            # would go to the first stimuli in manifest order.
+            raise ValueError(
+                "protocol.allocation 'adaptive' needs protocol.hidden_reference: true (its "
+                "DMOS intervals need each scene's hidden reference); turn hidden references "
+                "on or use allocation 'full'")
         if adaptive is not None and adaptive.block_trials is not None:
             n = len(self.stimuli())
             if adaptive.block_trials > n * adaptive.max_per_block:

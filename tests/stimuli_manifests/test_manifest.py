@@ -145,6 +145,8 @@ def test_round_trip_through_a_file(tmp_path):
         (lambda d: d.update(protocol={"allocation": "adaptive",
                                       "adaptive": {"block_trials": 10_000}}),
          "cannot be filled"),
+        (lambda d: d.update(protocol={"allocation": "adaptive", "hidden_reference": False}),
+         "needs protocol.hidden_reference: true"),
         (lambda d: d["references"][0].update(path="../outside.mkv"), "'..'"),
         (lambda d: d["references"][0].update(path="/etc/passwd"), "absolute"),
         (lambda d: d["conditions"][2].update(path="b\\n1.mkv"), "separators"),

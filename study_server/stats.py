@@ -300,27 +300,32 @@ class StatsWorker:
             for pid, reason in snap.study.removed_reasons.items():
                 if pid in snap.participants:
                     snap.participants[pid].removed_by_screening = reason
-            self._record_widths(snap)
+        current = self._record_widths(snap) if len(frame) else None
         if self.config.stopping.is_set:
             points = [WidthPoint(*row) for row in store.width_history()]
-            snap.stopping = evaluate(self.config.stopping, points, snap.n_ratings)
+            snap.stopping = evaluate(self.config.stopping, points, snap.n_ratings, current)
         snap.seconds = time.perf_counter() - t0
         snap.computed_at = utc_now()
         with self._lock:
             self._snapshot = snap
         return snap
 
-    def _record_widths(self, snap: StatsSnapshot) -> None:
-        """Keep the conditions' DMOS interval widths with the number of raters behind them."""
+    def _record_widths(self, snap: StatsSnapshot) -> WidthPoint | None:
+        """Keep the conditions' DMOS interval widths with the number of raters behind them;
+        the point of the data as it is now (None: no widths to judge)."""
         d = snap.study.dmos if snap.study is not None else None
         if d is None or not len(d):
-            return
+            return None
         cond = d[~d["is_hidden_reference"].astype(bool)]
         width = (cond["ci95_high"] - cond["ci95_low"]).astype(float)
         width = width[width.abs() < float("inf")]  # NaN and inf left out
-        if len(width) and snap.study.n_raters >= 2:
-            self.store.record_widths(snap.study.n_raters, snap.n_ratings, float(width.mean()),
-                                     float(width.max()), utc_now())
+        if not len(width) or snap.study.n_raters < 2:
+            return None
+        point = WidthPoint(snap.study.n_raters, snap.n_ratings, float(width.mean()),
+                           float(width.max()))
+        self.store.record_widths(point.raters, point.ratings, point.mean_width,
+                                 point.max_width, utc_now())
+        return point
 
     def _progress(self, snap: StatsSnapshot, rows: list[tuple[str, str, str, str]],
                   invited: list[Any]) -> None:

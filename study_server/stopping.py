@@ -100,11 +100,12 @@ def fit_decay(points: list[WidthPoint], which: str) -> Decay | None:
     return Decay(c, alpha)
 
 
-def evaluate(target: StoppingTarget, points: list[WidthPoint],
-             n_ratings: int) -> StoppingStatus:
-    """Where the study stands against ``target`` given the recorded points (the last one is
-    the current state) and the ratings received."""
-    current = max(points, key=lambda p: (p.raters, p.ratings)) if points else None
+def evaluate(target: StoppingTarget, points: list[WidthPoint], n_ratings: int,
+             current: WidthPoint | None) -> StoppingStatus:
+    """Where the study stands against ``target``: ``current`` holds the widths of the data as
+    it is now (None when no DMOS could be computed), ``points`` the recorded history the
+    decay is fitted on. ``current`` is given, not taken from the history, because a point
+    recorded before a withdrawal describes ratings that are no longer there."""
     met: dict[str, bool] = {}
     projected: dict[str, float] = {}
     decays: dict[str, Decay] = {}
@@ -121,8 +122,12 @@ def evaluate(target: StoppingTarget, points: list[WidthPoint],
         met["ratings"] = n_ratings >= target.ratings
     reached = target.is_set and bool(met) and all(met.values())
     more = None
-    if current is not None and projected:
-        more = max(0, math.ceil(max(projected.values()) - current.raters - 1e-9))
+    unmet = [raters for name, raters in projected.items() if not met[name]]
+    if current is not None and unmet:
+        # the fitted curve can pass below the current point: an unmet target needs one more
+        more = max(1, math.ceil(max(unmet) - current.raters - 1e-9))
+    elif current is not None and projected:
+        more = 0
     if reached:
         more = 0
     return StoppingStatus(target, current, reached, met, projected, more, decays)

@@ -581,8 +581,12 @@ class ServerStore:
 
     def record_widths(self, raters: int, ratings: int, mean_width: float, max_width: float,
                       at: str) -> None:
-        """The DMOS interval widths with ``raters`` raters in (the latest per count)."""
+        """The DMOS interval widths with ``raters`` raters in (the latest per count). Points
+        with more raters are dropped: they were computed on ratings that are gone now (a
+        withdrawal, or raters the screening now removes), and the decay must not be fitted
+        on them."""
         with self._write() as con:
+            con.execute("DELETE FROM stopping_history WHERE raters > ?", (raters,))
             con.execute("INSERT OR REPLACE INTO stopping_history VALUES (?,?,?,?,?)",
                         (raters, ratings, mean_width, max_width, at))
 

@@ -30,16 +30,54 @@ def test_the_decay_of_a_power_law_is_recovered():
 
 def test_targets_met_and_participants_still_needed():
     points = _law(40.0, 0.5, range(3, 9))  # now: 8 raters, mean 14.14, widest 21.2
-    status = evaluate(StoppingTarget(mean_ci_width=10.0, max_ci_width=30.0), points, 800)
+    now = points[-1]
+    status = evaluate(StoppingTarget(mean_ci_width=10.0, max_ci_width=30.0), points, 800, now)
     assert status.met == {"mean CI width": False, "widest CI": True} and not status.reached
     assert status.projected_raters["mean CI width"] == pytest.approx(16.0)
     assert status.more_raters == 8
-    done = evaluate(StoppingTarget(mean_ci_width=15.0, ratings=800), points, 800)
+    done = evaluate(StoppingTarget(mean_ci_width=15.0, ratings=800), points, 800, now)
     assert done.reached and done.more_raters == 0
-    assert not evaluate(StoppingTarget(ratings=801), points, 800).reached
-    assert not evaluate(StoppingTarget(), points, 800).reached  # no target: never reached
+    assert not evaluate(StoppingTarget(ratings=801), points, 800, now).reached
+    assert not evaluate(StoppingTarget(), points, 800, now).reached  # no target: never reached
     assert StoppingTarget(mean_ci_width=8, ratings=10).describe() == \
         "mean DMOS 95 % CI width <= 8 and 10 ratings"
+
+
+def test_the_current_widths_decide_not_a_point_recorded_before_a_withdrawal():
+    """Six raters met a mean-width target of 20.5; two withdrew, and the four left give 31.3.
+    The old point (more raters, on deleted ratings) used to stay 'current': target reached,
+    the study closed. The data as it is now decides."""
+    history = [WidthPoint(4, 96, 31.3, 60.0)]
+    now = history[-1]
+    status = evaluate(StoppingTarget(mean_ci_width=20.5), history, 96, now)
+    assert not status.reached and status.met == {"mean CI width": False}
+    gone = evaluate(StoppingTarget(mean_ci_width=20.5), [WidthPoint(6, 144, 20.47, 40.0)],
+                    144, None)  # no DMOS this time: nothing is met
+    assert not gone.reached and gone.more_raters is None
+
+
+def test_an_unmet_target_never_asks_for_zero_more_participants():
+    """The fitted curve can pass below the latest point: with 14.0 at 9 raters after a law of
+    40/sqrt(n), the fit gives 13.6 at 9 and projects 8.7 raters for a target of 13.8, which
+    used to show as 'about 0 more participants' while the current 14.0 misses it."""
+    points = [*_law(40.0, 0.5, range(3, 9)), WidthPoint(9, 900, 14.0, 30.0)]
+    status = evaluate(StoppingTarget(mean_ci_width=13.8), points, 900, points[-1])
+    assert status.projected_raters["mean CI width"] == pytest.approx(8.70, abs=0.01)
+    assert not status.reached and status.more_raters == 1
+    # a met target's projection does not set the number for an unmet one
+    both = evaluate(StoppingTarget(mean_ci_width=13.8, max_ci_width=40.0), points, 900,
+                    points[-1])
+    assert both.met == {"mean CI width": False, "widest CI": True} and both.more_raters == 1
+
+
+def test_width_history_forgets_points_with_more_raters_than_now(tmp_path):
+    from study_server.storage import ServerStore
+
+    with ServerStore(tmp_path / "server.sqlite") as store:
+        for n, w in ((3, 40.0), (4, 35.0), (5, 30.0), (6, 20.5)):
+            store.record_widths(n, 24 * n, w, 2 * w, "2026-01-01T00:00:00Z")
+        store.record_widths(4, 96, 31.3, 60.0, "2026-01-02T00:00:00Z")  # two withdrew
+        assert store.width_history() == [(3, 72, 40.0, 80.0), (4, 96, 31.3, 60.0)]
 
 
 def test_a_study_closes_to_new_participants_at_its_target(tmp_path, invites, server_factory):

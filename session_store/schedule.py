@@ -121,11 +121,15 @@ def block_seed(session_seed: int, block: int) -> int:
     return int.from_bytes(digest[:4], "big")
 
 
-def uniform_counts(ids: Sequence[str], size: int) -> dict[str, int]:
-    """``size`` trials spread evenly over ``ids`` (the first ones get one more when it does
-    not divide): the block an adaptive study uses before it can adapt."""
+def uniform_counts(ids: Sequence[str], size: int, seed: int) -> dict[str, int]:
+    """``size`` trials spread evenly over ``ids``, the block an adaptive study uses before it
+    can adapt. When ``size`` does not divide, the stimuli that get one more are drawn with the
+    block's ``seed``: taking the first ones would give every participant's block the same
+    stimuli (the hidden references, listed last, never an extra rating)."""
     base, extra = divmod(size, len(ids))
-    return {s: base + (k < extra) for k, s in enumerate(ids)}
+    rng = np.random.default_rng([seed, 0xB10C])
+    lucky = set(rng.choice(len(ids), size=extra, replace=False).tolist()) if extra else set()
+    return {s: base + (k in lucky) for k, s in enumerate(ids)}
 
 
 def block_trials(items: Sequence[ScheduleItem], stimuli: Sequence[str],
@@ -151,6 +155,7 @@ def block_trials(items: Sequence[ScheduleItem], stimuli: Sequence[str],
 def uniform_block(items: Sequence[ScheduleItem], size: int, session_seed: int, block: int,
                   last: str | None) -> list[str]:
     """The stimuli of a uniform block (an adaptive study run without its study server)."""
-    order = order_trials(items, uniform_counts([it.id for it in items], size),
-                         block_seed(session_seed, block), last=last)
+    seed = block_seed(session_seed, block)
+    order = order_trials(items, uniform_counts([it.id for it in items], size, seed), seed,
+                         last=last)
     return [t.stimulus for t in order]

@@ -13,6 +13,9 @@ planned here:
 - **Issue.** A block is planned from the latest fit and the ratings *pending* since it
   (planned in blocks issued to open sessions, or arrived after the fit), so two participants
   starting together do not get the same stimuli; before the first fit, blocks are uniform.
+  A session silent for :data:`PENDING_EXPIRY_S` no longer holds its unrated trials: a
+  participant who took a block and left would otherwise keep those stimuli (the widest
+  ones) from every later plan.
   The trial order comes from the session's seed and the block number. The block, the fit it
   used and those inputs are logged; asking again for the same block returns the same one.
 - **Audit.** :meth:`Allocator.replay` refits every logged fit from the stored ratings and
@@ -28,6 +31,7 @@ import threading
 import time
 from collections import Counter
 from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from session_store.chain import canonical
@@ -42,6 +46,11 @@ from .study_files import StudyVersion
 from .worker import ThrottledWorker
 
 log = logging.getLogger(__name__)
+
+#: An open session from which nothing arrived for this long (an hour) is taken to be
+#: abandoned: its unrated trials stop counting as pending. Uploads follow each rating, so a
+#: participant still rating, breaks included, is heard from far more often.
+PENDING_EXPIRY_S = 3600.0
 
 
 @dataclass(frozen=True)
@@ -222,7 +231,7 @@ class Allocator:
         """A block's stimuli in order, from a fit (None: uniform) and the logged inputs."""
         size = int(inputs["size"])
         if fit is None:
-            counts = uniform_counts(self.ids, size)
+            counts = uniform_counts(self.ids, size, int(inputs["seed"]))
         else:
             from .analysis_adapter import plan_counts
 
@@ -246,11 +255,12 @@ class Allocator:
                 taken[sid] += 1
                 seen[stimulus] += 1
         out: Counter[str] = Counter()
+        cutoff = datetime.now(UTC) - timedelta(seconds=PENDING_EXPIRY_S)
         for s in self.store.sessions():
             if s.manifest_sha256 != self.manifest_sha256:
                 continue
             rated = now.get(s.session_id, Counter())
-            if s.finished_at is None:
+            if s.finished_at is None and _received_after(s.last_received, cutoff):
                 planned = Counter(self.ids)  # block 1: every stimulus once
                 for b in self.issued(s.session_id).values():
                     planned.update(b.stimuli)
@@ -334,6 +344,14 @@ class Allocator:
                 problems.append(f"block {b['block']} of {b['participant']}: re-planning it "
                                 "from its inputs gives another block")
         return problems
+
+
+def _received_after(stamp: str, cutoff: datetime) -> bool:
+    """Whether the ISO 8601 time ``stamp`` (as the store writes it) is after ``cutoff``."""
+    try:
+        return datetime.fromisoformat(stamp.replace("Z", "+00:00")) > cutoff
+    except ValueError:
+        return False
 
 
 def _warm_up() -> None:

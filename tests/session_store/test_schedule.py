@@ -86,10 +86,29 @@ def test_blocks_of_an_adaptive_session_follow_their_counts():
     # one stimulus holding most of a block: its extra trials come last, none is lost
     crowded = order_trials(items, {"S0": 4, "S1": 1}, 3)
     assert sorted(t.stimulus for t in crowded) == ["S0"] * 4 + ["S1"]
-    assert uniform_counts(["a", "b", "c"], 7) == {"a": 3, "b": 2, "c": 2}
+    counts = uniform_counts(["a", "b", "c"], 7, 5)
+    assert sorted(counts.values()) == [2, 2, 3] and counts == uniform_counts(["a", "b", "c"], 7, 5)
     stimuli = uniform_block(items, 5, 7, 2, first[-1].stimulus)
     assert sorted(stimuli) == [f"S{k}" for k in range(5)]
     trials = block_trials(items, ["S0", "S2", "S0"], first)
     assert trials == [("S0", "R", 2, True), ("S2", "R", 2, False), ("S0", "R", 3, True)]
     with pytest.raises(StudyError, match="does not have"):
         block_trials(items, ["S9"], first)
+
+
+def test_uniform_blocks_smaller_than_the_stimuli_spread_over_participants():
+    """With 8 trials per block over 16 stimuli, the first 8 in manifest order used to fill
+    every participant's uniform block, so the rest (the hidden references, listed last) never
+    got an extra rating. Over 400 block seeds each stimulus is in about half of the blocks:
+    the count of one is Binomial(400, 1/2), 200 +- 10, so 150..250 is a 5-sigma band."""
+    from session_store.schedule import block_seed, uniform_counts
+
+    ids = [f"S{k:02d}" for k in range(16)]
+    times = dict.fromkeys(ids, 0)
+    for participant in range(200):
+        for block in (2, 3):
+            counts = uniform_counts(ids, 8, block_seed(participant, block))
+            assert sum(counts.values()) == 8 and set(counts.values()) <= {0, 1}
+            for s, n in counts.items():
+                times[s] += n
+    assert all(150 <= n <= 250 for n in times.values()), times

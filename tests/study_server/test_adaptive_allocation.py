@@ -209,3 +209,39 @@ def test_a_block_the_server_did_not_issue_is_refused_and_flagged(tmp_path, invit
     assert _db(study, "SELECT count(*) FROM entries WHERE kind='block'") == [(0,)]
     # block 2 as the server plans it is another one: it was never asked for
     assert _db(study, "SELECT count(*) FROM allocation_blocks") == [(0,)]
+
+
+def test_an_abandoned_session_stops_holding_its_planned_trials(tmp_path, invites,
+                                                                monkeypatch):
+    """A participant who took their plan and left kept every unrated trial 'pending' for the
+    rest of the study, so the planner kept steering away from those stimuli. After an hour
+    without an upload only what they rated still counts."""
+    from support.sessions import session_entries
+
+    from session_store.protocol import PROTOCOL
+    from study_server.config import ServerConfig
+    from study_server.state import ServerState
+
+    from .conftest import write_session
+
+    monkeypatch.setenv("CGVQ_ADMIN_TOKEN", ADMIN)
+    study = _adaptive_study(tmp_path / "adaptive")
+    (invite,) = invites(1, study=study)
+    state = ServerState.open(ServerConfig(study, stats_in_background=False))
+    try:
+        path = tmp_path / "P01.sqlite"
+        store = write_session(study, path, invite.participant, ratings=3)
+        rated = [t.stimulus for t in store.plan()[:3]]
+        store.close()
+        entries = session_entries(path)
+        state.ingest.upload(invite.participant, {
+            "protocol": PROTOCOL, "session_id": entries[0].body["header"]["session_id"],
+            "client_time": utc_now(), "entries": [e.as_json() for e in entries]},
+            "127.0.0.1")
+        ids = state.allocator.ids
+        assert state.allocator.pending({"used": {}}) == dict.fromkeys(ids, 1)  # block 1 open
+        with sqlite3.connect(study / "server" / "state.sqlite") as con:
+            con.execute("UPDATE sessions SET last_received='2000-01-01T00:00:00.000Z'")
+        assert state.allocator.pending({"used": {}}) == dict.fromkeys(rated, 1)
+    finally:
+        state.stop()

@@ -72,7 +72,9 @@ def block_id(session_id: str, block: int, stimuli: list[str]) -> str:
 
 
 class Allocator:
-    """Adaptive allocation for the study version being served (inactive for ``full``)."""
+    """Adaptive allocation for one version of the study (inactive for ``full``). The server
+    keeps one per version that has sessions, so participants who started on an earlier
+    version get their later blocks planned from that version's own fits."""
 
     def __init__(self, store: ServerStore, manifest_bytes: bytes, manifest_sha256: str,
                  study_id: str) -> None:
@@ -97,10 +99,29 @@ class Allocator:
     def offline(cls, store: ServerStore) -> Allocator:
         """Over the current version in a server database (no server running)."""
         current = next((v for v in store.versions() if v.is_current), None)
-        raw = None if current is None else store.version_manifest(current.manifest_sha256)
-        if current is None or raw is None:
+        if current is None:
             raise StudyError("the study has not been served yet: there is no allocation log")
-        return cls(store, raw, current.manifest_sha256, current.study_id)
+        alloc = cls.of_version(store, current.manifest_sha256, current.study_id)
+        if alloc is None:
+            raise StudyError("the study has not been served yet: there is no allocation log")
+        return alloc
+
+    @classmethod
+    def of_version(cls, store: ServerStore, manifest_sha256: str, study_id: str
+                   ) -> Allocator | None:
+        """Over one version the server has served (None: it does not know that version)."""
+        raw = store.version_manifest(manifest_sha256)
+        return None if raw is None else cls(store, raw, manifest_sha256, study_id)
+
+    @classmethod
+    def every_version(cls, store: ServerStore) -> list[tuple[bool, Allocator]]:
+        """(is current, allocator) of every version served, the current one first."""
+        out = []
+        for v in sorted(store.versions(), key=lambda v: not v.is_current):
+            alloc = cls.of_version(store, v.manifest_sha256, v.study_id)
+            if alloc is not None:
+                out.append((bool(v.is_current), alloc))
+        return out
 
     @property
     def active(self) -> bool:
@@ -169,16 +190,30 @@ class Allocator:
         return allocation_fit_of(frame, loaded, n_boot=self.settings.bootstrap, seed=0)
 
     def latest_fit(self) -> dict[str, Any] | None:
-        with self.store.reading() as con:
-            row = con.execute("SELECT fit_id, at, used, fit, seconds FROM allocation_fits "
-                              "ORDER BY fit_id DESC LIMIT 1").fetchone()
-        return None if row is None else _fit_row(row)
+        """The newest fit of this version's ratings (another version's fit plans nothing
+        here: its stimuli and its warm-up are its own)."""
+        own = self._fits(unattributed=False)
+        return own[-1] if own else None
 
     def fits(self) -> list[dict[str, Any]]:
+        """This version's fits, with those whose sessions have all been withdrawn since (no
+        version can be told for them; the replay reports them)."""
+        return self._fits(unattributed=True)
+
+    def _fits(self, *, unattributed: bool) -> list[dict[str, Any]]:
+        """A fit belongs to the version of the sessions it used (the ratings of one version
+        only, see :meth:`_rating_rows`)."""
+        version = {s.session_id: s.manifest_sha256 for s in self.store.sessions()}
         with self.store.reading() as con:
             rows = con.execute("SELECT fit_id, at, used, fit, seconds FROM allocation_fits "
                                "ORDER BY fit_id").fetchall()
-        return [_fit_row(r) for r in rows]
+        out = []
+        for r in rows:
+            fit = _fit_row(r)
+            seen = {version[s] for s in fit["used"] if s in version}
+            if seen == {self.manifest_sha256} or (unattributed and not seen):
+                out.append(fit)
+        return out
 
     # -- issuing blocks ---------------------------------------------------------------
     def issue(self, pid: str, session_id: str, block: int, last: str | None) -> IssuedBlock:
@@ -283,8 +318,10 @@ class Allocator:
         """Every issued block with its inputs, in issue order (for the audit)."""
         with self.store.reading() as con:
             rows = con.execute(
-                "SELECT session_id, block, block_id, participant, issued_at, fit_id, inputs, "
-                "stimuli, seconds FROM allocation_blocks ORDER BY issued_at, session_id, block"
+                "SELECT b.session_id, b.block, b.block_id, b.participant, b.issued_at, "
+                "b.fit_id, b.inputs, b.stimuli, b.seconds FROM allocation_blocks b JOIN "
+                "sessions s ON s.session_id = b.session_id WHERE s.manifest_sha256 = ? "
+                "ORDER BY b.issued_at, b.session_id, b.block", (self.manifest_sha256,)
             ).fetchall()
         return [{"session_id": r[0], "block": r[1], "block_id": r[2], "participant": r[3],
                  "issued_at": r[4], "fit_id": r[5], "inputs": json.loads(r[6]),

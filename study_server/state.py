@@ -71,8 +71,9 @@ class ServerState:
         self._versions_lock = threading.Lock()
         self.stats = StatsWorker(self.config, self.store, self.current)
         self.allocator = Allocator.for_version(self.store, self.current)
-        if self.allocator.active:
-            self.ingest.check_allocation = self.allocator.check_entries
+        self._allocators: dict[str, Allocator] = {self.current.manifest_sha256: self.allocator}
+        self._allocators_started = False
+        self.ingest.check_allocation = self._check_allocation
         self.pages = Pages(self.study_id, self.stats, self.sessions_listing,
                            self.config.stats_every_s)
 
@@ -104,12 +105,49 @@ class ServerState:
     def start(self) -> None:
         if self.config.stats_in_background:
             self.stats.start()
-            self.allocator.start()
+            with self._versions_lock:
+                self._allocators_started = True
+                for alloc in self._allocators.values():
+                    alloc.start()
 
     def stop(self) -> None:
         self.stats.stop()
+        with self._versions_lock:
+            for alloc in self._allocators.values():
+                if alloc is not self.allocator:
+                    alloc.stop()
         self.allocator.stop()
         self.store.close()
+
+    # -- adaptive allocation, per version ---------------------------------------------
+    def allocator_for(self, manifest_sha256: str) -> Allocator | None:
+        """The allocator of one served version (None: a version this server never served),
+        made when first needed: a participant who started on an earlier version still gets
+        their later blocks, planned from that version's fits."""
+        with self._versions_lock:
+            alloc = self._allocators.get(manifest_sha256)
+            if alloc is None:
+                alloc = Allocator.of_version(self.store, manifest_sha256, self.study_id)
+                if alloc is None:
+                    return None
+                self._allocators[manifest_sha256] = alloc
+                if self._allocators_started:
+                    alloc.start()
+            return alloc
+
+    def allocator_of(self, pid: str) -> Allocator:
+        """The allocator of the version ``pid``'s session runs on (the current one before
+        their first upload)."""
+        sess = self.store.session_of(pid)
+        alloc = None if sess is None else self.allocator_for(sess.manifest_sha256)
+        return alloc or self.allocator
+
+    def _check_allocation(self, pid: str, session_id: str, manifest_sha256: str | None,
+                          entries: list[Any]) -> str | None:
+        alloc = None if manifest_sha256 is None else self.allocator_for(manifest_sha256)
+        if alloc is None or not alloc.active:
+            return None
+        return alloc.check_entries(pid, session_id, manifest_sha256, entries)
 
     # -- participants -----------------------------------------------------------------
     def check_participant(self, pid: str, token: str) -> None:

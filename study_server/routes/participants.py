@@ -111,7 +111,8 @@ async def block(request: Request) -> Response:
         st = server_of(request)
         pid = await run_in_threadpool(participant_of, request)
         msg: BlockIn = parse(BlockIn, await read_json(request, st.config.max_body_bytes))
-        issued = await run_in_threadpool(st.allocator.issue, pid, msg.session_id, msg.block,
+        alloc = await run_in_threadpool(st.allocator_of, pid)
+        issued = await run_in_threadpool(alloc.issue, pid, msg.session_id, msg.block,
                                          msg.last)
         return JSONResponse(issued.answer(), headers=SECURITY_HEADERS)
     return await guarded(work)
@@ -125,6 +126,6 @@ async def entries(request: Request) -> Response:
         data = await read_json(request, st.config.max_body_bytes)
         answer = await run_in_threadpool(st.ingest.upload, pid, data, client_address(request))
         st.stats.poke()
-        st.allocator.poke()
+        (await run_in_threadpool(st.allocator_of, pid)).poke()
         return JSONResponse(answer, headers=SECURITY_HEADERS)
     return await guarded(work)

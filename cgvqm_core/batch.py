@@ -6,14 +6,20 @@ distributor can run it on another machine that sees the same files) and computes
 reference's features once for all of its tests. The driver (:func:`score_manifest`)
 verifies every input's sha256 against the manifest before scoring (a truncated or edited
 stimulus is an error, not a silent score), builds the units, skips rows already in the CSV
-and appends each unit's rows as it finishes (flushed), so an interrupted run resumes.
+and appends the rows of each group of tests as it finishes (flushed), so an interrupted run
+resumes and loses at most the group in progress.
 
 Each row carries a resume ``key``: the sha256 of everything that changes its number (metric
 name, its settings, backbone and weights hashes, patch scale, precision, device type,
-pooling, implementation versions, alignment options and the sha256 of both input files). A
-row is skipped only when a row with the same key exists; change anything and it is scored
-again (the old row stays, and the analysis keeps the first one of a metric and stimulus, so
-write to a new file when settings change).
+pooling, implementation versions including cgvqm_core's, alignment options and the sha256 of
+both input files). A row is skipped only when a row with the same key exists. A file holds
+one row per (metric, pooling, stimulus): a run whose key for one of them differs from the
+row already there (other settings, inputs or versions) is refused before any work, since
+the analysis would keep only one of the two; write such runs to a new file.
+
+Reading an existing file is strict about everything but its last row: a last row that was
+torn by an interrupted write (no line end, or too few fields) is dropped with a warning and
+cut off before the next rows are appended, so they never land on an unfinished line.
 """
 
 from __future__ import annotations
@@ -137,6 +143,21 @@ def unit_keys(unit: WorkUnit, plan: Sequence[tuple[dict[str, Any], list[str | No
             for t in unit.tests for ident, pools in plan for p in pools]
 
 
+def planned_slots(units: Sequence[WorkUnit],
+                  plan: Sequence[tuple[dict[str, Any], list[str | None]]]
+                  ) -> list[tuple[Slot, str]]:
+    """The (metric, pooling, stimulus) slot and resume key of every row the units write."""
+    out = []
+    for unit in units:
+        alignment = {"allow_resample": unit.allow_resample, "on_conversion": unit.on_conversion}
+        for t in unit.tests:
+            for ident, pools in plan:
+                for p in pools:
+                    out.append(((ident["metric"], p or "", t.id),
+                                row_key(ident, p, unit.reference, t, alignment)))
+    return out
+
+
 def _row(stimulus: str, reference: str, m: MetricScore, ident: dict[str, Any], key: str,
          ref_sha: str, test_sha: str) -> dict[str, Any]:
     settings = dict(ident["settings"])
@@ -159,48 +180,189 @@ def _row(stimulus: str, reference: str, m: MetricScore, ident: dict[str, Any], k
 
 # -- the scores file ------------------------------------------------------------------------
 
-def read_done(path: Path) -> set[str]:
+Slot = tuple[str, str, str]  # (metric, pooling, stimulus): one row per slot in a file
+
+
+@dataclass
+class ScoresFile:
+    """What an existing scores CSV holds: its rows' keys, the key(s) of each slot, and how
+    many of its bytes are complete rows (a torn last row beyond them is cut off on append)."""
+
+    path: Path
+    keys: set[str] = field(default_factory=set)
+    slots: dict[Slot, set[str]] = field(default_factory=dict)
+    size: int = 0
+
+    def add(self, row: dict[str, Any]) -> None:
+        """Record a row written in this run."""
+        self.keys.add(row.get("key", ""))
+        self.slots.setdefault(slot_of(row), set()).add(row.get("key", ""))
+
+    def clashes(self, slot: Slot, key: str) -> bool:
+        """Would a row with ``key`` in ``slot`` be a second row there? (An empty key, as
+        ``score --csv`` writes, never matches: such rows cannot be told equal.)"""
+        held = self.slots.get(slot)
+        return held is not None and (not key or key not in held)
+
+
+def slot_of(row: dict[str, Any]) -> Slot:
+    return (str(row.get("metric", "")), str(row.get("pooling") or ""),
+            str(row.get("stimulus", "")))
+
+
+def _describe(slot: Slot) -> str:
+    metric, pooling, stimulus = slot
+    return f"{metric}{f' ({pooling})' if pooling else ''} for {stimulus}"
+
+
+def refuse_clashes(state: ScoresFile, planned: Sequence[tuple[Slot, str]], flag: str) -> None:
+    """Refuse rows that would be a second row of their slot (see :meth:`ScoresFile.clashes`)."""
+    bad = [slot for slot, key in planned if state.clashes(slot, key)]
+    if bad:
+        more = f" and {len(bad) - 1} more" if len(bad) > 1 else ""
+        raise CGVQMError(
+            f"{state.path}: already holds a score of {_describe(bad[0])}{more} computed with "
+            "other settings, inputs or versions (another resume key); a second row would be "
+            f"ignored by the analysis: use a new {flag} (or remove those rows)")
+
+
+def _unreadable(path: Path, why: str, flag: str) -> CGVQMError:
+    return CGVQMError(f"{path}: {why}; it is not a scores CSV this toolkit wrote: choose "
+                      f"another {flag}")
+
+
+def _lines(path: Path, flag: str) -> list[str]:
+    """The file's lines (ends kept); a folder or a file that is not UTF-8 text is refused."""
+    if path.is_dir():
+        raise CGVQMError(f"{flag} {path}: is a folder; give a scores file name (.csv)")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise _unreadable(path, f"not UTF-8 text (byte {exc.start}: {exc.reason})",
+                          flag) from None
+    except OSError as exc:
+        raise CGVQMError(f"{flag} {path}: cannot be read ({exc.strerror or exc})") from None
+    parts = text.split("\n")  # only \n ends a line here (csv writes \r\n)
+    return [x + "\n" for x in parts[:-1]] + ([parts[-1]] if parts[-1] else [])
+
+
+def _parse(path: Path, lines: list[str], flag: str) -> tuple[list[list[str]], list[int]]:
+    """CSV rows and the line index each starts at (csv.Error refused in one line)."""
+    rows: list[list[str]] = []
+    starts: list[int] = []
+    reader = csv.reader(iter(lines))
+    try:
+        while True:
+            start = reader.line_num
+            try:
+                row = next(reader)
+            except StopIteration:
+                break
+            rows.append(row)
+            starts.append(start)
+    except csv.Error as exc:
+        raise _unreadable(path, f"unparsable CSV at line {reader.line_num} ({exc})",
+                          flag) from None
+    return rows, starts
+
+
+def read_scores(path: str | Path, *, flag: str = "--out") -> ScoresFile:
+    """Read an existing scores CSV (a missing or empty one holds nothing).
+
+    Refused in one line: a folder, a file that is not UTF-8 or not CSV, another layout, a
+    damaged row inside. A torn last row is dropped with a warning (see the module doc)."""
+    path = Path(path)
+    state = ScoresFile(path)
+    if not path.exists():
+        return state
+    lines = _lines(path, flag)
+    if not lines:
+        return state
+    header_line = ",".join(SCORE_COLUMNS)
+    if len(lines) == 1 and not lines[0].endswith("\n") and header_line.startswith(lines[0]):
+        log.warning("%s: its header line is unfinished (an interrupted write); it is "
+                    "written again", path)
+        return state
+    rows, starts = _parse(path, lines, flag)
+    header = tuple(rows[0]) if rows else ()
+    if header != SCORE_COLUMNS:
+        raise CGVQMError(f"{path}: existing file has columns {', '.join(header)}, not this "
+                         f"toolkit's scores layout ({SCORES.version}: "
+                         f"{', '.join(SCORE_COLUMNS)}); choose another {flag}")
+    complete = len(rows)
+    last_torn = not lines[-1].endswith("\n") or len(rows[-1]) != len(SCORE_COLUMNS)
+    if complete > 1 and last_torn and rows[-1]:
+        complete -= 1
+        log.warning("%s: its last row (line %d) is unfinished, torn by an interrupted write; "
+                    "it is dropped and scored again", path, starts[-1] + 1)
+    data = [r for r in rows[1:complete] if r]  # blank lines hold nothing
+    bad = next((i for i, r in enumerate(rows[1:complete], start=2)
+                if r and len(r) != len(SCORE_COLUMNS)), None)
+    if bad is not None:
+        raise _unreadable(path, f"row {bad} has {len(rows[bad - 1])} fields, not "
+                                f"{len(SCORE_COLUMNS)} (damaged)", flag)
+    kept = lines[: starts[complete]] if complete < len(rows) else lines
+    state.size = sum(len(x.encode("utf-8")) for x in kept)
+    records = [dict(zip(SCORE_COLUMNS, r, strict=True)) for r in data]
+    SCORES.check(header, [r.get(FORMAT_COLUMN) for r in records], path)
+    for r in records:
+        state.add(r)
+    return state
+
+
+def read_done(path: Path, *, flag: str = "--out") -> set[str]:
     """Resume keys of the rows already in ``path`` (refuses a file of another layout)."""
-    if not path.is_file() or path.stat().st_size == 0:
-        return set()
-    with path.open(newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
-        header = tuple(reader.fieldnames or ())
-        if header != SCORE_COLUMNS:
-            raise CGVQMError(f"{path}: existing file has columns {', '.join(header)}, not this "
-                             f"toolkit's scores layout ({SCORES.version}: "
-                             f"{', '.join(SCORE_COLUMNS)}); choose another --out")
-        rows = list(reader)
-    SCORES.check(header, [r.get(FORMAT_COLUMN) for r in rows], path)
-    return {r["key"] for r in rows}
+    return read_scores(path, flag=flag).keys
 
 
 class Appender:
     """Appends rows to a scores CSV (header first if new), flushed to disk per write. The
     file is created with the first rows, so a run that fails before scoring anything leaves
-    no header-only CSV behind for the next step to read as an empty result."""
+    no header-only CSV behind for the next step to read as an empty result.
 
-    def __init__(self, path: Path) -> None:
+    ``state`` is what :func:`read_scores` found (read here when not given): a torn last row
+    beyond its complete rows is cut off before the first write, and a row that would be a
+    second row of its (metric, pooling, stimulus) is refused."""
+
+    def __init__(self, path: Path, state: ScoresFile | None = None, *,
+                 flag: str = "--out") -> None:
         self.path = path
+        self.flag = flag
+        self.state = state
         self.fh: IO[str] | None = None
         self.writer: Any = None
 
     def _open(self) -> None:
+        if self.state is None:
+            self.state = read_scores(self.path, flag=self.flag)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        if self.path.is_file() and self.path.stat().st_size > self.state.size:
+            with self.path.open("r+b") as fh:  # drop the torn tail read_scores found
+                fh.truncate(self.state.size)
         new = not self.path.is_file() or self.path.stat().st_size == 0
+        if not new:
+            with self.path.open("rb") as fh:
+                fh.seek(-1, os.SEEK_END)
+                unfinished = fh.read(1) != b"\n"
         self.fh = self.path.open("a", newline="", encoding="utf-8")
         self.writer = csv.writer(self.fh)
         if new:
             self.writer.writerow(SCORE_COLUMNS)
+        elif unfinished:  # never glue a row onto another one
+            self.fh.write("\r\n")
 
     def write(self, rows: list[dict[str, Any]]) -> None:
         if not rows:
             return
         if self.fh is None:
             self._open()
+        assert self.state is not None
+        refuse_clashes(self.state, [(slot_of(r), r.get("key", "")) for r in rows], self.flag)
         self.writer.writerows([[SCORES.version if c == FORMAT_COLUMN else r.get(c, "")
                                 for c in SCORE_COLUMNS] for r in rows])
         self.flush()
+        for r in rows:
+            self.state.add(r)
 
     def flush(self) -> None:
         if self.fh is not None:
@@ -231,15 +393,31 @@ def verify_inputs(files: Sequence[InputFile]) -> None:
                          + "; ".join(bad[:5]))
 
 
+def _result_of(per_test: Sequence[MetricScore], name: str, pooling: str | None
+               ) -> MetricScore:
+    """A scorer's result among a test's, by metric name and pooling, not by position: the
+    image-metric pass lists metrics that do not apply at a size first, so position would
+    give a row another metric's resume key."""
+    for m in per_test:
+        if m.metric == name and (pooling is None or m.pooling == pooling):
+            return m
+    raise CGVQMError(f"no {name}{f' ({pooling})' if pooling else ''} result among "
+                     f"{', '.join(m.metric for m in per_test)}")
+
+
 def run_unit(unit: WorkUnit, *, scorers: Sequence[Scorer] | None = None,
              done: set[str] | frozenset[str] = frozenset(), verify: bool = True,
              progress: bool = False,
-             on_group: Callable[[int], None] | None = None) -> list[dict[str, Any]]:
+             on_group: Callable[[int], None] | None = None,
+             on_rows: Callable[[list[dict[str, Any]]], None] | None = None
+             ) -> list[dict[str, Any]]:
     """Score a unit's tests whose rows are not in ``done``; return the new rows.
 
     ``scorers`` may be given when the caller already built them (same options); a remote
-    worker builds them from ``unit.options``. ``on_group(n)`` is called after each group of
-    ``n`` tests (progress).
+    worker builds them from ``unit.options``. ``on_rows(rows)`` receives each group's rows
+    as soon as the group is scored (so a local driver can append them before the next
+    group: an interrupt then loses only the group in progress), then ``on_group(n)`` is
+    called with the group's number of tests (progress).
     """
     from .metrics.engine import score_reference
 
@@ -269,16 +447,19 @@ def run_unit(unit: WorkUnit, *, scorers: Sequence[Scorer] | None = None,
                                   allow_resample=unit.allow_resample,
                                   on_conversion=unit.on_conversion, progress=progress,
                                   strict=unit.strict)
+        group_rows: list[dict[str, Any]] = []
         for ti, per_test in zip(group, results, strict=True):
             t = unit.tests[ti]
-            it = iter(per_test)
             for si in used:
                 for p in _poolings(scorers[si], options):
-                    m = next(it)
+                    m = _result_of(per_test, scorers[si].name, p)
                     key = row_key(idents[si], p, unit.reference, t, alignment)
                     if key not in done:
-                        rows.append(_row(t.id, unit.reference_id, m, idents[si], key,
-                                         ref_sha, t.sha256))
+                        group_rows.append(_row(t.id, unit.reference_id, m, idents[si], key,
+                                               ref_sha, t.sha256))
+        rows += group_rows
+        if on_rows is not None:
+            on_rows(group_rows)
         if on_group is not None:
             on_group(len(group))
     return rows
@@ -386,7 +567,8 @@ def score_manifest(manifest: str | Path, out: str | Path, metrics: Sequence[str]
     (checked first, from the headers); otherwise such a test is resampled in time."""
     options = options or MetricOptions()
     out = Path(out)
-    done = read_done(out)
+    state = read_scores(out)
+    done = state.keys
     if strict:
         refuse_frame_count_mismatches(manifest, include_references=include_references,
                                       root=root, on_conversion=on_conversion)
@@ -394,14 +576,15 @@ def score_manifest(manifest: str | Path, out: str | Path, metrics: Sequence[str]
     units = manifest_units(manifest, metrics, options, include_references=include_references,
                            root=root, group_size=group_size, allow_resample=allow_resample,
                            on_conversion=on_conversion, progress=progress, strict=strict)
+    refuse_clashes(state, planned_slots(units, scorer_plan(scorers, options)), "--out")
     summary = BatchSummary()
     total = sum(len(u.tests) for u in units)
-    appender = Appender(out)
+    appender = Appender(out, state)
     bar = tqdm(total=total, desc="cgvqm batch", unit="video", disable=not progress)
     try:
         for u in units:
-            rows = run_unit(u, scorers=scorers, done=done, verify=False, on_group=bar.update)
-            appender.write(rows)
+            rows = run_unit(u, scorers=scorers, done=done, verify=False,
+                            on_group=bar.update, on_rows=appender.write)
             scored = {r["stimulus"] for r in rows}
             summary.scored += len(scored)
             summary.skipped += len(u.tests) - len(scored)

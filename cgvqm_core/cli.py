@@ -135,14 +135,34 @@ def _score_row(res: Any, ref: str, test: str) -> dict[str, Any]:
                                     "device_type": prov["device"].split(":")[0]})}
 
 
+def _csv_before_scoring(args: argparse.Namespace, metric: str, pooling: str) -> Any:
+    """``score --csv``: read the file before any scoring (a folder, a file that is not a
+    scores CSV, refused in one line) and refuse a second row for the same metric, pooling
+    and test: ``score`` rows carry no resume key, so a rerun cannot be told a duplicate of
+    the row there and would only add one the analysis ignores."""
+    if not args.csv:
+        return None
+    from .batch import read_scores
+
+    state = read_scores(Path(args.csv), flag="--csv")
+    pool = f" ({pooling})" if pooling else ""
+    stimulus = Path(args.test).stem
+    if (metric, pooling, stimulus) in state.slots:
+        raise CGVQMError(f"--csv {args.csv}: already holds a score of {metric}{pool} for "
+                         f"{stimulus}; score --csv adds one row per metric, pooling and test "
+                         "and never a second: use a new --csv (or remove that row)")
+    return state
+
+
 def _cmd_score_peer(args: argparse.Namespace, name: str) -> int:
     """Any registry metric other than CGVQM: one pair, one line (or JSON)."""
-    from .batch import Appender, canonical_json, read_done
+    from .batch import Appender, canonical_json
     from .metrics import build_scorers, score_reference
 
     set_threads(args)
     options = metric_options(args, [args.pool])
     (scorer,) = build_scorers([name], options)
+    state = _csv_before_scoring(args, scorer.name, "")
     (results,) = score_reference(args.ref, [args.test], [scorer], device=args.device,
                                  fps=args.fps, allow_resample=args.allow_resample,
                                  on_conversion=on_conversion(args),
@@ -160,8 +180,7 @@ def _cmd_score_peer(args: argparse.Namespace, name: str) -> int:
               f"{m.metric} = {m.score:.6g} ({m.direction})")
     if args.csv:
         prov = scorer.provenance()
-        read_done(Path(args.csv))
-        app = Appender(Path(args.csv))
+        app = Appender(Path(args.csv), state, flag="--csv")
         try:
             app.write([{"stimulus": Path(args.test).stem, "reference": Path(args.ref).stem,
                         "metric": m.metric, "direction": m.direction, "note": m.note,
@@ -200,7 +219,8 @@ def _refuse_fps_for_files(args: argparse.Namespace) -> None:
 
 
 def _cmd_score(args: argparse.Namespace) -> int:
-    from .batch import Appender, read_done
+    from .batch import Appender
+    from .metrics.cgvqm_entry import metric_name
 
     check_options(args)
     name = (args.metric or args.variant or "cgvqm-2").strip().lower()
@@ -221,6 +241,7 @@ def _cmd_score(args: argparse.Namespace) -> int:
         return _cmd_score_peer(args, name)
     (name,) = _variant_of_weights(args, [name], bool(args.metric or args.variant))
     (metric,) = _metrics(args, [name])
+    state = _csv_before_scoring(args, metric_name(metric), args.pool)
     clock = StageClock(metric.net.device) if args.timing else None
     res = metric.score(args.ref, args.test, pool=args.pool, fps=args.fps,
                        allow_resample=args.allow_resample, emap=args.emap or False,
@@ -252,10 +273,7 @@ def _cmd_score(args: argparse.Namespace) -> int:
         if args.emap:
             print(f"error map written to {args.emap}")
     if args.csv:
-        from .metrics.cgvqm_entry import metric_name
-
-        read_done(Path(args.csv))  # refuses a file with other columns
-        app = Appender(Path(args.csv))
+        app = Appender(Path(args.csv), state, flag="--csv")
         try:
             row = _score_row(res, args.ref, args.test)
             row["metric"] = metric_name(metric)

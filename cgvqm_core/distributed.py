@@ -5,7 +5,9 @@ in a local run. Tasks carry paths and sha256s only, never decoded frames: every 
 the videos itself from storage all nodes see at the same paths, and checks their sha256
 first, so a node with other files fails loudly instead of scoring them. Results come back to
 the driver (this process), which is the only writer: score rows go through the scores CSV's
-``Appender`` and feature arrays through ``FeatureCache``, as each task finishes. A dead driver
+``Appender`` and feature arrays through ``FeatureCache``, as each task finishes (on Ray a
+unit's rows come back together when its task ends, not per group of tests as in a local
+run: an interrupted driver loses the units in flight). A dead driver
 therefore resumes from its CSV or cache like a local run; a dead worker costs its task, which
 Ray reruns (``max_retries``); a task that fails on every try is reported by name while the
 others still land.
@@ -41,7 +43,9 @@ from .batch import (
     WorkUnit,
     canonical_json,
     manifest_units,
-    read_done,
+    planned_slots,
+    read_scores,
+    refuse_clashes,
     refuse_frame_count_mismatches,
     run_unit,
     scorer_plan,
@@ -269,13 +273,15 @@ def score_units(units: Sequence[WorkUnit], out: str | Path, settings: RaySetting
     """Run the units whose rows are not all in ``out`` as Ray tasks; append rows as each
     finishes. Needs a connected Ray (:func:`connected`)."""
     out = Path(out)
-    done = read_done(out)
+    state = read_scores(out)
+    done = state.keys
     summary = RaySummary(units=len(units))
     if not units:
         return summary
     log.info("ray: %d task(s) at a time on this cluster", check_resources(settings))
     u0 = units[0]
     plan = _worker_plan(u0.metrics, _options(u0), settings)
+    refuse_clashes(state, planned_slots(units, plan), "--out")
     task = as_task(_unit_task, settings)
     pending: dict[Any, tuple[WorkUnit, set[str]]] = {}
     skipped = 0
@@ -288,7 +294,7 @@ def score_units(units: Sequence[WorkUnit], out: str | Path, settings: RaySetting
         pending[ref] = (u, keys)
     summary.submitted = len(pending)
     summary.skipped = skipped
-    appender = Appender(out)
+    appender = Appender(out, state)
     bar = tqdm(total=sum(len(u.tests) for u in units), initial=skipped, desc="cgvqm batch (ray)",
                unit="video", disable=not progress)
     try:
@@ -348,7 +354,7 @@ def score_manifest(manifest: str | Path, out: str | Path, metrics: Sequence[str]
                    on_conversion: str = "warn", progress: bool = True,
                    strict: bool = False) -> RaySummary:
     """:func:`cgvqm_core.batch.score_manifest` on Ray (same units, keys, rows and CSV)."""
-    read_done(Path(out))  # a file of another layout is refused before any work
+    read_scores(Path(out))  # a folder or a file of another layout: refused before any work
     if strict:
         refuse_frame_count_mismatches(manifest, include_references=include_references,
                                       root=root, on_conversion=on_conversion)

@@ -161,6 +161,40 @@ class CGVQMResult:
         return out
 
 
+#: feature settings a calibrated weights file must share with the metric that uses it
+#: (the precision is left out: precisions agree to about 1e-3 in q, see docs/performance.md)
+MATCHED_SETTINGS = ("variant", "n_channels", "backbone_sha256", "patch_scale", "mode")
+
+
+def _shown_setting(key: str, value: Any) -> str:
+    text = f"{value}"[:12] + "..." if key == "backbone_sha256" else f"{value}"
+    return f"{key.replace('_', ' ')} {text}"
+
+
+def check_calibration_settings(weights: FeatureWeights, own: Mapping[str, Any]) -> None:
+    """Refuse calibrated weights under feature settings they were not fitted for, and show
+    the file's own warning (e.g. a random backbone).
+
+    omega/alpha weigh one backbone's channels at one patch grid, and the anchoring maps that
+    q distribution; under other features both give a number on no calibrated scale. Files
+    without ``feature_settings`` (the published pickles, hand-made files) are not checked.
+    """
+    prov = weights.provenance if isinstance(weights.provenance, dict) else {}
+    fitted = prov.get("feature_settings")
+    if isinstance(fitted, dict):
+        diff = [k for k in MATCHED_SETTINGS if k in fitted and fitted[k] != own.get(k)]
+        if diff:
+            name = Path(str(weights.source)).name
+            theirs = ", ".join(_shown_setting(k, fitted[k]) for k in diff)
+            ours = ", ".join(_shown_setting(k, own.get(k)) for k in diff)
+            raise CGVQMError(f"{name} was calibrated with {theirs}, but this metric uses "
+                             f"{ours}: its weights and anchoring do not apply to these "
+                             "features; score with the calibration's settings (its backbone, "
+                             "--patch-scale and --seamless or not) or calibrate again")
+    if prov.get("warning"):
+        log.warning("weights %s: %s", Path(str(weights.source)).name, prov["warning"])
+
+
 def _device_name(device: torch.device) -> str:
     """What ran the network: the GPU's name, or the CPU's model and thread count."""
     if device.type == "cuda":
@@ -240,6 +274,7 @@ class CGVQM:
         self.patch_scale = int(patch_scale)
         self.seamless = bool(seamless)
         self.prefetch = prefetch
+        check_calibration_settings(self.weights, self.feature_settings())
         self.net = FeatureNet(self.backbone, self.weights.n_levels, device=device,
                               precision=precision, fuse_bn=fuse_bn, channels_last=channels_last,
                               cudnn_benchmark=cudnn_benchmark,
@@ -251,6 +286,13 @@ class CGVQM:
         self._omega_abs = np.abs(self.weights.omega).astype(np.float64)
 
     # -- provenance ---------------------------------------------------------------------
+    def feature_settings(self) -> dict[str, Any]:
+        """The settings that decide the features m, in the keys a calibration records them
+        under (``provenance.feature_settings`` of its weights file)."""
+        return {"variant": self.variant, "n_channels": int(self.weights.omega.size),
+                "backbone_sha256": self.backbone.sha256, "patch_scale": self.patch_scale,
+                "mode": "seamless" if self.seamless else "upstream"}
+
     def provenance(self) -> dict[str, Any]:
         bb, w = self.backbone, self.weights
         return {

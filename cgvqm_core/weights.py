@@ -277,6 +277,10 @@ def load_project_weights(path: str | Path) -> FeatureWeights:
     missing = [k for k in ("omega", "alpha") if k not in doc]
     if missing:
         raise CGVQMError(f"{path}: weights file lacks {' and '.join(missing)}")
+    if "anchoring" in doc:  # read only under provenance: refused rather than ignored
+        raise CGVQMError(f"{path}: 'anchoring' at the top level is not read; the score "
+                         "anchoring (cgvqm-anchor/1) belongs under 'provenance' "
+                         "(provenance.anchoring): move it there")
     omega = _json_omega(path, doc["omega"])
     alpha = _json_number(path, "alpha", doc["alpha"])
     variant = variant_for_channels(omega.size, path)

@@ -137,7 +137,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="share of each dataset's scenes used for training (repeatable; "
                         "default 0.2, the paper's 20:80)")
     v.add_argument("--repeats", type=int, default=VALIDATION_DEFAULTS["repeats"],
-                   help="splits per train ratio, seeds SEED..SEED+n-1 (default 10)")
+                   help="distinct scene splits per train ratio, drawn by seeds SEED, SEED+1, "
+                        "... (a seed repeating a split is skipped); all of them when there "
+                        "are no more (default 10)")
     v.add_argument("--no-validation", action="store_true",
                    help="skip the repeated splits (only the final fit)")
     v.add_argument("--report", metavar="PATH",
@@ -196,6 +198,38 @@ def _check(args: argparse.Namespace) -> None:
         raise CGVQMError(f"--out {out}: is a folder; give a file name ending in .json")
     if not out.parent.is_dir():
         raise CGVQMError(f"--out {out}: folder {out.parent} does not exist")
+    if args.report is not None:
+        _check_report(Path(args.report), out, args.dataset)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (existing or not)."""
+    try:
+        if a.exists() and b.exists():
+            return a.samefile(b)
+    except OSError:
+        pass
+    return a.resolve() == b.resolve()
+
+
+def _check_report(report: Path, out: Path, datasets: list[str]) -> None:
+    """--report is written after the fit: refuse before it a path that cannot be written or
+    that would overwrite the weights file or a study's manifest or DMOS CSV."""
+    summary = report.with_suffix(".summary.csv")
+    if report.is_dir():
+        raise CGVQMError(f"--report {report}: is a folder; give a file name (.csv)")
+    if not report.parent.is_dir():
+        raise CGVQMError(f"--report {report}: folder {report.parent} does not exist")
+    inputs = [("--out", out)]
+    for text in datasets:
+        spec = DatasetSpec.parse(text)
+        inputs += [(f"--dataset {spec.name}", spec.manifest),
+                   (f"--dataset {spec.name}", spec.dmos_csv)]
+    for written, label in ((report, "--report"), (summary, "its summary")):
+        for flag, path in inputs:
+            if _same_file(written, path):
+                raise CGVQMError(f"--report {report}: {label} ({written}) would overwrite "
+                                 f"the file of {flag}; choose another --report")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -287,8 +321,11 @@ def _print_outcome(outcome: CalibrationOutcome, args: argparse.Namespace) -> Non
     prov = outcome.weights.provenance
     if outcome.validation is not None:
         print()
-        print(f"validation: {args.repeats} scene-disjoint split(s) per train ratio, "
-              "mean and 95% interval of the mean over splits")
+        counts = ", ".join(f"{c.train_ratio:g}: {len(c.splits)}"
+                           + (" (all there are)" if c.enumerated else "")
+                           for c in outcome.validation.splits)
+        print(f"validation: distinct scene-disjoint splits per train ratio ({counts}), "
+              "mean and 95% interval of the mean over them")
         print(format_summary(outcome.validation.summary))
         for note in outcome.validation.notes:
             print(f"note: {note}")

@@ -216,7 +216,11 @@ def _provenance(data, variant, config, final, train, val, alpha, anchoring, trai
         prov["validation"] = {
             "method": "repeated scene-disjoint splits per dataset; the final weights above "
                       "are fitted on all scenes, these figures estimate their test performance",
-            "train_ratios": list(train_ratios), "split_seeds": list(seeds),
+            "train_ratios": list(train_ratios),
+            # seeds of the sampled splits (enumerated splits have none), all ratios together
+            "split_seeds": sorted({sp.seed for c in val_res.splits for sp in c.splits
+                                   if sp.seed is not None}),
+            "splits": [c.describe() for c in val_res.splits],
             "validation_ratio": val_ratio if config.select == "val" else None,
             "notes": val_res.notes + ([] if HONESTY_NOTE in val_res.notes else [HONESTY_NOTE]),
             "summary": val_res.summary.to_dict(orient="records"),

@@ -1,19 +1,22 @@
 """Honest validation: fit on some scenes, measure on the others, repeat with seeds.
 
-For each train ratio and seed, the scenes of every dataset are split (no scene on both
-sides), omega/alpha are fitted on the training videos (the step kept is chosen by training or
-validation loss, or is the last one, never by test results) and the metric's agreement with
-the human scores is measured on training, validation and test videos, per dataset: PLCC,
-SRCC, KRCC of q = 100 - alpha * pooled error, and the RMSE on the 0..100 scale after the scale
-anchoring fitted on the training videos. Uniform omega is measured on the same test videos as
-a baseline. All splits of one ratio are fitted together in one vectorised loop.
+For each train ratio, the scenes of every dataset are split (no scene on both sides) in
+distinct ways (:func:`~.splits.distinct_splits`: all possible splits when there are no more
+than the repeats asked for, else seeds drawn without repeating a split), omega/alpha are
+fitted on the training videos (the step kept is chosen by training or validation loss, or
+is the last one, never by test results) and the metric's agreement with the human scores
+is measured on training, validation and test videos, per dataset: PLCC, SRCC, KRCC of
+q = 100 - alpha * pooled error, and the RMSE on the 0..100 scale after the scale anchoring
+fitted on the training videos. Uniform omega is measured on the same test videos as a
+baseline. All splits of one ratio are fitted together in one vectorised loop. Means and
+intervals are over these distinct splits.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -22,7 +25,7 @@ from ..errors import CGVQMError
 from ..scale_anchor import apply_anchor
 from .anchoring import fit_anchor, refit_alpha
 from .fitting import FitConfig, fit, pooled_errors
-from .splits import Split, repeated_splits
+from .splits import SplitSet, distinct_splits
 from .stats import correlations, interval
 
 log = logging.getLogger(__name__)
@@ -59,9 +62,10 @@ class CalibrationData:
 
 @dataclass
 class ValidationResult:
-    per_split: pd.DataFrame  # one row per (ratio, seed, model, subset, dataset)
-    summary: pd.DataFrame  # mean and intervals over seeds
+    per_split: pd.DataFrame  # one row per (ratio, split, model, subset, dataset)
+    summary: pd.DataFrame  # mean and intervals over the distinct splits
     notes: list[str]
+    splits: list[SplitSet] = field(default_factory=list)  # per train ratio
 
 
 def _measure(data: CalibrationData, q: np.ndarray, masks: dict[str, np.ndarray],
@@ -93,9 +97,12 @@ def validate(data: CalibrationData, train_ratios: Sequence[float], seeds: Sequen
     n_ch = data.M.shape[2]
     uniform = np.full(n_ch, 1.0 / n_ch)
     E_uniform = pooled_errors(data.M, data.counts, uniform, config.pooling)
+    split_sets: list[SplitSet] = []
     for ratio in train_ratios:
-        splits: list[Split] = repeated_splits(
-            scenes, dsets, ratio, seeds, val_ratio=val_ratio if config.select == "val" else 0.0)
+        chosen = distinct_splits(scenes, dsets, ratio, seeds,
+                                 val_ratio=val_ratio if config.select == "val" else 0.0)
+        split_sets.append(chosen)
+        splits = chosen.splits
         train = np.stack([s.train for s in splits])
         val = np.stack([s.val for s in splits]) if config.select == "val" else None
         log.info("train ratio %.2f: fitting %d splits", ratio, len(splits))
@@ -106,7 +113,7 @@ def validate(data: CalibrationData, train_ratios: Sequence[float], seeds: Sequen
             q = 100.0 - res.alpha[r] * E[r]
             fit_set = split.train | split.val
             anchored = _anchored(E[r], data.y, fit_set, anchor, config.pooling)
-            base = {"train_ratio": ratio, "seed": split.seed, "model": "fitted",
+            base = {"train_ratio": ratio, "split": r, "seed": split.seed, "model": "fitted",
                     "best_step": int(res.best_step[r])}
             rows += _measure(data, q, masks, anchored, base)
             # the baseline: uniform omega, its scale anchored on the same training videos
@@ -115,12 +122,14 @@ def validate(data: CalibrationData, train_ratios: Sequence[float], seeds: Sequen
             rows += _measure(data, qu, {"test": split.test}, anchored_u,
                              {**base, "model": "uniform", "best_step": 0})
     per_split = pd.DataFrame(rows)
+    per_split["seed"] = per_split["seed"].astype("Int64")  # empty for enumerated splits
     summary = summarise(per_split)
     notes = [SELECTION_NOTE[config.select], HONESTY_NOTE]
-    notes += sign_notes(per_split, config.objective)
-    for note in notes[2:]:
+    notes += [n for c in split_sets if (n := c.note(len(seeds))) is not None]
+    signs = sign_notes(per_split, config.objective)
+    for note in signs:
         log.warning(note)
-    return ValidationResult(per_split, summary, notes)
+    return ValidationResult(per_split, summary, notes + signs, split_sets)
 
 
 def sign_notes(per_split: pd.DataFrame, objective: str) -> list[str]:
@@ -154,12 +163,13 @@ def _anchored(E: np.ndarray, y: np.ndarray, fit_set: np.ndarray, method: str,
 
 
 def summarise(per_split: pd.DataFrame) -> pd.DataFrame:
-    """Mean, t-based 95% interval of the mean and 2.5-97.5% range over seeds."""
+    """Mean, t-based 95% interval of the mean and 2.5-97.5% range over the splits (each
+    distinct, see :func:`validate`; ``n_splits`` counts them)."""
     out = []
     keys = ["train_ratio", "model", "subset", "dataset"]
     for key, grp in per_split.groupby(keys, sort=False):
         rec = dict(zip(keys, key, strict=True))
-        rec["n_splits"] = int(grp["seed"].nunique())
+        rec["n_splits"] = int(grp["split"].nunique())
         rec["n_videos"] = float(grp["n_videos"].mean())
         for col in ("plcc", "srcc", "krcc", "rmse_anchored"):
             iv = interval(grp[col].to_numpy(), bounds=(-1.0, 1.0) if col != "rmse_anchored"

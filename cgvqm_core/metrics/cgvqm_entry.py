@@ -81,9 +81,12 @@ class CGVQMScorer(VideoScorer):
         return out
 
     def provenance(self) -> dict[str, Any]:
+        """What the resume key and the CSV's ``versions`` record besides the settings: the
+        toolkit's version too, since a release can change CGVQM's numbers."""
         p = self.metric.provenance()
         return {"backbone": p["backbone"]["label"], "backbone_sha256": p["backbone"]["sha256"],
-                "weights_sha256": p["weights"]["sha256"], "torch": p["torch_version"]}
+                "weights_sha256": p["weights"]["sha256"], "torch": p["torch_version"],
+                "cgvqm_core": p["cgvqm_core_version"]}
 
     def not_applicable(self, height: int, width: int) -> str | None:
         if min(height, width) < self.metric.patch_scale:

@@ -128,6 +128,9 @@ def score_frames_pass(ref: FrameSource, tests: Sequence[FrameSource], geom: Geom
             results[ti].append(MetricScore(
                 s.name, s.spec.direction, score, per_frame=pf,
                 extra={"seconds": seconds[si] / max(len(tests), 1)}))
+    order = {s.name: i for i, s in enumerate(scorers)}
+    for r in results:  # in scorer order, as callers match them: not applicable ones first
+        r.sort(key=lambda m: order[m.metric])
     return results
 
 

@@ -114,14 +114,21 @@ def test_batch_writes_contract_and_resumes(capsys, tmp_path):
     # rerun: nothing new
     rc, stdout, _ = _run(capsys, *base, "--metrics", "psnr,gmsd,ms-ssim,cgvqm-2")
     assert "0 scored, 4 already" in stdout
-    # a setting that changes numbers (FLIP's ppd) gives new rows; the unchanged ones stay
-    # (without CGVQM's options, which neither metric reads: they would be refused)
+    # a new metric appends its rows; the unchanged ones stay (without CGVQM's options, which
+    # neither metric reads: they would be refused)
     rc, stdout, _ = _run(capsys, *base[:5], "--metrics", "psnr,flip", "--ppd", "40")
-    rc, stdout, _ = _run(capsys, *base[:5], "--metrics", "psnr,flip", "--ppd", "60")
+    # a setting that changes numbers (FLIP's ppd) would give a second row per stimulus, of
+    # which the analysis keeps one: refused, to be written to a new file
+    rc, _, err = _run(capsys, *base[:5], "--metrics", "psnr,flip", "--ppd", "60")
+    assert rc == 2 and "use a new --out" in err and err.count("cgvqm: error") == 1
+    other = tmp_path / "ppd60.csv"
+    rc, stdout, _ = _run(capsys, *base[:4], other, "--metrics", "psnr,flip", "--ppd", "60")
     rows = read_table(out, SCORES)
     flips = [r for r in rows if r["metric"] == "flip"]
-    assert len(flips) == 8 and {json.loads(r["settings"])["ppd"] for r in flips} == {40, 60}
+    assert len(flips) == 4 and {json.loads(r["settings"])["ppd"] for r in flips} == {40}
     assert sum(r["metric"] == "psnr" for r in rows) == 4
+    flips60 = [r for r in read_table(other, SCORES) if r["metric"] == "flip"]
+    assert len(flips60) == 4 and {json.loads(r["settings"])["ppd"] for r in flips60} == {60}
 
 
 def test_batch_refuses_a_changed_stimulus(capsys, tmp_path):

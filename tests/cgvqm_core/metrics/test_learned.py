@@ -603,14 +603,19 @@ def test_batch_rows_carry_weights_hashes_and_resume(capsys, tmp_path, wfiles, mo
         by[("SRC01_HRC02", "lpips")]["score"])
     rc, stdout, _ = _run(capsys, *base)
     assert "0 scored, 2 already" in stdout
-    # other weights (another file) are other numbers: new rows, old ones kept
+    # other weights (another file) are other numbers: a second dists row per stimulus in
+    # this file is refused (the analysis would keep one of the two); a new file takes them
     other = tmp_path / "dists2.pt"
     c = wfiles.content["dists"]
     torch.save({"alpha": c["beta"], "beta": c["alpha"]}, other)
-    rc, stdout, _ = _run(capsys, *base[:5], "--metrics", "dists",
-                         *_weights_args(wfiles, "vgg16"), "--learned-weights", f"dists={other}")
+    again = ["--metrics", "dists", *_weights_args(wfiles, "vgg16"), "--learned-weights",
+             f"dists={other}"]
+    rc, _, err = _run(capsys, *base[:5], *again)
+    assert rc == 2 and "use a new --out" in err
+    assert len(read_table(out, SCORES)) == 6
+    rc, stdout, _ = _run(capsys, *base[:4], tmp_path / "scores2.csv", *again)
     assert rc == 0 and "2 scored" in stdout
-    assert len(read_table(out, SCORES)) == 8
+    assert len(read_table(tmp_path / "scores2.csv", SCORES)) == 2
 
 
 def test_learned_metrics_refuse_another_range_grey_and_half(wfiles):

@@ -114,3 +114,20 @@ def test_test_video_of_another_size_is_aligned_like_cgvqm(tmp_path):
 
     expected = iqa.psnr(as_batch(aligned), as_batch(ref)).double().mean()
     assert m.score == pytest.approx(float(expected), rel=1e-9)
+
+
+def test_results_come_in_the_order_the_metrics_were_asked_for(tmp_path):
+    """At 48x48 MS-SSIM does not apply; its note used to come first, so a caller matching
+    results by position gave PSNR's number MS-SSIM's name (and resume key)."""
+    from cgvqm_core.metrics import iqa
+
+    ref = real_video(4, 48, 48)
+    test = noisy(ref, 8)
+    r = write_video(tmp_path / "r.mkv", ref, FPS)
+    t = write_video(tmp_path / "t.mkv", test, FPS)
+    scorers = build_scorers(["psnr", "ms-ssim"], MetricOptions())
+    ((first, second),) = score_reference(r, [t], scorers)
+    assert (first.metric, second.metric) == ("psnr", "ms-ssim")
+    assert second.score is None and second.note
+    expected = iqa.psnr(as_batch(test), as_batch(ref)).double().mean()
+    assert first.score == pytest.approx(float(expected), rel=1e-9)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import threading
 import warnings
 from dataclasses import dataclass
 
@@ -43,6 +44,9 @@ class Reliability:
     subset: str = ""
 
 
+_PINGOUIN_OPTIONS = threading.Lock()
+
+
 def icc_from_long(data: pd.DataFrame, targets: str, raters: str,
                   ratings: str) -> tuple[dict[str, float], dict[str, tuple[float, float]]]:
     """ICC(2,k), ICC(3,k), ICC(2,1), ICC(3,1) via pingouin, whichever naming it uses.
@@ -51,10 +55,18 @@ def icc_from_long(data: pd.DataFrame, targets: str, raters: str,
     """
     import pingouin as pg
 
-    with warnings.catch_warnings():
+    # pingouin rounds the CI95 column to 2 decimals for display (its global options): the
+    # report shows 3, and at high ICC [1.00, 1.00] excluded the estimate. Unrounded here,
+    # under a lock, since the option is process-wide and the server analyses in a thread.
+    with _PINGOUIN_OPTIONS, warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        table = pg.intraclass_corr(data=data, targets=targets, raters=raters, ratings=ratings,
-                                   nan_policy="omit")
+        before = pg.options.get("round.column.CI95")
+        pg.options["round.column.CI95"] = None
+        try:
+            table = pg.intraclass_corr(data=data, targets=targets, raters=raters,
+                                       ratings=ratings, nan_policy="omit")
+        finally:
+            pg.options["round.column.CI95"] = before
     table = table.set_index("Type")
     icc, ci = {}, {}
     for ours, names in _ICC_NAMES.items():

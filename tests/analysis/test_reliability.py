@@ -89,3 +89,29 @@ def test_icc_accepts_the_older_pingouin_names(monkeypatch) -> None:
     icc, ci = icc_from_long(pd.DataFrame(), "t", "r", "x")
     assert icc == {"ICC(2,k)": 0.5, "ICC(3,k)": 0.6, "ICC(2,1)": 0.2, "ICC(3,1)": 0.3}
     assert ci["ICC(2,k)"] == (0.0, 1.0)
+
+
+def test_icc_intervals_are_not_rounded_for_display():
+    """pingouin rounds its CI95 column to 2 decimals by default: the report printed them
+    with 3, and at high agreement [1.000, 1.000] excluded the estimate. The interval of
+    ICC(3,k) from the two-way mean squares (McGraw & Wong 1996, case 3A):
+    F = MSR / MSE, [1 - F(0.975; df1, df2) / F, 1 - 1 / (F F(0.975; df2, df1))]."""
+    import pingouin
+
+    rng = np.random.default_rng(3)
+    n, k = 30, 6
+    truth = rng.uniform(0, 100, n)
+    scores = truth[:, None] + rng.normal(0, 2.0, (n, k))
+    long = pd.DataFrame([(i, j, scores[i, j]) for i in range(n) for j in range(k)],
+                        columns=["target", "rater", "rating"])
+    icc, ci = icc_from_long(long, "target", "rater", "rating")
+    grand = scores.mean()
+    msr = k * ((scores.mean(1) - grand) ** 2).sum() / (n - 1)
+    resid = scores - scores.mean(1, keepdims=True) - scores.mean(0, keepdims=True) + grand
+    mse = (resid ** 2).sum() / ((n - 1) * (k - 1))
+    f, df1, df2 = msr / mse, n - 1, (n - 1) * (k - 1)
+    low = 1 - stats.f.ppf(0.975, df1, df2) / f
+    high = 1 - 1 / (f * stats.f.ppf(0.975, df2, df1))
+    assert ci["ICC(3,k)"] == pytest.approx((low, high), abs=1e-9)
+    assert ci["ICC(3,k)"][0] < icc["ICC(3,k)"] < ci["ICC(3,k)"][1]
+    assert pingouin.options["round.column.CI95"] == 2  # pingouin's own setting is left as is

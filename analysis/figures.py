@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from matplotlib import colormaps
+from matplotlib import colormaps, rc_context
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
@@ -33,6 +34,14 @@ def _grid(n: int, max_cols: int = 4) -> tuple[int, int]:
 def _method_colors(methods: list[str]) -> dict[str, tuple]:
     cmap = colormaps["tab10"]
     return {m: cmap(i % 10) for i, m in enumerate(methods)}
+
+
+def _stimulus_ticks(sd: pd.DataFrame) -> list[str]:
+    """Short tick labels (method and level), or the stimulus ids where those would not tell
+    the stimuli apart (a SUREAL dataset's are all 'distorted', without a level)."""
+    short = [f"{str(m)[:6]}{'' if pd.isna(lv) else int(lv)}"
+             for m, lv in zip(sd["method"], sd["level"], strict=True)]
+    return short if len(set(short)) == len(short) else [str(s) for s in sd["stimulus"]]
 
 
 def dmos_per_scene(a: Analysis, path: Path) -> Path:
@@ -62,9 +71,7 @@ def dmos_per_scene(a: Analysis, path: Path) -> Path:
             ax.plot(x, y, markers[j % len(markers)], color="k", ms=4, alpha=0.6,
                     label=name if k == 0 else None)
         ax.set_xticks(x)
-        ax.set_xticklabels([f"{m[:6]}{'' if pd.isna(lv) else int(lv)}"
-                            for m, lv in zip(sd["method"], sd["level"], strict=True)],
-                           rotation=90, fontsize=6)
+        ax.set_xticklabels(_stimulus_ticks(sd), rotation=90, fontsize=6)
         ax.set_title(str(scene), fontsize=9)
         ax.set_ylabel("DMOS")
         ax.axhline(a.screened.ref_score, color="0.7", lw=0.8)
@@ -437,12 +444,20 @@ FIGURES = {
 }
 
 
+def literal_text() -> contextlib.AbstractContextManager:
+    """Text drawn as written: scene, method, metric and rater names are free text, and
+    matplotlib would read a ``$...$`` pair in one as mathtext (garbled, or a parse error
+    that stopped the whole report)."""
+    return rc_context({"text.parse_math": False})
+
+
 def draw_all(a: Analysis, folder: Path) -> dict[str, tuple[Path, str]]:
     """Draw every figure that applies; returns name -> (png path, caption)."""
     folder.mkdir(parents=True, exist_ok=True)
     out = {}
-    for name, (fn, caption) in FIGURES.items():
-        path = fn(a, folder / f"{name}.png")
-        if path is not None:
-            out[name] = (path, caption)
+    with literal_text():
+        for name, (fn, caption) in FIGURES.items():
+            path = fn(a, folder / f"{name}.png")
+            if path is not None:
+                out[name] = (path, caption)
     return out

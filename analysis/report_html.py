@@ -113,28 +113,55 @@ def quality_display(q: pd.DataFrame) -> pd.DataFrame:
                        if not (out[c].astype(str).isin(["", "nan"]).all())]]
 
 
+#: What each score model is, in the words of a methods section.
+_MODEL_TEXT = {
+    "mle": "SUREAL's maximum-likelihood subject model (Li & Bampis 2020): quality with rater "
+           "bias and inconsistency and content ambiguity; if it diverges, its ITU-T P.910 "
+           "variant (MLE_CO_AP2) is used and this report says so.",
+    "p910": "SUREAL's MLE_CO_AP2, the ITU-T P.910 subject model: quality with rater bias and "
+            "inconsistency.",
+    "mos": "plain mean opinion scores: each stimulus's mean over every rating.",
+    "bt500": "ITU-R BT.500 rater rejection (SUREAL's SR_MOS), then plain means over the raters "
+             "kept.",
+}
+#: The estimator each bootstrap resample recomputes (analysis.intervals).
+_CI_ESTIMATOR = {
+    "mle": "the model's rater parameters fixed (bias-corrected, inconsistency-weighted means)",
+    "p910": "the model's rater parameters fixed (bias-corrected, inconsistency-weighted means)",
+    "mos": "plain means",
+    "bt500": "plain means over the raters kept",
+}
+#: What each rater screening does.
+_SCREENING_TEXT = {
+    "p913": "removed when r1 < 0.75 and r2 < 0.8 against the leave-one-out panel (ITU-T "
+            "P.913), iterated, AND the P.910 MLE inconsistency is an outlier (robust z > 3.5, "
+            "Iglewicz-Hoaglin).",
+    "grubbs": "the CGVQM+D paper's iterative Grubbs test on each rater's mean absolute "
+              "deviation from the panel (mixes bias with inconsistency; kept to reproduce the "
+              "paper).",
+    "bt500": "ITU-R BT.500's kurtosis-based rater screening (SUREAL's).",
+    "none": "no rater is screened out.",
+}
+
+
 def methods_table(a: Analysis) -> pd.DataFrame:
     """The "Methods and defaults" table: every choice of the run and what it means."""
     c = a.config
     t = THRESHOLDS
     rows = [
-        ("Score model", f"--model {c.model}", "SUREAL's maximum-likelihood subject model (Li & "
-         "Bampis 2020): quality with rater bias and inconsistency and content ambiguity; if "
-         "it diverges, its ITU-T P.910 variant (MLE_CO_AP2) is used and this report says so."),
+        ("Score model", f"--model {c.model}", _MODEL_TEXT.get(c.model, c.model)),
         ("DMOS", "P.910", "DMOS(v) = Q(v) - Q(ref(v)) + top of the scale, Q(ref) from the "
          "hidden reference."),
-        ("DMOS 95% CI", f"{c.n_boot} rater resamples", "bootstrap over raters with the model's "
-         "rater parameters fixed; keeps the covariance of Q(v) and Q(ref); half-width "
-         "t(n_eff-1) sqrt(n/(n-1)) sd. Coverage checked by benchmarks/bench_coverage.py."),
+        ("DMOS 95% CI", f"{c.n_boot} rater resamples", "bootstrap over raters with "
+         + _CI_ESTIMATOR.get(c.model, "the model's estimator") + "; keeps the covariance of "
+         "Q(v) and Q(ref); half-width t(n_eff-1) sqrt(n/(n-1)) sd. Coverage checked by "
+         "benchmarks/bench_coverage.py."),
         ("Completeness", f"--min-completeness {c.min_completeness:g}", "raters who answered "
          "less than this share of their planned trials are left out: their bias and "
          "inconsistency would rest on too few ratings, and their ratings cover only part of "
          "the conditions. 0 keeps everyone."),
-        ("Screening", f"--outliers {c.outliers}", "p913: removed when r1 < 0.75 and r2 < 0.8 "
-         "against the leave-one-out panel (ITU-T P.913), iterated, AND the P.910 MLE "
-         "inconsistency is an outlier (robust z > 3.5, Iglewicz-Hoaglin). grubbs: the CGVQM+D "
-         "paper's iterative Grubbs test on the mean absolute deviation (mixes bias with "
-         "inconsistency; kept to reproduce the paper)."),
+        ("Screening", f"--outliers {c.outliers}", _SCREENING_TEXT.get(c.outliers,
+                                                                       c.outliers)),
         ("Significance level", f"--alpha {c.alpha:g}", "one-tailed tests between metrics; no "
          "correction for multiple comparisons (P.1401 7.6.5 discusses one)."),
         ("Metric intervals", f"{c.n_boot} resamples", "two-way bootstrap (raters and stimuli, "

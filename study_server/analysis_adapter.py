@@ -93,9 +93,9 @@ def analyse(frame: pd.DataFrame, loaded: LoadedManifest, *, seed: int = 0,
 
 
 def _dmos_png(a: Any) -> bytes:
-    from analysis.figures import dmos_per_scene
+    from analysis.figures import dmos_per_scene, literal_text
 
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, literal_text():
         path = Path(tmp) / "dmos.png"
         dmos_per_scene(a, path)
         return path.read_bytes()

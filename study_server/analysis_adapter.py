@@ -31,6 +31,11 @@ class StudyFigures:
     """What the analysis says about the ratings that arrived so far."""
 
     n_raters: int = 0
+    """Raters behind the statistics (after the completeness rule and the screening)."""
+    n_ratings: int = 0
+    """Ratings behind the statistics (of those raters)."""
+    n_partial: int = 0
+    """Raters left out for now: below half of their trials, as the report would leave them."""
     icc2k: float | None = None
     icc2k_ci: tuple[float, float] | None = None
     split_half_plcc: float | None = None
@@ -69,8 +74,10 @@ def analyse(frame: pd.DataFrame, loaded: LoadedManifest, *, seed: int = 0,
     try:
         a = run_analysis(rs, config, progress=False)
     except AnalysisError as exc:
-        out.problems.append(str(exc))
+        out.problems.append(_live(str(exc), config.min_completeness))
         return out
+    out.n_raters, out.n_ratings = a.screened.n_raters, a.screened.n_ratings
+    out.n_partial = sum(e.kind == "partial rater" for e in a.screened.exclusions)
     out.removed = list(a.outliers.removed_names)
     out.removed_reasons = {r.rater: r.reason for r in a.outliers.removed}
     if a.reliability is not None:
@@ -90,6 +97,16 @@ def analyse(frame: pd.DataFrame, loaded: LoadedManifest, *, seed: int = 0,
         except Exception as exc:  # a figure is never worth losing the numbers for
             log.warning("DMOS figure failed: %s", exc)
     return out
+
+
+def _live(message: str, min_completeness: float) -> str:
+    """An analysis refusal in the words of a live view, which has no command-line options:
+    too few raters past the completeness rule only means the study is young."""
+    if "--min-completeness" in message:
+        return (f"the statistics use the raters who have answered at least "
+                f"{min_completeness:.0%} of their trials, as the report will; fewer than 2 "
+                "have so far")
+    return message
 
 
 def _dmos_png(a: Any) -> bytes:

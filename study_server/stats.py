@@ -321,7 +321,7 @@ class StatsWorker:
         width = width[width.abs() < float("inf")]  # NaN and inf left out
         if not len(width) or snap.study.n_raters < 2:
             return None
-        point = WidthPoint(snap.study.n_raters, snap.n_ratings, float(width.mean()),
+        point = WidthPoint(snap.study.n_raters, snap.study.n_ratings, float(width.mean()),
                            float(width.max()))
         self.store.record_widths(point.raters, point.ratings, point.mean_width,
                                  point.max_width, utc_now())

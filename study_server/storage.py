@@ -455,13 +455,17 @@ class ServerStore:
     def entries_of_kinds(self, kinds: Sequence[str]
                          ) -> list[tuple[str, str, str, str, str]]:
         """(participant, manifest sha256, kind, body, session id) of every entry of these
-        kinds, in session and sequence order (the live statistics' input)."""
+        kinds, in session and sequence order (the live statistics' and the allocation's
+        input). Participants who withdrew in the app are left out, as the analysis leaves
+        them out: their consent is withdrawn, and their ratings must not decide a stop."""
         marks = ",".join("?" * len(kinds))
         with self._read() as con:
             return [tuple(r) for r in con.execute(
                 "SELECT s.participant, s.manifest_sha256, e.kind, e.body, s.session_id "
                 "FROM entries e JOIN "
                 f"sessions s USING (session_id) WHERE e.kind IN ({marks}) "
+                "AND s.participant NOT IN (SELECT participant FROM sessions "
+                "WHERE closed_as = 'withdrawn') "
                 "ORDER BY s.participant, e.seq", tuple(kinds))]
 
     def store_entries(self, *, participant: str, session_id: str,

@@ -122,3 +122,38 @@ def test_the_dashboard_frame_holds_the_exported_rows(tmp_path: Path):
     exported = read_session(path).ratings
     assert len(exported) == 4
     assert frame.to_dict("records") == [dict(r) for r in exported]
+
+
+def test_live_statistics_leave_out_withdrawals_and_count_the_raters_behind_them(
+        tmp_path, invites, monkeypatch):
+    """Five finished raters; P06 rates 12 of 18 trials and withdraws in the app; P07 has
+    rated 4 (below half). The analysis of the same files uses P01..P05 only: so must the live
+    statistics, the ratings count a target is judged on, and the rater count the stopping
+    rule records. The withdrawal used to count (140 of 120 usable ratings in the audit)."""
+    from analysis import load_ratings
+
+    monkeypatch.setenv("CGVQ_ADMIN_TOKEN", ADMIN)
+    study = make_served_study(tmp_path / "s", refs=3, conds=2, repetitions=2, file_bytes=64)
+    invites(7, study=study)
+    local = tmp_path / "local"
+    run_simulation(study / "manifest.json", local,
+                   SimulationOptions(raters=5, seed=4, participant_prefix="P"), progress=False)
+    store = write_session(study, local / "P06.sqlite", "P06", ratings=12)
+    store.withdraw()
+    store.close()
+    write_session(study, local / "P07.sqlite", "P07", ratings=4).close()
+    st = ServerState.open(ServerConfig(study, stats_in_background=False))
+    try:
+        for f in sorted(local.glob("P*.sqlite")):
+            _upload_file(st, f, f.stem)
+        snap = st.stats.refresh()
+        widths = st.store.width_history()
+    finally:
+        st.stop()
+    finished = sorted(local.glob("P0[1-5].sqlite"))
+    rs = load_ratings(study / "manifest.json", sessions=finished)
+    assert rs.n_ratings == 5 * 18
+    assert snap.n_ratings == 5 * 18 + 4  # P07's ratings arrived; P06's are withdrawn
+    assert snap.study.n_raters == 5 and snap.study.n_ratings == 5 * 18
+    assert snap.study.n_partial == 1  # P07, below half of their trials
+    assert [w[:2] for w in widths] == [(5, 5 * 18)]

@@ -13,6 +13,7 @@ from .errors import MAX_RESAMPLES, AnalysisError, check_resamples
 from .exports import write_dmos_csv, write_exports
 from .inputs import load_ratings
 from .metrics import load_metric_scores
+from .panel import panel_problems
 from .pipeline import DEFAULT_MIN_COMPLETENESS, AnalysisConfig, prepare, run_analysis
 from .report import summary_text, write_report, write_tables
 from .scores import MODELS, fit_scores
@@ -195,6 +196,8 @@ def _run(args: argparse.Namespace) -> int:
     analysis = run_analysis(rs, config, metrics, progress=sys.stderr.isatty())
     _say([str(x) for x in analysis.exclusions if x not in rs.exclusions], "excluded")
     _say([str(p) for p in analysis.screened.problems if p not in rs.problems], "input problem")
+    _say([str(p) for p in panel_problems(rs.panel) if p not in rs.problems],
+         "input problem")  # questionnaire answers their question refuses, left out
     if analysis.scores.fallback:
         print(f"warning: {analysis.scores.fallback}", file=sys.stderr)
     print(summary_text(analysis))

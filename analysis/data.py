@@ -29,8 +29,9 @@ class Exclusion:
     """Something left out of the analysis as a whole (a session, a rater), with the rule.
 
     ``kind`` is one of ``refused session``, ``duplicate session``, ``partial rater``,
-    ``screened out``; ``who`` names the file or rater, ``reason`` says why in words a reader
-    of the report understands, ``rule`` names the rule and its threshold.
+    ``screened out``, ``ended by vision check``; ``who`` names the file or rater, ``reason``
+    says why in words a reader of the report understands, ``rule`` names the rule and its
+    threshold.
     """
 
     kind: str

@@ -11,17 +11,28 @@ cannot link a comment to a rater.
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from stimuli_manifests.panel import PREFER_NOT_TO_SAY, Likert, Number, Panel, Text
+from stimuli_manifests.panel import (
+    PREFER_NOT_TO_SAY,
+    Likert,
+    Number,
+    Panel,
+    PanelError,
+    Text,
+)
 
-from .data import Exclusion, PanelAnswers, RatingSet, drop_unrated
+from .data import Exclusion, InputProblem, PanelAnswers, RatingSet, drop_unrated
 from .errors import AnalysisError
 from .sessions import Session
+
+log = logging.getLogger(__name__)
 
 NOT_ANSWERED = "(no answer)"
 PREFERRED_NOT = "Prefer not to say"
@@ -30,16 +41,75 @@ AGE, GENDER, VISION = "age", "gender", "vision"
 CORRECTED_VALUES = ("normal", "corrected")
 
 
-def panel_from_sessions(sessions: list[Session], definition: Panel | None) -> PanelAnswers:
-    """Merge the answers of each participant's sessions (the later answer wins)."""
-    out = PanelAnswers(definition=definition)
+# A check taken in several sessions counts by its worst outcome: passing it later does not undo
+# a failure (the ratings kept of a merged participant may be the ones made after it).
+OUTCOME_RANK = {"passed": 0, "inconclusive": 1, "failed": 2}
+# How the paper's sentence names the template's gender options after a count ("12 male").
+GENDER_WORDS = {"Male": "male", "Female": "female", "Non-binary": "non-binary",
+                "Another gender": "of another gender"}
+_REFUSED = object()
+
+
+@dataclass
+class SessionPanel(PanelAnswers):
+    """:class:`PanelAnswers` read from session files, with the stored answers that the
+    question's rule refused (left out; the report lists them with the input problems)."""
+
+    problems: list[InputProblem] = field(default_factory=list)
+
+
+def panel_from_sessions(sessions: list[Session], definition: Panel | None) -> SessionPanel:
+    """Merge the answers of each participant's sessions (the later valid answer wins) and
+    their vision checks (the worst outcome of each check wins)."""
+    out = SessionPanel(definition=definition)
     for session in sorted(sessions, key=lambda s: s.order_key):
         who = session.info.participant
         for row in session.answers:
-            out.answers.setdefault(who, {})[row["question"]] = row["value"]
+            value = _checked_answer(definition, session.path, row, out.problems)
+            if value is not _REFUSED:
+                out.answers.setdefault(who, {})[row["question"]] = value
         for row in session.screenings:
-            out.screenings.setdefault(who, {})[row["test"]] = row["outcome"]
+            tests = out.screenings.setdefault(who, {})
+            tests[row["test"]] = worse_outcome(tests.get(row["test"]), row["outcome"])
     return out
+
+
+def worse_outcome(before: str | None, now: str) -> str:
+    """The outcome a check keeps when it was taken again: failed > inconclusive > passed."""
+    if before is None or OUTCOME_RANK.get(now, 1) > OUTCOME_RANK.get(before, 1):
+        return now
+    return before
+
+
+def _checked_answer(definition: Panel | None, path: str, row: dict[str, Any],
+                    problems: list[InputProblem]) -> Any:
+    """The stored answer as the question's rule normalises it, or ``_REFUSED`` (with an input
+    problem) when the rule refuses it: a session written by another tool or an older app may
+    hold answers the player would never have stored."""
+    if definition is None or row["value"] is None:  # None: no answer, or one taken back
+        return row["value"]
+    try:
+        return definition.check(str(row["questionnaire"]), str(row["question"]), row["value"])
+    except PanelError as exc:
+        question = str(row["question"])[:40]
+        reason = str(exc).removeprefix(f"{question}: ")
+        problem = InputProblem(path, None, f"answer {question}: {reason}; the answer is left out")
+        log.warning("input problem: %s", problem)
+        problems.append(problem)
+        return _REFUSED
+
+
+def panel_problems(data: PanelAnswers | None) -> list[InputProblem]:
+    """The answers left out when the sessions were read (see :class:`SessionPanel`)."""
+    return list(getattr(data, "problems", []) or [])
+
+
+def likert_keys(points: Sequence[str]) -> list[str]:
+    """The name each Likert point is counted under: its label, or "k (label)" where a label
+    is repeated (a scale labelled only at its ends and middle), so that no two points share
+    one count."""
+    seen = Counter(points)
+    return [p if seen[p] == 1 else f"{k} ({p})" for k, p in enumerate(points, 1)]
 
 
 @dataclass
@@ -77,8 +147,9 @@ def _label(question: Any, value: Any) -> str:
     if value == PREFER_NOT_TO_SAY:
         return PREFERRED_NOT
     if isinstance(question, Likert):
-        return question.points[int(value) - 1] if 1 <= int(value) <= len(question.points) \
-            else str(value)
+        keys = likert_keys(question.points)
+        whole = isinstance(value, int) and not isinstance(value, bool)
+        return keys[value - 1] if whole and 1 <= value <= len(keys) else str(value)
     options = {o.value: o.label for o in getattr(question, "options", [])}
     if isinstance(value, list):
         return ", ".join(options.get(v, str(v)) for v in value)
@@ -87,7 +158,7 @@ def _label(question: Any, value: Any) -> str:
 
 def _counts(question: Any, values: list[Any]) -> dict[str, int]:
     if isinstance(question, Likert):
-        order = list(question.points)
+        order = likert_keys(question.points)
     else:
         order = [o.label for o in getattr(question, "options", [])]
     seen = Counter()
@@ -104,7 +175,9 @@ def _counts(question: Any, values: list[Any]) -> dict[str, int]:
 def summarise_panel(panel: Panel, data: PanelAnswers, participants: list[str],
                     everyone: list[str] | None = None) -> PanelSummary:
     """The panel of ``participants`` (the raters whose ratings were used); the screening
-    table covers ``everyone`` (all raters read, also those left out)."""
+    table, the failed list and the sentence's screening clause cover ``everyone`` (all
+    raters read, also those left out, and participants a vision check stopped before they
+    rated)."""
     everyone = list(everyone or participants)
     n = len(participants)
     questions, free_text, answered = [], {}, {}
@@ -132,12 +205,15 @@ def summarise_panel(panel: Panel, data: PanelAnswers, participants: list[str],
                   "ratings used": "yes" if p in participants else "no"}
                  for p in everyone if p in data.screenings]
     failed = [p for p in data.failed_vision() if p in everyone]
-    return PanelSummary(n, panel_sentence(panel, data, participants), questions, answered,
-                        free_text, screening, failed)
+    return PanelSummary(n, panel_sentence(panel, data, participants, everyone), questions,
+                        answered, free_text, screening, failed)
 
 
-def panel_sentence(panel: Panel, data: PanelAnswers, participants: list[str]) -> str:
-    """The sentence a paper writes about its panel, from what the participants answered."""
+def panel_sentence(panel: Panel, data: PanelAnswers, participants: list[str],
+                   everyone: list[str] | None = None) -> str:
+    """The sentence a paper writes about its panel, from what the participants answered;
+    participants in ``everyone`` but not in ``participants`` who failed a vision check are
+    counted in a clause of their own (excluded, or not admitted by ``on_fail: end``)."""
     n = len(participants)
     parts = [f"{n} participant{'s' if n != 1 else ''}"]
     answers = [data.answers.get(p, {}) for p in participants]
@@ -150,15 +226,11 @@ def panel_sentence(panel: Panel, data: PanelAnswers, participants: list[str]) ->
             if len(ages) < n:
                 parts[0] += f" ({n - len(ages)} did not give their age)"
     if GENDER in ids:
-        question = panel.question(GENDER)
-        counts = Counter(_label(question, a.get(GENDER)) for a in answers)
-        listed = [f"{c} {label.lower()}" for label, c in counts.most_common()
-                  if label not in (PREFERRED_NOT, NOT_ANSWERED)]
-        unsaid = counts.get(PREFERRED_NOT, 0) + counts.get(NOT_ANSWERED, 0)
-        if unsaid:
-            listed.append(f"{unsaid} did not say")
-        if listed:
-            parts.append(_join(listed))
+        gender = _gender_part(panel.question(GENDER), answers)
+        if gender.startswith("("):
+            parts[-1] += " " + gender
+        elif gender:
+            parts.append(gender)
     if VISION in ids:
         good = sum(a.get(VISION) in CORRECTED_VALUES for a in answers)
         if good == n:
@@ -174,12 +246,48 @@ def panel_sentence(panel: Panel, data: PanelAnswers, participants: list[str]) ->
         name = ("the post-study survey" if len(after) == 1 else
                 f"the post-study questionnaire {qn.title!r}")
         clauses.append(f"{k} of {n} answered {name}")
+    clauses += _screening_clauses(panel, data, participants, everyone or [])
+    return sentence + ("; " + "; ".join(clauses) if clauses else "") + "."
+
+
+def _gender_part(question: Any, answers: list[dict[str, Any]]) -> str:
+    """"12 male and 8 female" for the template's labels; labels the sentence cannot put
+    after a number ("Man", "Woman") are listed as they are: "(gender: Man 12, Woman 8)"."""
+    counts = Counter(_label(question, a.get(GENDER)) for a in answers)
+    named = [(label, c) for label, c in counts.most_common()
+             if label not in (PREFERRED_NOT, NOT_ANSWERED)]
+    unsaid = counts.get(PREFERRED_NOT, 0) + counts.get(NOT_ANSWERED, 0)
+    said = [f"{unsaid} did not say"] if unsaid else []
+    if all(label in GENDER_WORDS for label, _ in named):
+        listed = [f"{c} {GENDER_WORDS[label]}" for label, c in named] + said
+        return _join(listed) if listed else ""
+    return "(gender: " + ", ".join(f"{label} {c}" for label, c in named) + (
+        f"; {said[0]}" if said else "") + ")"
+
+
+def _screening_clauses(panel: Panel, data: PanelAnswers, participants: list[str],
+                       everyone: list[str]) -> list[str]:
+    """How many of the panel took and failed the vision screening, and how many further
+    participants failed it and are therefore not in the panel."""
+    clauses = []
     screened = [p for p in participants if p in data.screenings]
     if screened:
-        failed = sum("failed" in data.screenings[p].values() for p in screened)
+        failed = sum(_failed(data, p) for p in screened)
         clauses.append(f"{len(screened)} took the remote vision screening and {failed} "
                        f"failed it")
-    return sentence + ("; " + "; ".join(clauses) if clauses else "") + "."
+    others = sorted({p for p in everyone if p not in participants and _failed(data, p)})
+    if others:
+        k = len(others)
+        ended = panel.vision_screening is not None and panel.vision_screening.on_fail == "end"
+        were = "were" if k != 1 else "was"
+        how = f"{were} not admitted (the check ended their session)" if ended else \
+            f"{were} left out of the analysis"
+        clauses.append(f"{k} further participant{'s' if k != 1 else ''} failed it and {how}")
+    return clauses
+
+
+def _failed(data: PanelAnswers, participant: str) -> bool:
+    return "failed" in data.screenings.get(participant, {}).values()
 
 
 def _join(items: list[str]) -> str:

@@ -18,12 +18,13 @@ from matplotlib.figure import Figure
 
 from stimuli_manifests.panel import Likert, Panel
 
-from .panel import PanelSummary, QuestionSummary
+from .panel import PanelSummary, QuestionSummary, likert_keys
 
 
 def likert_shares(q: QuestionSummary, points: list[str]) -> tuple[np.ndarray, int]:
-    """Share of each point among the answers that chose a point, and how many did."""
-    counts = np.array([q.counts.get(p, 0) for p in points], dtype=float)
+    """Share of each point among the answers that chose a point, and how many did (points
+    are looked up by position, so repeated point labels are not counted twice)."""
+    counts = np.array([q.counts.get(k, 0) for k in likert_keys(points)], dtype=float)
     n = int(counts.sum())
     return (counts / n if n else counts), n
 
@@ -61,7 +62,7 @@ def draw_survey(summary: PanelSummary, definition: Panel, path: Path) -> Path | 
         k = len(points)
         mid = (k - 1) / 2
         left = -(shares[: k // 2].sum() + (shares[k // 2] / 2 if k % 2 else 0.0))
-        for i, (point, share) in enumerate(zip(points, shares, strict=True)):
+        for i, (point, share) in enumerate(zip(likert_keys(points), shares, strict=True)):
             color = cmap(0.1 + 0.8 * i / (k - 1))
             if k % 2 and i == int(mid):
                 color = (0.8, 0.8, 0.8, 1.0)

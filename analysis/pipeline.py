@@ -15,7 +15,13 @@ from .ceiling import CiCurve, SplitHalf, ci_width_curve, split_half
 from .data import Exclusion, InputProblem, RatingSet, drop_unrated
 from .errors import AnalysisError, check_resamples
 from .metrics import MetricScores, MetricValidation, validate_metrics
-from .panel import PanelSummary, drop_failed_vision, summarise_panel, vision_column
+from .panel import (
+    PanelSummary,
+    drop_failed_vision,
+    panel_problems,
+    summarise_panel,
+    vision_column,
+)
 from .quality import drop_incomplete, quality_table
 from .reliability import Reliability, reliability
 from .scores import ScoreResult, check_not_constant, dmos_table, fit_scores
@@ -162,8 +168,11 @@ def run_analysis(rs: RatingSet, config: AnalysisConfig | None = None,
                 quality.loc[rater, "status"] = "excluded (vision check)"
     panel = None
     if rs.panel is not None and rs.panel.definition is not None:
+        problems += panel_problems(rs.panel)
+        # everyone read, and those a vision check stopped before their first rating
+        everyone = list(rs.raters) + sorted(set(rs.panel.screenings) - set(rs.raters))
         panel = summarise_panel(rs.panel.definition, rs.panel, list(screened.raters),
-                                list(rs.raters))
+                                everyone)
     done("quality")
     validation = None
     if metric_scores is not None:

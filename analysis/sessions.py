@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from session_store import SessionInfo, StudyError, read_session, session_sources
+from session_store.answers import ENDED_BY_VISION_CHECK
 
 from .data import Exclusion, InputProblem
 from .errors import AnalysisError
@@ -44,6 +45,13 @@ class Session:
     damaged: str = ""  # why the file cannot be trusted (altered in transit); empty if fine
     answers: list[dict[str, Any]] = field(default_factory=list)
     screenings: list[dict[str, Any]] = field(default_factory=list)
+    events: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def ended_by(self) -> str:
+        """The vision check that ended this session (``on_fail: end``), or empty."""
+        return next((str(e.get("test") or "vision") for e in self.events
+                     if e.get("kind") == ENDED_BY_VISION_CHECK), "")
 
     @property
     def timing_mode(self) -> str:
@@ -105,7 +113,7 @@ def read_one(source) -> Session:
     return Session(path=name, info=info, ratings=list(rec.ratings),
                    presentations=list(rec.presentations), n_planned=int(rec.n_planned),
                    problems=problems, damaged=damaged, answers=list(rec.answers),
-                   screenings=list(rec.screenings))
+                   screenings=list(rec.screenings), events=list(rec.events))
 
 
 # -- deciding what belongs ------------------------------------------------------------------
@@ -118,40 +126,69 @@ class SessionSelection:
     problems: list[InputProblem]
 
 
+def _withdrawals(records: list[Session], study_id: str) -> dict[str, str]:
+    """Participant -> the (first) file in which they withdrew from this study. A withdrawal
+    takes back consent for the participant, so it covers all their sessions."""
+    out: dict[str, str] = {}
+    for rec in sorted(records, key=lambda r: r.path):
+        if rec.info.withdrawn and rec.info.study_id == study_id:
+            out.setdefault(rec.info.participant, rec.path)
+    return out
+
+
+def _withdrawn_exclusion(rec: Session, withdrawn_in: str) -> Exclusion:
+    """The refusal of one session of a participant who withdrew (this one or another)."""
+    who = rec.info.participant
+    if withdrawn_in == rec.path:
+        reason = (f"participant {who} withdrew from the study in this session; none of their "
+                  "sessions, ratings or answers is used")
+    else:
+        reason = (f"participant {who} withdrew from the study (in {withdrawn_in}); this "
+                  "session of theirs is not used either")
+    return Exclusion("refused session", rec.path, reason,
+                     "a withdrawal covers every session of the participant")
+
+
+def _refusal(rec: Session, study_id: str, manifest_sha256: str | None,
+             withdrawn: dict[str, str]) -> Exclusion | None:
+    """Why ``rec`` is refused, or None when it belongs to the study."""
+    if rec.damaged:
+        return Exclusion("refused session", rec.path, f"{rec.damaged}; ask for the file again",
+                         "session files must match the checksums of their export")
+    if rec.info.study_id != study_id:
+        return Exclusion(
+            "refused session", rec.path,
+            f"belongs to study {rec.info.study_id!r}, not to this manifest's study "
+            f"{study_id!r}", "session study_id must equal the manifest's study_id")
+    if rec.info.participant in withdrawn:
+        return _withdrawn_exclusion(rec, withdrawn[rec.info.participant])
+    if manifest_sha256 and rec.info.manifest_sha256 and \
+            rec.info.manifest_sha256 != manifest_sha256:
+        return Exclusion(
+            "refused session", rec.path,
+            f"was run with another manifest (sha256 {rec.info.manifest_sha256[:12]}..., this "
+            f"one is {manifest_sha256[:12]}...); if the manifest was edited after the "
+            "study, analyse with the manifest the participants saw",
+            "session manifest_sha256 must equal the manifest file's sha256")
+    return None
+
+
 def select_sessions(records: list[Session], study_id: str,
                     manifest_sha256: str | None) -> SessionSelection:
     """Refuse withdrawn and foreign sessions, collapse copies of one session."""
     exclusions: list[Exclusion] = []
     problems: list[InputProblem] = []
     kept: list[Session] = []
+    withdrawn = _withdrawals(records, study_id)
     for rec in sorted(records, key=lambda r: r.path):
-        if rec.damaged:
-            exclusions.append(Exclusion(
-                "refused session", rec.path, f"{rec.damaged}; ask for the file again",
-                "session files must match the checksums of their export"))
-        elif rec.info.withdrawn:
-            exclusions.append(Exclusion(
-                "refused session", rec.path,
-                f"participant {rec.info.participant} withdrew from the study; their ratings are "
-                "not used", "withdrawn sessions are never analysed"))
-        elif rec.info.study_id != study_id:
-            exclusions.append(Exclusion(
-                "refused session", rec.path,
-                f"belongs to study {rec.info.study_id!r}, not to this manifest's study "
-                f"{study_id!r}", "session study_id must equal the manifest's study_id"))
-        elif manifest_sha256 and rec.info.manifest_sha256 and \
-                rec.info.manifest_sha256 != manifest_sha256:
-            exclusions.append(Exclusion(
-                "refused session", rec.path,
-                f"was run with another manifest (sha256 {rec.info.manifest_sha256[:12]}..., this "
-                f"one is {manifest_sha256[:12]}...); if the manifest was edited after the "
-                "study, analyse with the manifest the participants saw",
-                "session manifest_sha256 must equal the manifest file's sha256"))
-        else:
-            if manifest_sha256 and not rec.info.manifest_sha256:
-                problems.append(InputProblem(rec.path, None, "session records no manifest "
-                                             "checksum; its study id matches, so it is used"))
-            kept.append(rec)
+        refused = _refusal(rec, study_id, manifest_sha256, withdrawn)
+        if refused is not None:
+            exclusions.append(refused)
+            continue
+        if manifest_sha256 and not rec.info.manifest_sha256:
+            problems.append(InputProblem(rec.path, None, "session records no manifest "
+                                         "checksum; its study id matches, so it is used"))
+        kept.append(rec)
     by_id: dict[str, list[Session]] = {}
     for rec in kept:
         by_id.setdefault(rec.info.session_id, []).append(rec)
@@ -168,4 +205,15 @@ def select_sessions(records: list[Session], study_id: str,
     used.sort(key=lambda r: r.order_key)
     for rec in used:
         problems += rec.problems
+    exclusions += [_ended_exclusion(rec) for rec in used if rec.ended_by]
     return SessionSelection(used, exclusions, problems)
+
+
+def _ended_exclusion(rec: Session) -> Exclusion:
+    """A session the player closed after a failed vision check (``on_fail: end``): used for
+    the panel's screening counts, listed so that the exclusions show who was not admitted."""
+    n = len(rec.ratings)
+    return Exclusion(
+        "ended by vision check", rec.info.participant,
+        f"the {rec.ended_by} check failed and ended their session ({rec.path}) after {n} "
+        f"rating{'s' if n != 1 else ''}", "vision_screening.on_fail: end")

@@ -14,6 +14,10 @@ from stimuli_manifests.tables import ANSWERS, SCREENINGS, write_table
 
 from .reader import SessionRecord
 
+#: The event the player logs when a failed vision check ends the session (``on_fail: end``);
+#: the simulator writes it too, and the analysis counts such participants as not admitted.
+ENDED_BY_VISION_CHECK = "ended_by_vision_check"
+
 
 def latest_answers(answers: Iterable[dict[str, Any]]) -> dict[tuple[str, str], dict[str, Any]]:
     """(questionnaire, question) -> the last answer row given to it."""

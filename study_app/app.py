@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from session_store import PlannedTrial, SessionStore, TrialResult
+from session_store.answers import ENDED_BY_VISION_CHECK
 from session_store.errors import StudyError
 from session_store.schedule import (
     block_trials,
@@ -368,7 +369,7 @@ class App:
             return RunOutcome("withdrawn", self.session_path, answered, total)
         except _ScreenedOutError as e:
             test = str(e)
-            self.store.log_event("ended_by_vision_check", test=test)
+            self.store.log_event(ENDED_BY_VISION_CHECK, test=test)
             self.store.finish(allow_incomplete=True)
             answered, total = self.store.progress()
             self._state("end", screened_out=1)

@@ -87,13 +87,15 @@ class FormScreen:
         if d.pacer is not None:
             d.pacer.reset()
 
+        def store(qid: str, value: Any) -> None:
+            answered[qid] = value
+            on_answer(page, qid, value)
+            self.state("answered", id=qn.id, question=qid)
+
         def commit(qi: int) -> None:
-            value = fs.confirmed(qi)
-            if value is not None:
-                qid = fs.fields[qi].question.id
-                answered[qid] = value
-                on_answer(page, qid, value)
-                self.state("answered", id=qn.id, question=qid)
+            changed, value = fs.to_store(qi)
+            if changed:  # a new answer, or None for one taken back
+                store(fs.fields[qi].question.id, value)
 
         while True:
             lay = form_layout(d.size, d.fonts, title=title, intro=intro, state=fs,
@@ -118,10 +120,12 @@ class FormScreen:
                 if action == "wheel":
                     offset = min(lay.max_offset(), max(0, offset - 40 * int(event.y)))
                     continue
+                if action == "skip":  # what this page holds is taken back, not stored
+                    for qid in fs.take_back():
+                        store(qid, None)
+                    return "skip"
                 for qi in range(len(fs.fields)):
                     commit(qi)
-                if action == "skip":
-                    return "skip"
                 if action == "back":
                     return "back"
                 if action == "next":

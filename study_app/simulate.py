@@ -38,6 +38,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from session_store import SessionStore, TrialResult
+from session_store.answers import ENDED_BY_VISION_CHECK
 from session_store.errors import StudyError
 from session_store.schedule import ScheduleItem, block_trials, make_schedule, uniform_block
 from stimuli_manifests import LoadedManifest, Stimulus, load_manifest
@@ -315,6 +316,12 @@ def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
                                "message": "simulated participant: no display"}], skipped=True)
         store.mark_started(display={"simulated": True})
         answer_rng = np.random.default_rng([seed, 1])
+        ended_by = _vision_checks(store, panel, k)
+        if ended_by:  # as the app with on_fail: end: no questionnaire, no trial
+            store.log_event(ENDED_BY_VISION_CHECK, test=ended_by)
+            store.finish(allow_incomplete=True)
+            changed()
+            return truth
         _answer_panel(store, panel, k, "before", answer_rng)
         block = 1
         while True:
@@ -348,19 +355,30 @@ def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
     return truth
 
 
+def _vision_checks(store: SessionStore, panel: _Panel, k: int) -> str:
+    """Rater ``k``'s vision checks, in the app's order; the check that ends the session
+    (failed with ``on_fail: end``, as ``App._panel`` does it) or empty."""
+    definition = panel.loaded.manifest.panel
+    vs = definition.vision_screening if definition is not None else None
+    if vs is None:
+        return ""
+    checks = [("colour", lambda: simulated_colour_check(k in panel.colour_failures))] \
+        if vs.colour else []
+    checks += [("acuity", simulated_acuity_check)] if vs.acuity else []
+    for test, check in checks:
+        outcome, result = check()
+        store.record_screening(test, outcome, result)
+        if outcome == "failed" and vs.on_fail == "end":
+            return test
+    return ""
+
+
 def _answer_panel(store: SessionStore, panel: _Panel, k: int, when: str,
                   rng: np.random.Generator) -> None:
-    """Rater ``k``'s questionnaire answers (and, before the trials, vision checks)."""
+    """Rater ``k``'s questionnaire answers ``when`` (before or after the trials)."""
     definition = panel.loaded.manifest.panel
     if definition is None:
         return
-    vs = definition.vision_screening
-    if when == "before" and vs is not None and vs.colour:
-        outcome, result = simulated_colour_check(k in panel.colour_failures)
-        store.record_screening("colour", outcome, result)
-    if when == "before" and vs is not None and vs.acuity:
-        outcome, result = simulated_acuity_check()
-        store.record_screening("acuity", outcome, result)
     for questionnaire in definition.questionnaires_at(when):
         answers = simulated_answers(questionnaire, rng, panel.likert_centres)
         for page, question, value in answers:

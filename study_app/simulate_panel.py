@@ -17,7 +17,9 @@ predictable from the seed:
 - a question offering "prefer not to say" gets it with probability 0.03.
 
 Vision checks: every simulated participant passes, except the ones chosen to fail the colour
-check (``SimulationOptions.colour_failures``), whose result says it was simulated.
+check (``SimulationOptions.colour_failures``), whose result says it was simulated. With
+``on_fail: end`` a failing participant's session ends there, as in the player: the event
+``ended_by_vision_check``, no questionnaire, no rating.
 """
 
 from __future__ import annotations

@@ -65,7 +65,9 @@ class Field:
         return self.choice
 
     def load(self, value: Any) -> None:
-        """Prefill from a stored answer (a resumed session)."""
+        """Prefill from a stored answer (a resumed session); None is an answer taken back."""
+        if value is None:
+            return
         if value == PREFER_NOT_TO_SAY:
             self.prefer_not = True
         elif isinstance(self.question, Number):
@@ -168,15 +170,39 @@ class FormState:
 
     def confirmed(self, qi: int) -> Any | None:
         """The value to store for ``qi`` now: valid, answered and not stored yet (else None)."""
+        changed, value = self.to_store(qi)
+        return value if changed else None
+
+    def to_store(self, qi: int) -> tuple[bool, Any]:
+        """(whether to store, value) for ``qi`` now: a valid answer not stored yet, or None
+        when an optional question that holds a stored answer was emptied again (a deleted
+        comment, every option unchosen, "Prefer not to say" switched off): the participant
+        took the answer back, so the session file must not keep it."""
         f = self.fields[qi]
         try:
             value = check_answer(f.question, f.raw())
         except PanelError:
-            return None
-        if value is None or self.stored.get(f.question.id, _UNSET) == value:
-            return None
+            return False, None
+        before = self.stored.get(f.question.id, _UNSET)
+        if (value is None and before in (_UNSET, None)) or before == value:
+            return False, None
         self.stored[f.question.id] = value
-        return value
+        return True, value
+
+    def take_back(self) -> list[str]:
+        """Skip: the page's optional questions are emptied and those with a stored answer
+        are returned (to be stored as None), so that a skipped questionnaire keeps no answer
+        of its page. A required question keeps its answer: the answer rule (which the server
+        applies to uploads too) does not accept "no answer" for it."""
+        ids = []
+        for f in self.fields:
+            if f.question.required:
+                continue
+            f.choice, f.text, f.prefer_not, f.error = None, "", False, None
+            if self.stored.get(f.question.id) is not None:
+                self.stored[f.question.id] = None
+                ids.append(f.question.id)
+        return ids
 
     def validate_page(self) -> bool:
         """Check every question (refusals shown); True when the page can be left forward."""

@@ -12,8 +12,9 @@ is right a quarter of the time):
 Every level is planned with ``trials_per_level`` orientations drawn from the seed; a screen
 stops a level once it is decided and a series after its first failed level
 (:func:`.acuity_scoring.level_outcome`). Levels this display cannot draw (strokes under a
-pixel at the measured geometry, or a contrast 8-bit codes cannot show) are left out and
-listed, never drawn blurred or rounded to another contrast.
+pixel at the measured geometry, optotypes taller than the window has room for, or a contrast
+8-bit codes cannot show) are left out and listed, never drawn blurred, cropped or rounded to
+another contrast.
 """
 
 from __future__ import annotations
@@ -63,8 +64,9 @@ class AcuityPlan:
     """The planned trials of both series, and the levels left out on this display."""
 
     trials: list[OptotypeTrial]
-    undrawable_logmar: list[float] = field(default_factory=list)
+    undrawable_logmar: list[float] = field(default_factory=list)  # strokes under a pixel
     unshowable_contrast: list[float] = field(default_factory=list)
+    too_large_logmar: list[float] = field(default_factory=list)  # taller than the window's room
 
     def series(self, name: Series) -> list[OptotypeTrial]:
         return [t for t in self.trials if t.series == name]
@@ -88,6 +90,27 @@ def drawable_levels(geometry: Geometry, levels: tuple[float, ...] = LOGMAR_LEVEL
                if max_size_px is None or size_arcmin(lv) * geometry.px_per_arcmin <= max_size_px]
     return ([lv for lv in ordered if size_arcmin(lv) >= smallest],
             [lv for lv in ordered if size_arcmin(lv) < smallest])
+
+
+def too_large_levels(geometry: Geometry, levels: tuple[float, ...] = LOGMAR_LEVELS, *,
+                     max_size_px: float | None = None) -> list[float]:
+    """The logMAR levels taller than ``max_size_px`` at this geometry, largest first: left
+    out of the plan like the levels too small, and listed apart (their cause is the window)."""
+    if max_size_px is None:
+        return []
+    return [lv for lv in sorted(levels, reverse=True)
+            if size_arcmin(lv) * geometry.px_per_arcmin > max_size_px]
+
+
+def _no_plan_reason(geometry: Geometry, logmar: float, max_size_px: float | None) -> str:
+    """Why the largest optotype of a series cannot be drawn, by its cause."""
+    need = size_arcmin(logmar) * geometry.px_per_arcmin
+    if max_size_px is not None and need > max_size_px:
+        return (f"this window is too small for the check's optotypes: it cannot draw logMAR "
+                f"{logmar:g} ({need:.0f} px tall at this geometry) in the {max_size_px:.0f} px "
+                "it has room for; use a larger window or full screen")
+    return ("this display cannot draw the check's largest optotypes at this distance "
+            "(their strokes would be under a pixel)")
 
 
 def showable_contrasts(levels: tuple[float, ...] = CONTRAST_LEVELS
@@ -116,10 +139,12 @@ def acuity_plan(geometry: Geometry, seed: int, *, kind: OptotypeKind = "landolt_
     if trials_per_level < 1:
         raise ValueError("each level needs at least one trial")
     sizes, too_small = drawable_levels(geometry, logmar_levels, max_size_px=max_size_px)
+    too_large = too_large_levels(geometry, logmar_levels, max_size_px=max_size_px)
     contrast_drawn, _ = drawable_levels(geometry, (contrast_logmar,), max_size_px=max_size_px)
-    if not sizes or not contrast_drawn:
-        raise ValueError("this display cannot draw the check's largest optotypes at this "
-                         "distance")
+    if not sizes:
+        raise ValueError(_no_plan_reason(geometry, min(logmar_levels), max_size_px))
+    if not contrast_drawn:
+        raise ValueError(_no_plan_reason(geometry, contrast_logmar, max_size_px))
     contrasts, too_faint = showable_contrasts(contrast_levels)
     rng = np.random.default_rng(seed)
 
@@ -131,4 +156,4 @@ def acuity_plan(geometry: Geometry, seed: int, *, kind: OptotypeKind = "landolt_
     trials += [OptotypeTrial("contrast", i, contrast_logmar, size_arcmin(contrast_logmar), c,
                              kind, way())
                for i, c in enumerate(contrasts) for _ in range(trials_per_level)]
-    return AcuityPlan(trials, too_small, too_faint)
+    return AcuityPlan(trials, too_small, too_faint, too_large)

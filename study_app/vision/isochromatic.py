@@ -8,6 +8,11 @@ reads the digit and the dichromat does not. Every dot's brightness is scaled at 
 brightness alone. Control plates draw the digit much darker than the background: any observer
 reads them, under every simulation. Nothing here copies a published plate; everything is
 drawn from the seed. This is a screening on an uncalibrated display, never a diagnosis.
+
+The tritan plates are weak: Machado's tritan matrix is not singular, so their colours differ
+along its weakest direction and a hue difference of about 4 Delta E 2000 remains under the
+tritan simulation (docs/panel.md gives the numbers). Chromatic jitter cannot hide it from the
+tritan simulation without hiding the digit as much from everyone: the matrix is invertible.
 """
 
 from __future__ import annotations

@@ -1,0 +1,192 @@
+"""Panel audit fixes on the player's side: an answer taken back is stored as no answer (and
+Skip keeps nothing of its page), ``simulate`` ends a session as the app does with
+``on_fail: end``, and optotype levels too tall for the window are listed."""
+
+from __future__ import annotations
+
+import copy
+import math
+import sqlite3
+from types import SimpleNamespace
+
+import pygame
+import pytest
+
+from session_store import SessionStore, read_session
+from session_store.schedule import ScheduleItem, make_schedule
+from stimuli_manifests import parse_manifest, save_manifest
+from stimuli_manifests.panel import Panel
+from stimuli_manifests.panel_templates import default_panel
+from study_app import form_screen
+from study_app.acuity_check_screen import optotype_room
+from study_app.fonts import Fonts
+from study_app.screens.form_layout import form_layout
+from study_app.screens.form_state import FormState
+from study_app.simulate import SimulationOptions, run_simulation
+from study_app.vision.acuity import card_calibration
+from study_app.vision.acuity_plan import acuity_plan
+from study_app.vision.acuity_scoring import OptotypeAnswer, score_acuity
+
+PANEL = Panel.model_validate(default_panel())
+SURVEY = next(q for q in PANEL.questionnaires if q.id == "post_study")
+WINDOW = (1024, 768)
+COMMENT = "My name is Jane Doe, I work at ACME"
+
+
+# -- a FormScreen without a display: scripted input events, nothing drawn ------------------
+class _Pg:
+    """pygame's constants and event type, with a scripted event queue."""
+
+    def __init__(self, batches: list[list[pygame.event.Event]]) -> None:
+        self._batches = list(batches)
+        self.event = SimpleNamespace(get=self._next)
+        self.key = SimpleNamespace(start_text_input=lambda: None,
+                                   stop_text_input=lambda: None)
+
+    def _next(self) -> list[pygame.event.Event]:
+        if not self._batches:
+            raise AssertionError("the page asked for more input than the script has")
+        return self._batches.pop(0)
+
+    def __getattr__(self, name: str):
+        return getattr(pygame, name)
+
+
+def _display(batches: list[list[pygame.event.Event]]) -> SimpleNamespace:
+    return SimpleNamespace(pg=_Pg(batches), size=WINDOW, fonts=Fonts(), pacer=None,
+                           renderer=None, flip=lambda: None, to_pixels=lambda pos: pos)
+
+
+def _key(key: int) -> pygame.event.Event:
+    return pygame.event.Event(pygame.KEYDOWN, key=key, mod=0)
+
+
+def _text(text: str) -> pygame.event.Event:
+    return pygame.event.Event(pygame.TEXTINPUT, text=text)
+
+
+def _click_button(page: int, action: str, answered: dict) -> pygame.event.Event:
+    """A click on a page's button, where the layout puts it."""
+    fs = FormState.for_page(list(SURVEY.pages[page].questions), answered)
+    screen = form_screen.FormScreen(_display([]), lambda *a, **k: None, lambda n: False,
+                                    lambda: None)
+    lay = form_layout(WINDOW, Fonts(), title=f"{SURVEY.title} ({page + 1} of 2)",
+                      intro=SURVEY.intro if page == 0 else None, state=fs,
+                      buttons=screen._buttons(SURVEY, page))
+    rect = next(b.rect for b in lay.buttons if b.action == action)
+    return pygame.event.Event(pygame.MOUSEBUTTONDOWN, button=1,
+                              pos=(rect.x + rect.w / 2, rect.y + rect.h / 2))
+
+
+def _run_survey(monkeypatch, tmp_path, batches, *, start_page: int, answered: dict):
+    """The survey on the scripted display; every answer stored in a real session file as
+    the app does. Returns (outcome, the last stored value per question)."""
+    monkeypatch.setattr(form_screen, "draw_form", lambda *a: None)
+    items = [ScheduleItem("S1", "S1", True)]
+    store = SessionStore.create(tmp_path / "s.sqlite", participant="p1", study_id="st",
+                                manifest_sha256="0" * 64, seed=1, app_version="test",
+                                plan=make_schedule(items, 1, 1), settings={})
+    with store:
+        for qid, value in answered.items():  # given earlier (before a Back, or a crash)
+            store.record_answer(SURVEY.id, qid, value, page=start_page)
+
+        def on_answer(page: int, question: str, value) -> None:
+            store.record_answer(SURVEY.id, question, value, page=page)
+
+        screen = form_screen.FormScreen(_display(batches), lambda *a, **k: None,
+                                        lambda n: False, lambda: None)
+        outcome = screen.run(SURVEY, answered=answered, start_page=start_page,
+                             on_answer=on_answer)
+    last = {row["question"]: row["value"] for row in read_session(tmp_path / "s.sqlite").answers}
+    return outcome, last
+
+
+def test_a_deleted_comment_is_stored_as_no_answer(monkeypatch, tmp_path):
+    """The comment was stored when the participant moved on; they came back, deleted it and
+    pressed Done: the session file must no longer hold it."""
+    questions = [q.id for q in SURVEY.pages[1].questions]
+    comment = questions.index("comments")
+    batches = [[_key(pygame.K_TAB)] for _ in range(comment)]  # focus to the comment field
+    batches += [[_key(pygame.K_BACKSPACE) for _ in COMMENT]]
+    batches += [[_key(pygame.K_RETURN)]]
+    outcome, last = _run_survey(monkeypatch, tmp_path, batches, start_page=1,
+                                answered={"comments": COMMENT})
+    assert outcome == "done"
+    assert last["comments"] is None
+
+
+def test_skip_keeps_no_answer_of_its_page(monkeypatch, tmp_path):
+    """One Likert point clicked (stored at once), then "Skip these questions": the point
+    is taken back, so the participant does not count as having answered the survey."""
+    batches = [[_text("4")], [_click_button(0, "skip", {})]]
+    outcome, last = _run_survey(monkeypatch, tmp_path, batches, start_page=0, answered={})
+    assert outcome == "skipped"
+    first = SURVEY.pages[0].questions[0].id
+    assert last == {first: None}
+
+
+def test_a_resumed_page_shows_an_answer_taken_back_as_empty():
+    questions = list(SURVEY.pages[1].questions)
+    comment = [q.id for q in questions].index("comments")
+    fs = FormState.for_page(questions, {"comments": None, "task_clear": None})
+    assert fs.fields[comment].text == "" and fs.fields[0].choice is None
+
+
+# -- simulate with on_fail: end ---------------------------------------------------------------
+def test_simulate_ends_a_session_failed_with_on_fail_end(tmp_path):
+    refs = [{"id": f"R{i}", "path": f"r{i}.mkv", "scene": f"scene{i}"} for i in range(2)]
+    conds = [{"id": f"R{i}_blur_L{lv}", "reference": f"R{i}", "path": f"r{i}_{lv}.mkv",
+              "method": "blur", "level": lv} for i in range(2) for lv in (1, 2)]
+    panel = copy.deepcopy(default_panel())  # the template's dicts are shared
+    panel["vision_screening"]["on_fail"] = "end"
+    manifest = save_manifest(parse_manifest({"study_id": "end-study", "references": refs,
+                                             "conditions": conds, "panel": panel,
+                                             "protocol": {"repetitions": 1}}),
+                             tmp_path / "manifest.json")
+    out = tmp_path / "sessions"
+    run_simulation(manifest, out, SimulationOptions(raters=3, seed=2, colour_failures=1),
+                   progress=False)
+    n_trials = len(refs) + len(conds)  # hidden references on, one repetition
+    seen = {}
+    for path in sorted(out.glob("*.sqlite")):
+        rec = read_session(path)
+        failed = [s["test"] for s in rec.screenings if s["outcome"] == "failed"]
+        ended = [e for e in rec.events if e["kind"] == "ended_by_vision_check"]
+        with sqlite3.connect(path) as con:
+            finished = con.execute("SELECT finished_at FROM session").fetchone()[0]
+        seen[rec.info.participant] = (failed, len(rec.ratings), len(ended), len(rec.answers))
+        assert finished is not None
+    failing = [p for p, v in seen.items() if v[0]]
+    assert len(failing) == 1
+    assert seen[failing[0]] == (["colour"], 0, 1, 0)  # no rating, no questionnaire
+    for p, (failed, n, ended, _) in seen.items():
+        if p not in failing:
+            assert (failed, n, ended) == ([], n_trials, 0)
+
+
+# -- acuity levels too tall for the window ---------------------------------------------------
+def test_levels_too_tall_for_the_window_are_listed():
+    """20 px/mm at 150 cm: one arcmin is 1500 mm * tan(1/60 deg) * 20 px/mm = 8.73 px, so
+    logMAR 1.0 (50 arcmin) is 436 px tall and 0.8 (31.5 arcmin) 275 px; a 1280x720 window
+    has room for 360 px."""
+    px_per_arcmin = 1500 * math.tan(math.radians(1 / 60)) * 20
+    assert 50 * px_per_arcmin > 360 > 31.5 * px_per_arcmin
+    g = card_calibration(20 * 85.6, 150)
+    room = optotype_room((1280, 720))
+    assert room == 360
+    plan = acuity_plan(g, 1, max_size_px=room)
+    assert plan.too_large_logmar == [1.0]
+    assert plan.undrawable_logmar == []
+    assert max(t.logmar for t in plan.series("acuity")) == 0.8
+    answers = [OptotypeAnswer(t, t.orientation, 500.0) for t in plan.trials]
+    _, result = score_acuity(plan, answers, g)
+    assert result["acuity"]["too_large_logmar"] == [1.0]
+
+
+def test_a_window_too_small_for_the_contrast_optotype_says_so():
+    """At 8.73 px/arcmin the contrast series' optotype (logMAR 0.8) is 275 px tall: a room
+    of 200 px cannot hold it; the reason is the window, not a too small display."""
+    g = card_calibration(20 * 85.6, 150)
+    with pytest.raises(ValueError, match="window is too small") as info:
+        acuity_plan(g, 1, max_size_px=200)
+    assert "275 px" in str(info.value) and "200 px" in str(info.value)

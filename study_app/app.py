@@ -170,9 +170,11 @@ class _ScreenedOutError(Exception):
     """A failed vision check ends the session (the manifest's ``on_fail: end``)."""
 
 
-def needs_requeue(dropped_frames: int, limit: int, trial: PlannedTrial) -> bool:
-    """Re-queue a trial (once) when more than ``limit`` frames dropped; ``limit < 0`` never."""
-    return 0 <= limit < dropped_frames and trial.requeue_of is None
+def needs_requeue(missed_refreshes: int, limit: int, trial: PlannedTrial) -> bool:
+    """Re-queue a trial (once) when more than ``limit`` refreshes passed without a new frame
+    (each late flip counted by its length, so one long freeze weighs what it hid);
+    ``limit < 0`` never."""
+    return 0 <= limit < missed_refreshes and trial.requeue_of is None
 
 
 class App:
@@ -602,11 +604,12 @@ class App:
                 gpu.release()
             result: TrialResult = outcome
             limit = self.opts.max_dropped_frames
-            if needs_requeue(result.dropped_frames, limit, trial):
-                log.warning("trial %d: %d dropped frames (limit %d); re-queued at the end",
-                            trial.index, result.dropped_frames, limit)
+            missed = int(result.details.get("missed_refreshes", result.dropped_frames))
+            if needs_requeue(missed, limit, trial):
+                log.warning("trial %d: %d refreshes without a new frame (limit %d); re-queued "
+                            "at the end", trial.index, missed, limit)
                 store.requeue(trial.index, result,
-                              f"{result.dropped_frames} dropped frames > {limit}")
+                              f"{missed} refreshes without a new frame > {limit}")
                 self._state("requeued", trial=trial.index)
             else:
                 store.record(trial.index, result)

@@ -77,6 +77,14 @@ class FlipStats:
         return sum(1 for d in self.intervals if d > limit)
 
     @property
+    def missed_refreshes(self) -> int:
+        """Refreshes that passed without a new frame: a late flip of ``k`` periods missed
+        ``k - 1`` of them. One long stall (a 1 s freeze at 60 Hz misses 59) counts as one
+        dropped frame above, which is what re-queueing must not judge by."""
+        limit = DROP_FACTOR * self.period_s
+        return sum(max(1, round(d / self.period_s) - 1) for d in self.intervals if d > limit)
+
+    @property
     def max_interval_ms(self) -> float:
         return 1000.0 * max(self.intervals, default=0.0)
 

@@ -4,7 +4,8 @@ A binding names a letter ("A" to accept). On a layout that has that letter (QWER
 QWERTZ, Dvorak ...) the key that types it works, wherever it is. On a layout without Latin
 letters (Cyrillic, Greek, Hebrew ...) the key types something else, so the key at the letter's
 US position (its scancode) works instead, and the screen names both ("A / Ф"). Space, Enter,
-Esc and the arrows are the same everywhere. Every action also has an on-screen button.
+Esc and the arrows are the same everywhere. Every action of the rating and text screens also
+has an on-screen button (the viewing screen is keyboard-only).
 """
 
 from __future__ import annotations

@@ -237,6 +237,7 @@ class TrialMachine:
             details={
                 "vsync": self.vsync, "refresh_hz": self.refresh_hz, "fps": self.fps,
                 "p99_flip_interval_ms": stats.percentile_interval_ms(99),
+                "missed_refreshes": stats.missed_refreshes,
                 "blank_durations_ms": list(self.blank_durations_ms),
                 "blank_refreshes": list(self.blank_refresh_counts),
                 "blank_target_refreshes": self.blank_n,

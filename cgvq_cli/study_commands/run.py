@@ -59,8 +59,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="pacing rate of the pilot mode without vsync (default 60; needs "
                              "--pilot-no-vsync or --no-vsync; with vsync the rate is measured)")
     parser.add_argument("--max-dropped-frames", type=int, default=10, metavar="N",
-                        help="re-queue a trial at the end once when more frames dropped "
-                             "(default 10; -1 never re-queues)")
+                        help="re-queue a trial at the end once when more refreshes passed "
+                             "without a new frame (a 1 s freeze at 60 Hz: 59; default 10; -1 "
+                             "never re-queues)")
     parser.add_argument("--break-every", type=int, default=40, metavar="N",
                         help="offer a break every N trials (default 40; 0 never)")
     parser.add_argument("--window-size", default=None, metavar="WxH",

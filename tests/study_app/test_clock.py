@@ -68,3 +68,30 @@ def test_pacer_holds_period_with_fake_clock():
     assert late >= now[0] - 1 / 60 and (late - slots[0]) * 60 == pytest.approx(
         round((late - slots[0]) * 60))
     assert clock() >= late
+
+
+def test_a_long_freeze_counts_every_refresh_it_hid():
+    """At 60 Hz, a 1 s freeze is one late flip (one 'dropped frame' by the 1.5-period rule)
+    but hid 59 refreshes; 11 one-refresh hiccups hid 11. Re-queueing judged the first trial
+    fine and the second broken; it now goes by the refreshes missed."""
+    from session_store import PlannedTrial
+    from study_app.app import needs_requeue
+    from study_app.clock import FlipStats
+
+    period = 1 / 60
+    freeze = FlipStats(period)
+    t = 0.0
+    for step in [period] * 30 + [1.0] + [period] * 30:
+        t += step
+        freeze.add(t)
+    hiccups = FlipStats(period)
+    t = 0.0
+    for k in range(60):
+        t += 2 * period if k % 5 == 1 and k < 55 else period  # k = 1, 6, ..., 51: 11
+        hiccups.add(t)
+    assert (freeze.dropped_frames, freeze.missed_refreshes) == (1, 59)
+    assert (hiccups.dropped_frames, hiccups.missed_refreshes) == (11, 11)
+    trial = PlannedTrial(0, "S", "R", 1, False)
+    assert needs_requeue(freeze.missed_refreshes, 10, trial)
+    assert needs_requeue(hiccups.missed_refreshes, 10, trial)
+    assert not needs_requeue(FlipStats(period).missed_refreshes, 10, trial)

@@ -383,7 +383,7 @@ def rating_layout(window: tuple[int, int], m: Measure, *, question: str,
     qlines = wrap_words(question, w - 4 * GAP, qpx, m) or [question]
     qw, qh = _box_extent(qlines, qpx, m)
     label_lh = round(m.line_height(label_px) * 1.1)
-    label_h = max(len(x) for x in wrapped) * label_lh
+    label_h = max((len(x) for x in wrapped), default=0) * label_lh  # a scale may be unlabelled
     hint_lines = wrap_items(hints, w - 4 * GAP, px - 2, m)
     hw, hh = _box_extent(hint_lines, px - 2, m) if hint_lines else (0, 0)
     prog = _stack([progress], px, m, w - GAP - m.size(progress, px)[0], GAP)

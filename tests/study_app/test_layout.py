@@ -119,6 +119,18 @@ def test_five_labels_on_one_line_each_at_full_hd(fonts):
     assert lay.label_px >= 20
 
 
+@pytest.mark.parametrize("window", WINDOWS)
+def test_an_unlabelled_scale_lays_out(fonts, window):
+    """A manifest may give ``"labels": []`` (an unlabelled slider); the rating screen used to
+    crash on it at the first trial, after the session file was made."""
+    lay = rating_layout(window, fonts, question=QUESTION, labels=[],
+                        progress="Trial 1 of 240", hints=["Enter: submit"], notice="x",
+                        buttons=[("back", "Back to the videos"), ("submit", "Submit")])
+    assert lay.labels == ()
+    _no_overlaps(lay.parts())
+    assert lay.notice.rects[0].y > lay.track_y
+
+
 @pytest.mark.parametrize("window", [(800, 600), (1280, 1024), (1920, 1080)])
 def test_text_screen_flows_and_scrolls_everything_into_view(fonts, window):
     long_text = "\n\n".join(

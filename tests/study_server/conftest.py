@@ -4,6 +4,7 @@ server in a subprocess on 127.0.0.1 (free port, bounded waits)."""
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import subprocess
 import sys
@@ -51,6 +52,37 @@ def make_served_study(folder: Path, *, refs: int = 2, conds: int = 2, repetition
     (folder / "briefing.md").write_text("# Welcome\n\nRate the videos.\n", encoding="utf-8")
     (folder / "consent.md").write_text("I agree.\n", encoding="utf-8")
     return folder
+
+
+def make_adaptive_study(folder: Path, settings: dict, *, refs: int = 3, conds: int = 3,
+                        file_bytes: int = 256) -> Path:
+    """:func:`make_served_study` with ``protocol.allocation: adaptive`` and ``settings``."""
+    study = make_served_study(folder, refs=refs, conds=conds, repetitions=1,
+                              file_bytes=file_bytes)
+    path = study / "manifest.json"
+    data = json.loads(path.read_text())
+    data["protocol"].update({"allocation": "adaptive", "adaptive": settings})
+    save_manifest(parse_manifest(data), path)
+    save_manifest(fill_checksums(load_manifest(path)), path)
+    return study
+
+
+def adaptive_session(study: Path, folder: Path, participant: str, seed: int):
+    """(schedule items, path, open store) of a started session of an adaptive study: block 1,
+    every stimulus once in the seeded order, as the app plans it."""
+    from session_store import SessionStore
+    from session_store.schedule import make_schedule, schedule_items
+
+    loaded = load_manifest(study / "manifest.json")
+    items = schedule_items(loaded.manifest)
+    path = folder / f"{participant}.sqlite"
+    folder.mkdir(parents=True, exist_ok=True)
+    store = SessionStore.create(
+        path, participant=participant, study_id=loaded.manifest.study_id,
+        manifest_sha256=loaded.sha256, seed=seed, app_version="test",
+        plan=make_schedule(items, 1, seed), settings={"timing_mode": "vsync"})
+    store.mark_started(display={"vsync": True})
+    return items, path, store
 
 
 def cli_env() -> dict[str, str]:

@@ -15,27 +15,20 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from session_store import SessionStore, TrialResult, read_session, utc_now
-from session_store.schedule import block_trials, make_schedule, schedule_items, uniform_block
-from stimuli_manifests import fill_checksums, load_manifest, parse_manifest, save_manifest
+from session_store import TrialResult, read_session, utc_now
+from session_store.schedule import block_trials, uniform_block
 from study_app.remote import ServerClient, Uploader
 from study_app.remote.admin import pull
 from study_app.remote.participant import request_block
 from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
 
-from .conftest import ADMIN, make_served_study, run_cli
+from .conftest import ADMIN, adaptive_session, make_adaptive_study, run_cli
 
 SETTINGS = {"blocks": 3, "warmup_participants": 2, "refit_seconds": 1, "bootstrap": 50}
 
 
 def _adaptive_study(folder: Path) -> Path:
-    study = make_served_study(folder, refs=3, conds=3, repetitions=1, file_bytes=256)
-    path = study / "manifest.json"
-    data = json.loads(path.read_text())
-    data["protocol"].update({"allocation": "adaptive", "adaptive": SETTINGS})
-    save_manifest(parse_manifest(data), path)
-    save_manifest(fill_checksums(load_manifest(path)), path)
-    return study
+    return make_adaptive_study(folder, SETTINGS, refs=3, conds=3, file_bytes=256)
 
 
 def _db(study: Path, sql: str) -> list[tuple]:
@@ -59,16 +52,9 @@ class _Participant:
     """A participant driven by hand: the app's session file, uploader and block request."""
 
     def __init__(self, study: Path, folder: Path, invite, seed: int) -> None:
-        loaded = load_manifest(study / "manifest.json")
-        self.items = schedule_items(loaded.manifest)
         self.invite = invite
-        self.path = folder / f"{invite.participant}.sqlite"
-        folder.mkdir(parents=True, exist_ok=True)
-        self.store = SessionStore.create(
-            self.path, participant=invite.participant, study_id=loaded.manifest.study_id,
-            manifest_sha256=loaded.sha256, seed=seed, app_version="test",
-            plan=make_schedule(self.items, 1, seed), settings={"timing_mode": "vsync"})
-        self.store.mark_started(display={"vsync": True})
+        self.items, self.path, self.store = adaptive_session(study, folder,
+                                                             invite.participant, seed)
         self.client = ServerClient(invite.server, invite.token)
         self.uploader = Uploader(self.path, self.client, invite.participant,
                                  max_backoff_s=0.5).start()

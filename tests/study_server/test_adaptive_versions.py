@@ -12,26 +12,20 @@ from pathlib import Path
 import numpy as np
 from support.sessions import session_entries
 
-from session_store import SessionStore, TrialResult, utc_now
+from session_store import TrialResult, utc_now
 from session_store.protocol import PROTOCOL
-from session_store.schedule import block_trials, make_schedule, schedule_items
+from session_store.schedule import block_trials
 from stimuli_manifests import fill_checksums, load_manifest, parse_manifest, save_manifest
 from study_server.config import ServerConfig
 from study_server.state import ServerState
 
-from .conftest import ADMIN, make_served_study, run_cli
+from .conftest import ADMIN, adaptive_session, make_adaptive_study, run_cli
 
 SETTINGS = {"blocks": 3, "warmup_participants": 2, "refit_seconds": 1, "bootstrap": 50}
 
 
 def _adaptive_study(folder: Path) -> Path:
-    study = make_served_study(folder, refs=2, conds=2, repetitions=1, file_bytes=64)
-    path = study / "manifest.json"
-    data = json.loads(path.read_text())
-    data["protocol"].update({"allocation": "adaptive", "adaptive": SETTINGS})
-    save_manifest(parse_manifest(data), path)
-    save_manifest(fill_checksums(load_manifest(path)), path)
-    return study
+    return make_adaptive_study(folder, SETTINGS, refs=2, conds=2, file_bytes=64)
 
 
 def _add_a_condition_per_scene(study: Path) -> set[str]:
@@ -51,16 +45,8 @@ def _add_a_condition_per_scene(study: Path) -> set[str]:
 
 class _Participant:
     def __init__(self, study: Path, folder: Path, pid: str, seed: int) -> None:
-        loaded = load_manifest(study / "manifest.json")
-        self.items = schedule_items(loaded.manifest)
         self.pid = pid
-        self.path = folder / f"{pid}.sqlite"
-        folder.mkdir(parents=True, exist_ok=True)
-        self.store = SessionStore.create(
-            self.path, participant=pid, study_id=loaded.manifest.study_id,
-            manifest_sha256=loaded.sha256, seed=seed, app_version="test",
-            plan=make_schedule(self.items, 1, seed), settings={"timing_mode": "vsync"})
-        self.store.mark_started(display={"vsync": True})
+        self.items, self.path, self.store = adaptive_session(study, folder, pid, seed)
         self.rng = np.random.default_rng(seed)
 
     def rate_and_upload(self, state: ServerState) -> None:

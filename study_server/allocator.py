@@ -30,6 +30,7 @@ import logging
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Any
@@ -191,29 +192,34 @@ class Allocator:
 
     def latest_fit(self) -> dict[str, Any] | None:
         """The newest fit of this version's ratings (another version's fit plans nothing
-        here: its stimuli and its warm-up are its own)."""
-        own = self._fits(unattributed=False)
-        return own[-1] if own else None
+        here: its stimuli and its warm-up are its own). Asked at every block request, so
+        fits are read newest first, and only the first of this version is parsed whole."""
+        owner = self._owner()
+        with self.store.reading() as con:
+            for r in con.execute("SELECT fit_id, at, used, fit, seconds FROM allocation_fits "
+                                 "ORDER BY fit_id DESC"):
+                if owner(json.loads(r[2])) == self.manifest_sha256:
+                    return _fit_row(r)
+        return None
 
     def fits(self) -> list[dict[str, Any]]:
         """This version's fits, with those whose sessions have all been withdrawn since (no
         version can be told for them; the replay reports them)."""
-        return self._fits(unattributed=True)
-
-    def _fits(self, *, unattributed: bool) -> list[dict[str, Any]]:
-        """A fit belongs to the version of the sessions it used (the ratings of one version
-        only, see :meth:`_rating_rows`)."""
-        version = {s.session_id: s.manifest_sha256 for s in self.store.sessions()}
+        owner = self._owner()
         with self.store.reading() as con:
             rows = con.execute("SELECT fit_id, at, used, fit, seconds FROM allocation_fits "
                                "ORDER BY fit_id").fetchall()
-        out = []
-        for r in rows:
-            fit = _fit_row(r)
-            seen = {version[s] for s in fit["used"] if s in version}
-            if seen == {self.manifest_sha256} or (unattributed and not seen):
-                out.append(fit)
-        return out
+        return [_fit_row(r) for r in rows
+                if owner(json.loads(r[2])) in (self.manifest_sha256, None)]
+
+    def _owner(self) -> Callable[[dict[str, int]], str | None]:
+        """The version a fit belongs to, from the sessions it used (a fit uses the ratings of
+        one version only, see :meth:`_rating_rows`); None when all of them were withdrawn."""
+        version = {s.session_id: s.manifest_sha256 for s in self.store.sessions()}
+
+        def owner(used: dict[str, int]) -> str | None:
+            return next((version[s] for s in used if s in version), None)
+        return owner
 
     # -- issuing blocks ---------------------------------------------------------------
     def issue(self, pid: str, session_id: str, block: int, last: str | None) -> IssuedBlock:

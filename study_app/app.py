@@ -366,7 +366,7 @@ class App:
         except _WithdrawnError:
             self.store.withdraw()
             answered, total = self.store.progress()
-            self._state("end", withdrawn=1)
+            self._state("finishing", withdrawn=1)
             self._end_screen(total, withdrawn=True)
             return RunOutcome("withdrawn", self.session_path, answered, total)
         except _ScreenedOutError as e:
@@ -374,7 +374,7 @@ class App:
             self.store.log_event(ENDED_BY_VISION_CHECK, test=test)
             self.store.finish(allow_incomplete=True)
             answered, total = self.store.progress()
-            self._state("end", screened_out=1)
+            self._state("finishing", screened_out=1)
             self._end_screen(total, withdrawn=False, screened_out=test)
             return RunOutcome("screened-out", self.session_path, answered, total,
                               screened_by=test)
@@ -624,7 +624,7 @@ class App:
         self._panel("after")
         store.finish()
         answered, total = store.progress()
-        self._state("end", answered=answered)
+        self._state("finishing", answered=answered)
         self._end_screen(total, withdrawn=False)
         return RunOutcome("finished", self.session_path, answered, total)
 

@@ -9,6 +9,7 @@ follows which stays in :mod:`.app`.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -21,6 +22,13 @@ from .screens.draw import draw_text_screen
 from .screens.markdown import parse_markdown
 from .screens.text_state import TextScreenState
 from .screens.textflow import flow_blocks
+
+INPUT_GRACE_S = 0.5
+"""Keys and clicks in a screen's first half second are ignored: a double press on the button
+before it (Enter on Submit, twice in 150 ms) would otherwise also choose this screen's action,
+and the participant would never see the break or the end screen. Scrolling is not ignored."""
+
+_CHOICE_EVENTS = ("KEYDOWN", "MOUSEBUTTONDOWN", "MOUSEBUTTONUP")
 
 
 @dataclass
@@ -45,11 +53,18 @@ class TextScreen:
         st = TextScreenState(spec, flow, lay.column.h)
         keys = merge(spec.keys, SCROLL)
         hover = None
-        self.state(spec.name)
+        choice_events = {getattr(pg, name) for name in _CHOICE_EVENTS}
+        opens_at = time.monotonic() + INPUT_GRACE_S
+        ready = False  # keys and clicks count; the state line says so (tests wait for it)
         if d.pacer is not None:
             d.pacer.reset()
         while True:
+            if not ready and time.monotonic() >= opens_at:
+                ready = True
+                self.state(spec.name)
             for event in pg.event.get():
+                if not ready and event.type in choice_events:
+                    continue  # too early: the press was meant for the screen before
                 if event.type == pg.QUIT and spec.close_action == "quit":
                     self.on_close()  # stops the run (confirmed) or returns to this screen
                     self.state(spec.name)

@@ -125,7 +125,8 @@ def test_a_failed_check_ends_the_session_when_the_study_says_so(tmp_path, xdispl
     app.wait("acuity-trials")
     app.key("space")
     _answer_all(app, plan, logmar=0.6, weber=0.25)
-    app.wait("end screened_out=1")
+    app.wait("finishing screened_out=1")
+    app.wait("end")  # the end screen takes keys once it says so
     app.key("Return")
     code, out = app.finish()
     assert code == 0 and "ended after the sharpness and contrast check" in out

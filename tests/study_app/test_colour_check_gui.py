@@ -39,7 +39,8 @@ def test_a_failed_check_ends_the_session_when_the_study_says_so(tmp_path, xdispl
     for k, plate in enumerate(plate_series(3), start=1):
         app.wait(f"colour-plate index={k}")
         app.key("n" if plate.kind == "protan" else plate.answer)
-    app.wait("end screened_out=1")
+    app.wait("finishing screened_out=1")
+    app.wait("end")  # the end screen takes keys once it says so
     app.key("Return")
     code, out = app.finish()
     assert code == 0 and "ended after the colour-vision check" in out

@@ -17,9 +17,8 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from stimuli_manifests import LoadedManifest, Manifest, StimuliError, load_manifest
-from stimuli_manifests.errors import TableError
-from stimuli_manifests.tables import FORMAT_COLUMN, RATINGS
 
+from .csv_inputs import frame_from_csvs
 from .data import Exclusion, InputProblem, PanelAnswers, RatingSet
 from .errors import AnalysisError
 from .panel import panel_from_sessions
@@ -30,41 +29,12 @@ log = logging.getLogger(__name__)
 
 __all__ = ["SESSION_SUFFIXES", "load_ratings", "ratings_from_frame", "read_manifest"]
 
-_REQUIRED = ("participant", "stimulus", "rating")
-
-
 def read_manifest(path: str | Path) -> LoadedManifest:
     """Load the study manifest (structure only: the videos are not needed for analysis)."""
     try:
         return load_manifest(path)
     except StimuliError as exc:
         raise AnalysisError(f"cannot use manifest {path}: {exc}") from None
-
-
-def _frame_from_csv(path: Path) -> pd.DataFrame:
-    try:
-        frame = pd.read_csv(path, dtype={"participant": str, "stimulus": str, "reference": str,
-                                         "session": str, "study": str, FORMAT_COLUMN: str})
-    except FileNotFoundError:
-        raise AnalysisError(f"ratings file {path} does not exist") from None
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise AnalysisError(f"ratings file {path} is not a readable CSV ({exc})") from None
-    if FORMAT_COLUMN in frame.columns:
-        try:
-            RATINGS.check_versions(frame[FORMAT_COLUMN].dropna().tolist(), path)
-        except TableError as exc:
-            raise AnalysisError(str(exc)) from None
-    missing = [c for c in _REQUIRED if c not in frame.columns]
-    if missing:
-        raise AnalysisError(
-            f"ratings file {path} lacks column(s) {', '.join(missing)}; it must be the tidy "
-            f"ratings table ({RATINGS.version}: {', '.join(RATINGS.required)}; the analysis "
-            "needs at least participant, stimulus and rating)"
-        )
-    frame["_source"] = str(path)
-    frame["_row"] = np.arange(len(frame)) + 2  # line number: header is line 1
-    frame["_rank"] = 0
-    return frame
 
 
 def _frame_from_sessions(
@@ -196,11 +166,13 @@ def ratings_from_frame(
                                   participant=part[keep], stimulus=stim[keep])
     key = ["participant", "stimulus", "_rep"]
     dup = good.duplicated(key, keep="first")
-    first = good.loc[~dup].set_index(key)["_source"]
+    first = good.loc[~dup].set_index(key)[["_source", "_row", "_rank"]]
     for _, row in good.loc[dup].iterrows():
-        kept_in = first.get((row["participant"], row["stimulus"], row["_rep"]), "")
-        where = "later copy" if kept_in == row["_source"] else \
-            f"the rating from the earlier session ({kept_in}) is used"
+        kept = first.loc[(row["participant"], row["stimulus"], row["_rep"])]
+        if kept["_rank"] != row["_rank"]:
+            where = f"the rating from the earlier session ({kept['_source']}) is used"
+        else:
+            where = f"the row read first ({kept['_source']}, row {kept['_row']}) is used"
         problems.append(_problem(row, f"duplicate rating of {row['stimulus']} repetition "
                                  f"{row['_rep']:g} by {row['participant']}; {where} "
                                  "(this row left out)"))
@@ -311,7 +283,10 @@ def load_ratings(
     panel = None
     if ratings_csv is not None:
         paths = [ratings_csv] if isinstance(ratings_csv, (str, Path)) else list(ratings_csv)
-        frame = pd.concat([_frame_from_csv(Path(p)) for p in paths], ignore_index=True)
+        frame, exclusions = frame_from_csvs([Path(p) for p in paths],
+                                            loaded.manifest.study_id)
+        for exc in exclusions:
+            log.warning("%s", exc)
         source = ", ".join(str(p) for p in paths)
     else:
         frame, problems, exclusions, facts, panel = _frame_from_sessions(sessions or [], loaded)

@@ -79,14 +79,17 @@ class Session:
 @contextlib.contextmanager
 def session_files(paths: Sequence[str | Path]) -> Iterator[tuple[list, list[InputProblem]]]:
     """The session sources in ``paths`` (files, folders, zips) and the notes about them.
-    A path that does not exist, or a folder without session files, is an error."""
+    A path that does not exist, or a named folder or zip without session files, is an error;
+    a zip without one found inside a folder (screenshots, say) is a note."""
+    named = {Path(p).resolve() for p in paths}
     with session_sources(paths) as (sources, found):
         notes = []
         for prob in found:
             where = Path(prob.path)
             if prob.message == "not found":
                 raise AnalysisError(f"session path {where} does not exist")
-            if "holds no session file" in prob.message:
+            if "holds no session file" in prob.message and where.resolve() in named:
+                # what was named holds nothing; a stray zip found in a folder is only noted
                 raise AnalysisError(f"no session files (*.sqlite) in {where}")
             notes.append(InputProblem(str(where), prob.row, prob.message))
         if not sources:

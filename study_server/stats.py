@@ -87,6 +87,9 @@ class StatsSnapshot:
     adaptive: dict[str, Any] | None = None
     stopping: StoppingStatus | None = None
     """Where the study stands against the stopping rule's target (None: no target)."""
+    other_versions: int = 0
+    """Participants whose sessions ran an earlier manifest version (``serve --new-version``):
+    their ratings are not in the statistics, as the report refuses them under this one."""
 
     def age_s(self) -> float | None:
         t = parse_time(self.computed_at)
@@ -264,9 +267,11 @@ class StatsWorker:
         snap.panel_answered = sum(ps.answers > 0 for ps in people)
         snap.panel_screened = sum(bool(ps.vision) for ps in people)
         snap.panel_failed = sum("failed" in ps.vision.values() for ps in people)
-        frame = ratings_frame(rows, self.current.study_id)
-        snap.n_ratings = len(frame)
         current = self.current
+        this_version = [r for r in rows if r[1] == current.manifest_sha256]
+        snap.other_versions = len({r[0] for r in rows if r[1] != current.manifest_sha256})
+        frame = ratings_frame(this_version, current.study_id)
+        snap.n_ratings = len(frame)
         manifest = json.loads(current.manifest_bytes)
         from stimuli_manifests import parse_manifest
 

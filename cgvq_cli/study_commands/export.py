@@ -41,6 +41,11 @@ def run(args: argparse.Namespace) -> int:
     report = verify_session(args.session)
     export_target(args.out, export_name(args.session))  # every target checked before writing
     if args.csv is not None:
+        if report.withdrawn:
+            # A CSV cannot carry the withdrawal, and the analysis would use its rows.
+            raise StudyError(f"{args.session}: the participant withdrew from the study, so "
+                             "their ratings are not written to a CSV; export without --csv "
+                             "(the zip carries the withdrawal)")
         check_ratings_csv_target(args.csv)
     out = export_session(args.session, args.out)
     if args.csv is not None:

@@ -61,7 +61,10 @@ def _event(con: sqlite3.Connection, body: Body) -> None:
 
 def _preflight(con: sqlite3.Connection, body: Body) -> None:
     results = list(body["results"])
-    con.execute("UPDATE session SET preflight=?, preflight_skipped=?",
+    # Skipped once, skipped for good: trials of that run were shown without a passed check,
+    # whatever a later run (resumed without --skip-preflight) finds.
+    con.execute("UPDATE session SET preflight=?, "
+                "preflight_skipped=MAX(COALESCE(preflight_skipped, 0), ?)",
                 (canonical(results), int(bool(body["skipped"]))))
     _event_row(con, body["at"], "preflight", {
         "skipped": bool(body["skipped"]),

@@ -266,12 +266,25 @@ class App:
         """True when the participant's session exists and can be resumed; a file that is
         someone else's, of another study, closed or damaged is refused (one line) before
         any window opens (see :mod:`.resume_check`)."""
+        self._refuse_other_case()
         if not self.session_path.exists():
             return False
         check_resumable(self.session_path, participant=self.opts.participant,
                         study_id=self.m.study_id, manifest_sha256=self.study.loaded.sha256,
                         seed=self.opts.seed)
         return True
+
+    def _refuse_other_case(self) -> None:
+        """``p07`` where ``P07.sqlite`` exists: on Linux it would start a second session with
+        another trial order, on Windows and macOS open P07's file; refused alike everywhere."""
+        folder, wanted = self.session_path.parent, self.session_path.name
+        if not folder.is_dir():
+            return
+        for other in folder.glob("*.sqlite"):
+            if other.name != wanted and other.name.lower() == wanted.lower():
+                raise StudyError(
+                    f"a session of participant {other.stem} exists in {folder}; participant "
+                    f"ids are case-sensitive: give --participant {other.stem} to continue it")
 
     def _close_store(self) -> None:
         """Close the session file. A checkpoint that fails there (a full disk) is raised
@@ -335,7 +348,8 @@ class App:
         for c in checks:
             log.info("pre-flight %s: %s: %s", c.name, "ok" if c.ok else "FAILED", c.message)
         if failed and not self.opts.skip_preflight:
-            self._screen(content.preflight_failed(failed, self._name_keys))
+            self._screen(content.preflight_failed(failed, self._name_keys,
+                                                  (answered, total) if resume else None))
             raise StudyError("pre-flight failed: " + " | ".join(
                 f"{c.name}: {c.message}" for c in failed))
         if not self.opts.skip_preflight:

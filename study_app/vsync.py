@@ -16,9 +16,14 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
-# No real monitor refreshes faster than 250 Hz: a median flip interval shorter than this
+# No monitor on sale refreshes faster than 600 Hz: a median flip interval shorter than this
 # means the driver did not wait for the display.
-MIN_VSYNC_INTERVAL_S = 1 / 250
+MIN_VSYNC_INTERVAL_S = 1 / 600
+# Faster than 250 Hz (360-540 Hz gaming monitors), flips that return as soon as a frame is
+# drawn could pass for a refresh; such flips are only believed when they are as steady as a
+# display's: relative jitter below this, and no more off-grid intervals than a steady one.
+FAST_REFRESH_S = 1 / 250
+FAST_MAX_JITTER = 0.03
 # An interval whose ratio to the fitted period is further than this from a whole number does
 # not belong to a fixed refresh rate.
 OFF_GRID_TOLERANCE = 0.15
@@ -87,4 +92,7 @@ def estimate_refresh(flip_times: Sequence[float]) -> RefreshEstimate:
     dropped = sum(1 for _, k in on_grid if k > 1)
     per_refresh = [iv / k for iv, k in on_grid]
     jitter = (statistics.pstdev(per_refresh) / period) if len(per_refresh) > 1 else 0.0
+    if median < FAST_REFRESH_S and (not on_grid or jitter > FAST_MAX_JITTER
+                                    or off_grid > MAX_OFF_GRID_SHARE * n):
+        return RefreshEstimate(n, False, 0.0, 0.0, 0.0, 0, 0)
     return RefreshEstimate(n, True, 1.0 / period, period, jitter, dropped, off_grid)

@@ -148,10 +148,11 @@ def _add_entry(ps: ParticipantStats, acc: _Samples, kind: str, body: dict[str, A
         ps.dropped_frames += int(_num(details.get("dropped_frames")) or 0)
     elif kind == "preflight":
         results = body.get("results")
-        ps.preflight_skipped = bool(body.get("skipped"))
-        ps.preflight_failed = [str(r.get("name")) for r in
-                               (results if isinstance(results, list) else [])
-                               if isinstance(r, dict) and not r.get("ok")]
+        # Over every run of the session: one run with the check skipped marks it for good.
+        ps.preflight_skipped = ps.preflight_skipped or bool(body.get("skipped"))
+        failed = [str(r.get("name")) for r in (results if isinstance(results, list) else [])
+                  if isinstance(r, dict) and not r.get("ok")]
+        ps.preflight_failed = list(dict.fromkeys([*ps.preflight_failed, *failed]))
     elif kind == "session":
         settings = _obj(body.get("settings"))
         ps.simulated = bool(settings.get("simulated"))

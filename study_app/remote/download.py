@@ -176,7 +176,7 @@ def check_disk_space(plan: DownloadPlan, *, margin: int = DISK_MARGIN_BYTES) -> 
         raise StudyError(
             f"the study needs {human_bytes(need)} more disk space, but only {human_bytes(free)} "
             f"is free on the disk of {plan.folder}; free some space (or choose another folder "
-            "with --cache) and start again")
+            "with --data-dir DIR) and start again")
     return need, free
 
 

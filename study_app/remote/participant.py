@@ -67,13 +67,11 @@ def fetch_study(invite: Invite, data_dir: str | Path | None = None, *,
     try:
         plan = study_plan(client, invite.participant, data_dir)
     except ServerUnavailable as exc:
-        if last.is_file():
-            info = json.loads(last.read_text(encoding="utf-8"))
-            folder = Path(info["folder"])
-            if info.get("server") == invite.server and (folder / "manifest.json").is_file():
-                say(f"The study server cannot be reached ({exc}); continuing with the study "
-                    "downloaded before. Your answers are sent once the server is back.")
-                return RemoteStudy(folder, Path(info["sessions_dir"]), offline=True)
+        found = _last_study(last, invite.server)
+        if found is not None:
+            say(f"The study server cannot be reached ({exc}); continuing with the study "
+                "downloaded before. Your answers are sent once the server is back.")
+            return found
         raise
     need, free = check_disk_space(plan)
     total = plan.total_bytes
@@ -93,9 +91,25 @@ def fetch_study(invite: Invite, data_dir: str | Path | None = None, *,
             "already on this computer.")
     sessions = plan.folder.parent / "sessions"
     last.parent.mkdir(parents=True, exist_ok=True)
-    last.write_text(json.dumps({"server": invite.server, "folder": str(plan.folder),
+    part = last.with_name(last.name + ".part")  # replaced whole: a crash leaves the old one
+    part.write_text(json.dumps({"server": invite.server, "folder": str(plan.folder),
                                 "sessions_dir": str(sessions)}) + "\n", encoding="utf-8")
+    os.replace(part, last)
     return RemoteStudy(plan.folder, sessions)
+
+
+def _last_study(last: Path, server: str) -> RemoteStudy | None:
+    """The study downloaded before from ``server`` (to run while it cannot be reached), or
+    None. The note is only a hint: an unreadable one counts as none."""
+    try:
+        info = json.loads(last.read_text(encoding="utf-8"))
+        folder, sessions = Path(info["folder"]), Path(info["sessions_dir"])
+        same = info.get("server") == server
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if same and (folder / "manifest.json").is_file():
+        return RemoteStudy(folder, sessions, offline=True)
+    return None
 
 
 def start_uploader(invite: Invite, session_path: Path) -> Uploader:

@@ -81,13 +81,21 @@ def preflight_passed(checks: Sequence[Check], duration: str, resumed: bool,
                  [("go", "Continue")], name_keys, primary="go")
 
 
-def preflight_failed(failed: Sequence[Check], name_keys: NameKeys) -> ScreenSpec:
+def preflight_failed(failed: Sequence[Check], name_keys: NameKeys,
+                     saved: tuple[int, int] | None = None) -> ScreenSpec:
+    """``saved``: (answered, total) of a session being resumed, whose answers are kept."""
     keys = keymap(close=["esc", "enter"])
     items = "\n".join(f"- {c.message[0].upper()}{c.message[1:]}." for c in failed)
-    body = ("This computer cannot show the study's videos exactly as needed yet. Nothing "
-            "was recorded.\n\n" + items +
-            "\n\nPlease change the above and start the study again. If it still does not "
-            "work, tell the experimenter what this screen says.")
+    if saved is None:
+        status = "Nothing was recorded."
+        again = "start the study again"
+    else:
+        status = (f"Your {saved[0]} of {saved[1]} answers so far are saved, and nothing was "
+                  "changed.")
+        again = "run the same command again to continue where you left off"
+    body = ("This computer cannot show the study's videos exactly as needed yet. " + status
+            + "\n\n" + items + f"\n\nPlease change the above and {again}. If it still does "
+            "not work, tell the experimenter what this screen says.")
     return _spec("preflight-failed", "Your display needs a change", body, keys,
                  [("close", "Close")], name_keys, close_action="close", primary="close")
 

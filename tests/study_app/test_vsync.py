@@ -43,6 +43,20 @@ def test_variable_refresh_is_recognised():
     assert est.vsync and est.variable
 
 
+@pytest.mark.parametrize("hz", [360.0, 480.0, 500.0])
+def test_fast_gaming_monitors_are_measured(hz):
+    """360-500 Hz monitors with vsync used to fail the check as "vertical sync is off"."""
+    est = estimate_refresh(_flips(hz, n=300, jitter_s=0.00002, seed=3))
+    assert est.vsync and not est.variable
+    assert est.hz == pytest.approx(hz, rel=1e-3)
+
+
+def test_fast_but_unsteady_flips_are_no_vsync():
+    """Flips that return when a frame is drawn (2-4 ms apart) are not a 330 Hz display."""
+    times = np.cumsum(np.random.default_rng(4).uniform(0.002, 0.004, 200))
+    assert not estimate_refresh(times).vsync
+
+
 def test_no_vsync_flips_return_at_once():
     times = np.cumsum(np.full(100, 0.0008))  # 1250 "Hz": the driver did not wait
     est = estimate_refresh(times)

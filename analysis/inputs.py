@@ -67,8 +67,24 @@ def _frame_from_sessions(
         raise AnalysisError("no usable ratings in the session files: " + (why or "they are "
                                                                            "empty"))
     facts = facts_from_sessions(selection.used)
+    problems += _simulated_among_real(facts)
     return (pd.concat(frames, ignore_index=True), problems, selection.exclusions, facts,
             panel_from_sessions(selection.used, loaded.manifest.panel))
+
+
+def _simulated_among_real(facts: pd.DataFrame) -> list[InputProblem]:
+    """Simulated sessions (``cgvq-study simulate``) mixed with real ones: named, because a
+    dry run simulated into the folder real sessions are copied to would enter the DMOS."""
+    if facts is None or "timing_mode" not in facts.columns:
+        return []
+    simulated = facts["timing_mode"].astype(str).str.contains("simulated")
+    if not simulated.any() or simulated.all():
+        return []
+    names = ", ".join(map(str, facts.index[simulated][:5]))
+    return [InputProblem("<sessions>", None,
+                         f"{int(simulated.sum())} simulated rater(s) ({names}) are mixed with "
+                         f"{int((~simulated).sum())} real one(s); simulated sessions are not "
+                         "participant data: analyse them apart")]
 
 
 def _cell_text(value: object) -> str:

@@ -192,13 +192,21 @@ def quality_table(rs: RatingSet, *, screening: pd.DataFrame | None = None,
     if screening is not None:
         for col in screening.columns:
             info[f"screen_{col}"] = screening[col]
-    info["flags"] = ["; ".join(rater_flags(row, min_completeness)) for _, row in info.iterrows()]
+    modes = info["timing_mode"].astype(str) if "timing_mode" in info.columns else \
+        pd.Series("", index=info.index)
+    simulated = modes.str.contains("simulated")
+    mixed = bool(simulated.any() and not simulated.all())
+    info["flags"] = ["; ".join(rater_flags(row, min_completeness, simulated_among_real=mixed))
+                     for _, row in info.iterrows()]
     info.index.name = "rater"
     return info
 
 
-def rater_flags(row: pd.Series, min_completeness: float | None) -> list[str]:
-    """The flags of one row of the quality table, each naming its threshold."""
+def rater_flags(row: pd.Series, min_completeness: float | None, *,
+                simulated_among_real: bool = False) -> list[str]:
+    """The flags of one row of the quality table, each naming its threshold.
+    ``simulated_among_real``: the panel mixes simulated and real sessions, so a simulated
+    rater is flagged as one (in an all-simulated dry run that would flag everyone)."""
     t = THRESHOLDS
     out = []
     c = row.get("completeness")
@@ -209,6 +217,8 @@ def rater_flags(row: pd.Series, min_completeness: float | None) -> list[str]:
             out.append(f"completeness {c:.0%} < {t['completeness']:.0%}")
     if row.get("vsync") is False:
         out.append("vsync off")
+    if simulated_among_real and "simulated" in str(row.get("timing_mode") or ""):
+        out.append("simulated rater (cgvq-study simulate; not a person)")
     if row.get("timing_mode") and "paced" in str(row.get("timing_mode")):
         out.append(f"timing mode {row['timing_mode']} (no vsync; pilot only)")
     if row.get("preflight_skipped") is True and "simulated" not in str(row.get("timing_mode")):

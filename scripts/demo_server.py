@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import socket
 import subprocess
 import sys
@@ -174,6 +175,7 @@ def collect(study: Path, out: Path, *, raters: int, outliers: int, seed: int, lo
             if why:
                 print(f"  (no dashboard screenshot: {why})", flush=True)
         pulled = out / "pulled"
+        shutil.rmtree(pulled, ignore_errors=True)  # an earlier demo's files are not this one's
         res = run("pull", _cli("pull", server.url, "--admin-token", token, "--out",
                                str(pulled), "--csv", str(out / "ratings.csv")), log)
         if res.returncode:

@@ -161,6 +161,19 @@ def _score(args, manifest: Path, out: Path, log: list[dict]) -> tuple[Path, list
     return path, notes
 
 
+def _families(truth: dict) -> str:
+    """The distortion families the demo's manifest holds, in words (as simulated)."""
+    levels: dict[str, set] = {}
+    for st in truth["stimuli"]:
+        if not st["is_hidden_reference"] and st["method"]:
+            levels.setdefault(st["method"], set()).add(st["level"])
+    counts = sorted({len(v) for v in levels.values()})
+    at = f"{counts[0]}" if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
+    names = ", ".join(m.replace("_", " ") for m in sorted(levels))
+    n = len(levels)
+    return f"{n} distortion famil{'y' if n == 1 else 'ies'} ({names}) at {at} levels each"
+
+
 def _notes(args, truth: dict, cgvqm_notes: list[str]) -> str:
     outliers = [f"{r['participant']} ({r['outlier']})" for r in truth["raters"] if r["outlier"]]
     o = truth["options"]
@@ -171,8 +184,7 @@ def _notes(args, truth: dict, cgvqm_notes: list[str]) -> str:
         "",
         f"Stimuli: synthetic GLSL scenes ({', '.join(args.scenes.split(','))}) at "
         f"{args.size}x{args.size}, {args.seconds:g} s, rendered off-screen by 'cgvq-study "
-        "synth'; six distortion families (path tracing, denoising, upscaling, splatting, "
-        "frame interpolation, variable-rate shading) at 4 levels each.",
+        f"synth'; {_families(truth)}.",
         f"Ratings: {o['raters']} simulated raters x {truth['repetitions']} repetitions "
         "written as session files by 'cgvq-study simulate' and uploaded as they were given "
         "to 'cgvq-study serve', then pulled from it (SUREAL's generative model: "
@@ -265,8 +277,8 @@ def _check(truth: dict, report_dir: Path) -> dict:
         "removed_raters": removed,
         "outliers_found": set(injected) <= set(removed),
         "false_alarms": [
-            {"rater": r, "true_bias": raters[r]["bias"],
-             "true_inconsistency": raters[r]["inconsistency"]}
+            {"rater": r, "true_bias": raters.get(r, {}).get("bias"),
+             "true_inconsistency": raters.get(r, {}).get("inconsistency")}
             for r in removed if r not in injected],
         "srcc_dmos_vs_true_quality": srcc,
         "series_in_true_level_order": ordered,

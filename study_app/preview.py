@@ -1,4 +1,4 @@
-"""``cgvq-study preview``: the experimenter watches a study exactly as a participant will, and
+"""``cgvq-study preview``: the experimenter watches a study's trials as a participant will, and
 nothing is recorded.
 
 The same display, refresh measurement, real-time guard, pre-loading (the next stimulus decodes

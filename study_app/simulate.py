@@ -212,6 +212,10 @@ class _Panel:
     colour_failures: frozenset[int] = frozenset()
 
     @property
+    def lower_is_better(self) -> bool:
+        return self.loaded.manifest.scale.direction == "lower_is_better"
+
+    @property
     def n_trials(self) -> int:
         adaptive = self.loaded.manifest.protocol.adaptive_settings()
         if adaptive is not None:  # block 1 holds every stimulus once
@@ -237,7 +241,9 @@ def _prepare_output(out: Path, participants: list[str], overwrite: bool) -> None
         raise StudyError(f"--out {out} is a file; give a folder for the session files")
     targets = [out / f"{p}{SESSION_SUFFIX}" for p in participants] + [out / TRUTH_JSON,
                                                                        out / TRUTH_CSV]
-    existing = [t for t in targets if t.exists()]
+    if overwrite:  # the whole earlier simulation, also raters this run does not have
+        targets += _earlier_sessions(out)
+    existing = [t for t in dict.fromkeys(targets) if t.exists()]
     if existing and not overwrite:
         raise StudyError(
             f"{out} already holds simulated sessions ({existing[0].name}, ...); choose another "
@@ -248,6 +254,17 @@ def _prepare_output(out: Path, participants: list[str], overwrite: bool) -> None
         for suffix in ("-wal", "-shm"):
             Path(str(t) + suffix).unlink(missing_ok=True)
     out.mkdir(parents=True, exist_ok=True)
+
+
+def _earlier_sessions(out: Path) -> list[Path]:
+    """The session files an earlier simulation into ``out`` lists in its truth file (none
+    when there is no readable one)."""
+    try:
+        truth = json.loads((out / TRUTH_JSON).read_text(encoding="utf-8"))
+        files = [Path(str(r["session_file"])).name for r in truth["raters"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+    return [out / name for name in files if name.endswith(SESSION_SUFFIX)]
 
 
 def _draw_panel(loaded: LoadedManifest, opts: SimulationOptions, repetitions: int,
@@ -328,7 +345,8 @@ def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
             for trial in store.pending():
                 stim = by_id[trial.stimulus]
                 rating = _rate(rng, panel.quality[stim.id], bias, sigma,
-                               panel.ambiguity[stim.scene], panel.kinds[k], panel.scale)
+                               panel.ambiguity[stim.scene], panel.kinds[k], panel.scale,
+                               lower_is_better=panel.lower_is_better)
                 result, clock = _trial_result(rng, rating, clock)
                 if upload is not None and upload.pace_s > 0:
                     time.sleep(upload.pace_s)
@@ -404,7 +422,11 @@ def _write_truth(panel: _Panel, opts: SimulationOptions, raters: list[RaterTruth
             "curves": {meth: dict(zip(("A", "gamma"), QUALITY_CURVES.get(meth, DEFAULT_CURVE),
                                       strict=True)) for meth in panel.levels},
         },
-        "scale": {"min": panel.scale[0], "max": panel.scale[1]},
+        "scale": {"min": panel.scale[0], "max": panel.scale[1],
+                  "direction": "lower_is_better" if panel.lower_is_better else
+                  "higher_is_better",
+                  "true_quality": "higher is better on every scale; on a lower-is-better "
+                                  "scale the slider is set at min + max - rating"},
         "repetitions": panel.repetitions,
         "trials_per_participant": panel.n_trials,
         "allocation": m.protocol.allocation,
@@ -503,7 +525,11 @@ def _truncated_normal(rng: np.random.Generator, sd: float, limit_sd: float) -> f
 
 
 def _rate(rng: np.random.Generator, q: float, bias: float, sigma: float, delta: float,
-          outlier: OutlierKind | None, scale: tuple[float, float]) -> float:
+          outlier: OutlierKind | None, scale: tuple[float, float], *,
+          lower_is_better: bool = False) -> float:
+    """One rating on the scale as the participant moves it: on a lower-is-better scale a
+    rater who sees quality ``q`` (a higher-is-better reading) puts the slider at
+    ``min + max - q``, which the analysis mirrors back."""
     lo, hi = scale
     noise = sigma * rng.standard_normal() + delta * rng.standard_normal()
     if outlier == "random":
@@ -512,6 +538,8 @@ def _rate(rng: np.random.Generator, q: float, bias: float, sigma: float, delta: 
         value = lo + hi - q + bias + noise
     else:
         value = q + bias + noise
+    if lower_is_better:
+        value = lo + hi - value
     return float(np.clip(value, lo, hi))
 
 

@@ -34,7 +34,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="repetitions per stimulus (default: the manifest's protocol)")
     parser.add_argument("--out", required=True,
                         help="folder for the session files and ground_truth.json "
-                             "(e.g. STUDY/sessions)")
+                             "(e.g. STUDY/simulated: keep them apart from real sessions)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace sessions simulated into --out before")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -104,6 +104,9 @@ def test_a_simulated_session_is_not_flagged_for_its_missing_pre_flight() -> None
     simulated = pd.Series({"preflight_skipped": True, "timing_mode": "simulated"})
     assert rater_flags(real, None) == ["pre-flight skipped"]
     assert rater_flags(simulated, None) == []
+    # among real raters: flagged for what it is, never for a display check it had no display for
+    assert rater_flags(simulated, None, simulated_among_real=True) == [
+        "simulated rater (cgvq-study simulate; not a person)"]
 
 
 def test_simulated_sessions_say_so_in_their_timing_mode() -> None:

@@ -171,7 +171,8 @@ def _refusal(rec: Session, study_id: str, manifest_sha256: str | None,
             "refused session", rec.path,
             f"was run with another manifest (sha256 {rec.info.manifest_sha256[:12]}..., this "
             f"one is {manifest_sha256[:12]}...); if the manifest was edited after the "
-            "study, analyse with the manifest the participants saw",
+            "study, analyse with the manifest the participants saw ('cgvq-study pull' saves "
+            f"it as manifest.{rec.info.manifest_sha256[:12]}.json)",
             "session manifest_sha256 must equal the manifest file's sha256")
     return None
 

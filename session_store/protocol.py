@@ -49,5 +49,10 @@ def participant_path(participant: str, what: str) -> str:
 ADMIN_SESSIONS: Final = f"{API}/admin/sessions"
 
 
+def admin_manifest_path(manifest_sha256: str) -> str:
+    """The manifest of one served version (by its sha256), as the server registered it."""
+    return f"{API}/admin/manifests/{manifest_sha256}"
+
+
 def admin_entries_path(participant: str) -> str:
     return f"{API}/admin/participants/{participant}/entries"

@@ -37,6 +37,7 @@ def routes() -> list[BaseRoute]:
         Route(f"{api}/block", participants.block, methods=["POST"]),
         Route("/api/v1/admin/sessions", admin.sessions),
         Route("/api/v1/admin/participants/{pid}/entries", admin.participant_entries),
+        Route("/api/v1/admin/manifests/{sha}", admin.version_manifest),
         Route("/dashboard", pages.dashboard),
         Route("/dashboard/login", pages.login, methods=["POST"]),
         Route("/dashboard/logout", pages.logout, methods=["POST"]),

@@ -58,8 +58,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"  deleted {path}: an earlier pull's copy of a participant who has withdrawn")
     flagged = sum(1 for s in result.sessions if s.flags)
     print(f"{flagged} participant(s) flagged; server listing: {result.listing_path}")
+    for sha, path in result.manifests.items():
+        n = sum(1 for x in result.sessions if x.manifest_sha256 == sha)
+        print(f"manifest of version {sha[:12]}...: {path} ({n} session(s))")
+    several = len(result.manifests) > 1
+    if several:
+        print("  the sessions ran on several versions of the manifest: analyse each version's "
+              "sessions with its own manifest (the analysis refuses the others)")
     if result.csv_path is not None:
-        print(f"ratings CSV: {result.csv_path} ({result.n_csv_rows} rows)")
+        print(f"ratings CSV: {result.csv_path} ({result.n_csv_rows} rows"
+              + ("; it mixes the versions, and a CSV does not say which row is whose: prefer "
+                 "the session files" if several else "") + ")")
     if result.answers_path is not None:
         print(f"answers CSV: {result.answers_path} ({result.n_answer_rows} rows)"
               + (f"; vision checks: {result.screenings_path}" if result.screenings_path else ""))

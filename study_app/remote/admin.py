@@ -8,6 +8,7 @@ they are printed and kept in ``server_listing.json`` beside the files.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import shutil
@@ -28,7 +29,7 @@ from session_store.answers import (
 )
 from session_store.errors import StudyError
 from session_store.ids import check_participant_id
-from session_store.protocol import ADMIN_SESSIONS, admin_entries_path
+from session_store.protocol import ADMIN_SESSIONS, admin_entries_path, admin_manifest_path
 from session_store.ratings_csv import write_ratings_csv
 
 from .http import ServerClient
@@ -65,6 +66,8 @@ class PullResult:
     screenings_path: Path | None = None
     removed: list[Path] = field(default_factory=list)
     """Copies an earlier pull left of participants who have withdrawn since (deleted)."""
+    manifests: dict[str, Path] = field(default_factory=dict)
+    """sha256 -> ``manifest.<sha12>.json``: the manifest of each version the sessions ran."""
 
 
 def _remove_withdrawn(out: Path, withdrawn: list[str]) -> list[Path]:
@@ -107,6 +110,29 @@ def _build(path: Path, entries: list[OutboxEntry]) -> None:
             Path(f"{path}{suffix}").unlink(missing_ok=True)
         shutil.move(str(built), str(path))
     path.chmod(0o600)
+
+
+def manifest_name(manifest_sha256: str) -> str:
+    """The file a pull saves a version's manifest as (beside the sessions)."""
+    return f"manifest.{manifest_sha256[:12]}.json"
+
+
+def _save_manifests(client: ServerClient, out: Path,
+                    sessions: list[PulledSession]) -> dict[str, Path]:
+    """Each version's manifest as the server registered it: sessions of an earlier version
+    are refused under the edited manifest, and this is the one to analyse them with. The
+    copy is checked against its sha256 (a manifest that differs would refuse them all)."""
+    saved = {}
+    for sha in sorted({s.manifest_sha256 for s in sessions if s.manifest_sha256}):
+        answer = client.json("GET", admin_manifest_path(sha))
+        raw = str(answer.get("text", "")).encode("utf-8") if isinstance(answer, dict) else b""
+        if hashlib.sha256(raw).hexdigest() != sha:
+            raise StudyError(f"the server's manifest of version {sha[:12]}... does not match "
+                             "its sha256; pull again")
+        path = out / manifest_name(sha)
+        path.write_bytes(raw)
+        saved[sha] = path
+    return saved
 
 
 def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | None = None,
@@ -159,7 +185,8 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
     listing_path.chmod(0o600)
     withdrawn = [check_participant_id(w["participant"]) for w in listing.get("withdrawn", [])]
     result = PullResult(str(listing["study_id"]), sessions, not_started, withdrawn,
-                        listing_path, removed=_remove_withdrawn(out, withdrawn))
+                        listing_path, removed=_remove_withdrawn(out, withdrawn),
+                        manifests=_save_manifests(client, out, sessions))
     if csv is not None:
         write_ratings_csv(rows, csv)
         Path(csv).chmod(0o600)

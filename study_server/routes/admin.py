@@ -64,3 +64,19 @@ async def participant_entries(request: Request) -> Response:
             raise Refused(404, f"no session of {pid} on the server")
         return JSONResponse(answer, headers=SECURITY_HEADERS)
     return await guarded(work)
+
+
+async def version_manifest(request: Request) -> Response:
+    """The manifest of one served version, byte for byte as registered: sessions run on an
+    earlier version are analysed with it (``cgvq-study pull`` saves it beside them)."""
+    async def work() -> Response:
+        require_admin(request)
+        sha = request.path_params["sha"]
+        if len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
+            raise Refused(400, "a manifest version is its sha256 (64 lowercase hex digits)")
+        raw = await run_in_threadpool(server_of(request).store.version_manifest, sha)
+        if raw is None:
+            raise Refused(404, f"no manifest version {sha[:12]}... on the server")
+        return JSONResponse({"manifest_sha256": sha, "text": raw.decode("utf-8")},
+                            headers=SECURITY_HEADERS)
+    return await guarded(work)

@@ -79,3 +79,42 @@ def test_the_dashboard_counts_only_the_version_now_served(tmp_path):
     # 55 of a pool with the old video's 80s
     assert abs(float(dmos["SRC01_HRC01"]) - 25.0) < 3.0
     assert "3 participant(s) rated an earlier version" in html
+
+
+def test_pull_saves_each_versions_manifest_to_analyse_its_sessions_with(
+        tmp_path, served_study, invites, server_factory):
+    import hashlib
+
+    from study_app.remote.admin import manifest_name, pull
+    from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
+
+    from .conftest import ADMIN
+
+    study = served_study
+    tokens = {i.participant: i.token for i in invites(4)}
+    first = dict(list(tokens.items())[:2])
+    v1 = load_manifest(study / "manifest.json").sha256
+    srv = server_factory(study)
+    run_simulation(study / "manifest.json", tmp_path / "local1",
+                   SimulationOptions(raters=2, seed=1), progress=False,
+                   upload=UploadOptions(srv.url, first, timeout_s=120))
+    srv.stop()
+    _replace_a_video(study)
+    v2 = load_manifest(study / "manifest.json").sha256
+    srv = server_factory(study, "--new-version")
+    rest = {p: t for p, t in tokens.items() if p not in first}
+    run_simulation(study / "manifest.json", tmp_path / "local2",
+                   SimulationOptions(raters=2, seed=2, participant_prefix="P"), progress=False,
+                   upload=UploadOptions(srv.url, rest, timeout_s=120))
+    pulled = tmp_path / "pulled"
+    result = pull(srv.url, ADMIN, pulled)
+    assert set(result.manifests) == {v1, v2}
+    for sha, path in result.manifests.items():
+        assert path == pulled / manifest_name(sha)
+        assert hashlib.sha256(path.read_bytes()).hexdigest() == sha
+    old = load_ratings(result.manifests[v1], sessions=[pulled])
+    assert old.raters == sorted(first)
+    new = load_ratings(study / "manifest.json", sessions=[pulled])
+    assert new.raters == sorted(rest)
+    refusal = next(x for x in new.exclusions if x.kind == "refused session")
+    assert manifest_name(v1) in refusal.reason

@@ -1,9 +1,9 @@
 """Tidy ratings CSVs as analysis input, held to the rules session files are held to.
 
-A CSV carries no checksum chain, but its rows still name their study and session (columns
-of ``cgvq-ratings``). Rows of another study are refused as a session file of another study
-is, and duplicates are settled by which session came first (its earliest ``presented_at``),
-not by the order the files were given in.
+A CSV carries no checksum chain, but its rows still name their study, session and (from
+``cgvq-ratings/1.1`` on) manifest version. Rows of another study or version are refused as
+such a session file is, and duplicates are settled by which session came first (its
+earliest ``presented_at``), not by the order the files were given in.
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ from .data import Exclusion
 from .errors import AnalysisError
 
 _REQUIRED = ("participant", "stimulus", "rating")
-_TEXT_COLUMNS = ("participant", "stimulus", "reference", "session", "study", FORMAT_COLUMN)
+_TEXT_COLUMNS = ("participant", "stimulus", "reference", "session", "study", "manifest_sha256",
+                 FORMAT_COLUMN)
 
 
 def _refuse_session_export(path: Path) -> None:
@@ -91,6 +92,26 @@ def other_study_rows(frame: pd.DataFrame, study_id: str) -> tuple[pd.DataFrame, 
     return frame.loc[~other], exclusions
 
 
+def other_version_rows(frame: pd.DataFrame, manifest_sha256: str
+                       ) -> tuple[pd.DataFrame, list[Exclusion]]:
+    """Rows whose ``manifest_sha256`` (ratings tables from 1.1 on) names another manifest
+    version are refused, as their session files are: after ``serve --new-version`` an id may
+    name another video. Rows that do not say are kept (tables before 1.1)."""
+    if "manifest_sha256" not in frame.columns:
+        return frame, []
+    sha = frame["manifest_sha256"]
+    other = ~_blank(sha) & (sha.astype(str) != manifest_sha256).to_numpy()
+    exclusions = [
+        Exclusion("refused session", f"{src} ({n} rows)",
+                  f"was run with another manifest (sha256 {name[:12]}..., this one is "
+                  f"{manifest_sha256[:12]}...); analyse it with the manifest the participants "
+                  f"saw ('cgvq-study pull' saves it as manifest.{name[:12]}.json)",
+                  "ratings rows' manifest_sha256 must equal the manifest file's sha256")
+        for (src, name), n in frame.loc[other].groupby(["_source", "manifest_sha256"],
+                                                        sort=True).size().items()]
+    return frame.loc[~other], exclusions
+
+
 def rank_sessions(frame: pd.DataFrame) -> pd.DataFrame:
     """``_rank`` for each row: sessions in the order they started (their earliest
     ``presented_at``, then the session id), so that of a rating given in two sessions the
@@ -110,12 +131,14 @@ def rank_sessions(frame: pd.DataFrame) -> pd.DataFrame:
     return frame.assign(_rank=ranks)
 
 
-def frame_from_csvs(paths: Sequence[Path], study_id: str
+def frame_from_csvs(paths: Sequence[Path], study_id: str, manifest_sha256: str
                     ) -> tuple[pd.DataFrame, list[Exclusion]]:
-    """The rows of ``paths`` that belong to ``study_id``, ranked by session start; and what
-    was refused. Nothing left is an error."""
+    """The rows of ``paths`` that belong to ``study_id`` and this manifest version, ranked by
+    session start; and what was refused. Nothing left is an error."""
     frame = pd.concat([read_csv(Path(p)) for p in paths], ignore_index=True)
     frame, exclusions = other_study_rows(frame, study_id)
+    frame, other_version = other_version_rows(frame, manifest_sha256)
+    exclusions += other_version
     if frame.empty and exclusions:
         raise AnalysisError("no ratings of this study in " + ", ".join(map(str, paths)) + ": "
                             + "; ".join(str(x) for x in exclusions[:3]))

@@ -300,7 +300,7 @@ def load_ratings(
     if ratings_csv is not None:
         paths = [ratings_csv] if isinstance(ratings_csv, (str, Path)) else list(ratings_csv)
         frame, exclusions = frame_from_csvs([Path(p) for p in paths],
-                                            loaded.manifest.study_id)
+                                            loaded.manifest.study_id, loaded.sha256)
         for exc in exclusions:
             log.warning("%s", exc)
         source = ", ".join(str(p) for p in paths)

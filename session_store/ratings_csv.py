@@ -11,9 +11,9 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from stimuli_manifests.tables import RATINGS, write_table
+from stimuli_manifests.tables import RATINGS, RATINGS_1_0, write_table
 
-RATINGS_COLUMNS: tuple[str, ...] = RATINGS.required
+RATINGS_COLUMNS: tuple[str, ...] = (*RATINGS.required, *RATINGS.optional)
 
 
 def tidy_row(header: dict[str, Any], r: dict[str, Any]) -> dict[str, Any]:
@@ -37,13 +37,14 @@ def tidy_row(header: dict[str, Any], r: dict[str, Any]) -> dict[str, Any]:
         "dropped_frames": int(r["dropped_frames"]),
         "presented_at": r["presented_at"],
         "app_version": r["app_version"],
+        "manifest_sha256": header.get("manifest_sha256") or "",
     }
 
 
 def write_ratings_csv(rows: Iterable[dict[str, Any]], out: str | Path) -> Path:
     """Write ratings rows (dicts with :data:`RATINGS_COLUMNS`) as the tidy ratings CSV
-    (cgvq-ratings/1, docs/file-formats.md)."""
-    return write_table(out, RATINGS, rows)
+    (cgvq-ratings/1.1, docs/file-formats.md)."""
+    return write_table(out, RATINGS, rows, columns=RATINGS.optional)
 
 
 def _same_cell(got: str, want: str) -> bool:
@@ -63,12 +64,19 @@ def ratings_csv_difference(rows: Iterable[dict[str, Any]], text: str) -> str | N
     The first differing cell is named (data row, trial, column, both values) with the number
     of differing cells, so that an edited rating is found even when its checksum was redone.
     """
-    with tempfile.TemporaryDirectory(prefix="cgvq-ratings-") as tmp:
-        expected = write_ratings_csv(rows, Path(tmp) / "expected.csv").read_text("utf-8")
     try:
         got = list(csv.reader(io.StringIO(text.removeprefix("\ufeff"))))
     except csv.Error as exc:
         return f"not a readable CSV file ({exc})"
+    # An export written before 1.1 is compared with what 1.0 wrote for the same rows.
+    old = bool(got) and got[0] == list(RATINGS_1_0.header(()))
+    with tempfile.TemporaryDirectory(prefix="cgvq-ratings-") as tmp:
+        target = Path(tmp) / "expected.csv"
+        if old:
+            write_table(target, RATINGS_1_0, rows)
+        else:
+            write_ratings_csv(rows, target)
+        expected = target.read_text("utf-8")
     want = list(csv.reader(io.StringIO(expected)))
     if not got:
         return "the file is empty"

@@ -95,13 +95,17 @@ class TableFormat:
 
 
 RATINGS = TableFormat(
-    "cgvq-ratings", 1, 0,
+    "cgvq-ratings", 1, 1,
     required=("study", "session", "participant", "trial", "stimulus", "reference",
               "repetition", "is_hidden_reference", "rating", "rt_ms", "n_toggles",
               "ms_on_reference", "ms_on_test", "dropped_frames", "presented_at",
               "app_version"),
+    optional=("manifest_sha256",),  # 1.1: the manifest version the session ran on
     what="ratings",
 )
+RATINGS_1_0 = TableFormat("cgvq-ratings", 1, 0, required=RATINGS.required, what="ratings")
+"""The first ratings table (no ``manifest_sha256``): exports written before 1.1 verify
+against it."""
 
 SCORES = TableFormat(
     "cgvq-scores", 1, 0,

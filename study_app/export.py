@@ -113,7 +113,7 @@ def _is_export_of(path: Path, stem: str) -> bool:
 def check_ratings_csv_target(out: str | Path) -> Path:
     """``--csv OUT`` before anything is written: a new file, or a ratings CSV written before
     (its header is the tidy ratings CSV's), never some other file."""
-    from stimuli_manifests.tables import RATINGS
+    from stimuli_manifests.tables import RATINGS, RATINGS_1_0
 
     out = Path(out)
     if out.is_dir():
@@ -129,7 +129,8 @@ def check_ratings_csv_target(out: str | Path) -> Path:
                 header = next(csv.reader(fh), [])
         except (OSError, UnicodeDecodeError, csv.Error):
             header = []
-        if header != list(RATINGS.header(())):
+        if header not in (list(RATINGS.header(RATINGS.optional)),
+                          list(RATINGS_1_0.header(()))):
             raise StudyError(f"--csv {out} exists and is not a ratings CSV; choose another "
                              "--csv (only a ratings CSV written before is replaced)")
     return out

@@ -213,10 +213,11 @@ def ratings_frame(rows: list[tuple[str, str, str, str, str]], study_id: str) -> 
     import pandas as pd
 
     records = []
-    for pid, _, kind, text, session_id in rows:
+    for pid, sha, kind, text, session_id in rows:
         if kind != "rating":
             continue
-        header = {"study_id": study_id, "session_id": session_id, "participant": pid}
+        header = {"study_id": study_id, "session_id": session_id, "participant": pid,
+                  "manifest_sha256": sha}
         record = _tidy(header, text)
         if record is not None:
             records.append(record)

@@ -67,8 +67,8 @@ def run(args: argparse.Namespace) -> int:
               "sessions with its own manifest (the analysis refuses the others)")
     if result.csv_path is not None:
         print(f"ratings CSV: {result.csv_path} ({result.n_csv_rows} rows"
-              + ("; it mixes the versions, and a CSV does not say which row is whose: prefer "
-                 "the session files" if several else "") + ")")
+              + ("; each row names its manifest version, and the analysis keeps the rows of "
+                 "the manifest it is given" if several else "") + ")")
     if result.answers_path is not None:
         print(f"answers CSV: {result.answers_path} ({result.n_answer_rows} rows)"
               + (f"; vision checks: {result.screenings_path}" if result.screenings_path else ""))

@@ -141,3 +141,17 @@ def test_a_withdrawn_session_is_not_exported_as_a_csv(tmp_path, capsys):
     assert code == 2 and len(err) == 1 and "withdrew" in err[0]
     assert not (tmp_path / "P05.csv").exists()
     assert study(["export", str(gone), "--out", str(tmp_path / "z")]) == 0  # the zip: as is
+
+
+def test_a_csv_of_an_earlier_manifest_version_is_refused(tmp_path):
+    """After ``serve --new-version`` the CSV rows say which manifest they ran on (1.1)."""
+    _, mpath, _, folder = _panel(tmp_path / "a")
+    mine = [_csv(f, tmp_path / f"{f.stem}.csv") for f in sorted(folder.glob("P0[123].sqlite"))]
+    old = _csv(folder / "P04.sqlite", tmp_path / "P04_old.csv", manifest_sha256="0" * 64)
+    rs = load_ratings(mpath, ratings_csv=[*mine, old])
+    assert rs.raters == ["P01", "P02", "P03"]
+    [refused] = [x for x in rs.exclusions if x.kind == "refused session"]
+    assert "P04_old.csv" in refused.who and "manifest.000000000000.json" in refused.reason
+    # rows without the column (tables before 1.1) are kept
+    pd.read_csv(old).drop(columns=["manifest_sha256"]).to_csv(old, index=False)
+    assert load_ratings(mpath, ratings_csv=[*mine, old]).raters == ["P01", "P02", "P03", "P04"]

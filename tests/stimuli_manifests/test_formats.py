@@ -52,4 +52,4 @@ def test_a_mismatch_is_a_value_error_so_pydantic_reports_it_as_a_field_error():
 def test_the_contracts_share_the_check():
     assert MANIFEST_FORMAT.version == "cgvq-manifest/1"
     assert "convert the manifest" in MANIFEST_FORMAT.advice
-    assert RATINGS.versioned.version == RATINGS.version == "cgvq-ratings/1"
+    assert RATINGS.versioned.version == RATINGS.version == "cgvq-ratings/1.1"

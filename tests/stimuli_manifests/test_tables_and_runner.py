@@ -36,7 +36,7 @@ def test_written_table_carries_its_version_and_reads_back(tmp_path):
 
 def test_unknown_major_version_and_foreign_tables_are_refused(tmp_path):
     path = tables.write_table(tmp_path / "r.csv", tables.RATINGS, [_row(tables.RATINGS)])
-    text = path.read_text().replace("cgvq-ratings/1", "cgvq-ratings/2.3")
+    text = path.read_text().replace(tables.RATINGS.version, "cgvq-ratings/2.3")
     path.write_text(text)
     with pytest.raises(TableError, match=r"cgvq-ratings/2\.3 is not supported"):
         tables.read_table(path, tables.RATINGS)

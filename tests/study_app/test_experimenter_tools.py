@@ -69,7 +69,7 @@ def test_export_zip_and_verify(tiny_study, tmp_path, capsys):
     with open(csv_out, newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert tuple(rows[0]) == (*RATINGS_COLUMNS, "format")
-    assert {r["format"] for r in rows} == {"cgvq-ratings/1"}
+    assert {r["format"] for r in rows} == {"cgvq-ratings/1.1"}
     assert [float(r["rating"]) for r in rows] == [10.0, 20.0, 30.0]
     assert main(["verify", str(out)]) == 0
     assert main(["verify", str(path)]) == 0

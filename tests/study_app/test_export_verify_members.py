@@ -126,3 +126,29 @@ def test_the_error_line_of_a_damaged_member_names_the_damage_not_a_missing_file(
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1
     assert "not found;" not in err[0] and "differs from its SHA256SUMS entry" in err[0], err[0]
+
+
+def _as_version_1_0(data: bytes) -> bytes:
+    """The CSV as a toolkit before cgvq-ratings/1.1 wrote it: no manifest_sha256 column."""
+    import csv
+    import io
+
+    rows = list(csv.reader(io.StringIO(data.decode())))
+    drop = rows[0].index("manifest_sha256")
+    out = io.StringIO()
+    writer = csv.writer(out)
+    for r in rows:
+        r = r[:drop] + r[drop + 1:]
+        writer.writerow(["cgvq-ratings/1" if v == "cgvq-ratings/1.1" else v for v in r])
+    return out.getvalue().encode()
+
+
+def test_an_export_written_before_version_1_1_still_verifies(exported, capsys):
+    name = _csv_name(exported)
+    rewrite_zip(exported, lambda m: m.update({name: _as_version_1_0(m[name])}), resum=True)
+    code, out = _verify(capsys, exported)
+    assert code == 0 and "intact and complete" in out
+    # ... and an edited rating in such a file is still damage
+    rewrite_zip(exported, _edit_rating(name), resum=True)
+    code, out = _verify(capsys, exported)
+    assert code == 2 and "rating 55" in out

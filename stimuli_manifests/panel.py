@@ -212,7 +212,7 @@ class Panel(_Strict):
             if qn.id == questionnaire_id:
                 for q in qn.questions():
                     if q.id == question_id:
-                        return check_answer(q, value)
+                        return check_answer(q, value, taken_back=qn.voluntary)
                 raise PanelError(f"questionnaire {questionnaire_id} has no question "
                                  f"{_short(question_id)}")
         raise PanelError(f"the study asks no questionnaire {_short(questionnaire_id)}")
@@ -233,16 +233,18 @@ def _printable_text(value: str) -> str:
     return value
 
 
-def check_answer(question: Any, value: Any) -> Any:
+def check_answer(question: Any, value: Any, *, taken_back: bool = False) -> Any:
     """The answer as stored (normalised), or :class:`PanelError` saying why it is refused.
 
-    ``None`` is "not answered" (allowed for optional questions); ``PREFER_NOT_TO_SAY`` where
+    ``None`` is "not answered" (allowed for optional questions, and for any question of a
+    voluntary questionnaire when ``taken_back``: Skip takes back what its page held, and a
+    questionnaire may be skipped whole); ``PREFER_NOT_TO_SAY`` where
     the question offers it. Choices store option values (a list for multiple choice),
     Likert the point 1..n, numbers a float (an int when ``integer``), text the stripped string.
     """
     qid = question.id
     if value is None:
-        if question.required:
+        if question.required and not taken_back:
             raise PanelError(f"{qid}: an answer is required")
         return None
     if value == PREFER_NOT_TO_SAY:

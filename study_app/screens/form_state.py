@@ -190,14 +190,12 @@ class FormState:
         return True, value
 
     def take_back(self) -> list[str]:
-        """Skip: the page's optional questions are emptied and those with a stored answer
-        are returned (to be stored as None), so that a skipped questionnaire keeps no answer
-        of its page. A required question keeps its answer: the answer rule (which the server
-        applies to uploads too) does not accept "no answer" for it."""
+        """Skip (offered on voluntary questionnaires only): the page's questions are emptied
+        and those with a stored answer are returned (to be stored as None), so that a skipped
+        questionnaire keeps no answer of its page, required ones included (the answer rule,
+        which the server applies too, takes "no answer" back in a voluntary questionnaire)."""
         ids = []
         for f in self.fields:
-            if f.question.required:
-                continue
             f.choice, f.text, f.prefer_not, f.error = None, "", False, None
             if self.stored.get(f.question.id) is not None:
                 self.stored[f.question.id] = None

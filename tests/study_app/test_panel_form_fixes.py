@@ -190,3 +190,24 @@ def test_a_window_too_small_for_the_contrast_optotype_says_so():
     with pytest.raises(ValueError, match="window is too small") as info:
         acuity_plan(g, 1, max_size_px=200)
     assert "275 px" in str(info.value) and "200 px" in str(info.value)
+
+
+def test_skip_takes_back_a_required_answer_of_a_voluntary_questionnaire():
+    """A required question of a voluntary questionnaire: answered, then the page skipped.
+    The answer is taken back (it used to stay, as the answer rule refused "no answer"), and
+    the rule the server and the analysis apply accepts that; in a questionnaire that cannot
+    be skipped, a required question still needs an answer."""
+    data = default_panel()
+    survey = next(q for q in data["questionnaires"] if q["id"] == "post_study")
+    first = survey["pages"][0]["questions"][0]
+    first["required"] = True
+    panel = Panel.model_validate(data)
+    qn = next(q for q in panel.questionnaires if q.id == "post_study")
+    assert qn.voluntary
+    fs = FormState.for_page(list(qn.pages[0].questions), {first["id"]: 4})
+    assert first["id"] in fs.take_back()
+    assert panel.check("post_study", first["id"], None) is None
+    strict = copy.deepcopy(data)
+    next(q for q in strict["questionnaires"] if q["id"] == "post_study")["voluntary"] = False
+    with pytest.raises(Exception, match="an answer is required"):
+        Panel.model_validate(strict).check("post_study", first["id"], None)

@@ -133,9 +133,26 @@ def _check_out(args: argparse.Namespace) -> None:
     if args.command == "dmos":
         if path.is_dir():
             raise AnalysisError(f"--out {out} is a folder; give the DMOS CSV file to write")
+        if path.exists():
+            _refuse_replacing_other_than_dmos(path)
     elif path.exists() and not path.is_dir():
         raise AnalysisError(f"--out {out} is an existing file; give a folder for the "
                             f"{args.command} output")
+
+
+def _refuse_replacing_other_than_dmos(path: Path) -> None:
+    """Only a DMOS CSV written before is replaced: ``--out`` on a session file, the ratings
+    CSV or the manifest would destroy an input (and the next analysis would quietly lose a
+    rater)."""
+    from stimuli_manifests.errors import TableError
+    from stimuli_manifests.tables import DMOS, read_table
+
+    try:
+        read_table(path, DMOS)
+    except (TableError, OSError, ValueError):
+        raise AnalysisError(f"--out {path} exists and is not a DMOS CSV ({DMOS.version}); "
+                            "choose another --out (only a DMOS CSV written before is "
+                            "replaced)") from None
 
 
 def _say(lines: list[str], what: str) -> None:

@@ -317,6 +317,10 @@ def write_report(a: Analysis, out: str | Path, *, notes: str | None = None) -> P
     """Write the full report folder and return the path of report.html."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    # report.html and summary.json say the folder is finished: an earlier run's go first and
+    # come back last, so an interrupted rerun never leaves them beside newer tables.
+    for finished in ("report.html", "summary.json"):
+        (out / finished).unlink(missing_ok=True)
     write_dmos_csv(a.screened, a.scores, out / "dmos.csv")
     write_sureal_json(a.ratings, out / "sureal_dataset.json")
     write_rating_matrix(a.ratings, out / "rating_matrix_p910.csv")

@@ -206,6 +206,21 @@ def _refuse_mismatched_pair(args: argparse.Namespace) -> None:
     check_frame_count(ref, test, strict=True)
 
 
+def _refuse_emap_over_inputs(args: argparse.Namespace) -> None:
+    """An error map written over the video (or into the frame folder) being scored would
+    destroy the input, and a later score of the same pair would silently differ."""
+    inputs = [Path(p).resolve() for p in (args.ref, args.test) if isinstance(p, str | Path)]
+    if args.emap and Path(args.emap).resolve() in inputs:
+        raise CGVQMError(f"--emap {args.emap} is an input of this run; write the error map "
+                         "elsewhere")
+    if args.emap_png:
+        folder = Path(args.emap_png).resolve()
+        for given in inputs:
+            if given == folder or (given.parent == folder and given.suffix.lower() == ".png"):
+                raise CGVQMError(f"--emap-png {args.emap_png} is the frame folder of an input "
+                                 "of this run; write the error-map frames into another folder")
+
+
 def _refuse_fps_for_files(args: argparse.Namespace) -> None:
     """--fps gives PNG folders and .npy arrays their rate; video files keep their own, so
     with two of them it would change nothing."""
@@ -239,6 +254,7 @@ def _cmd_score(args: argparse.Namespace) -> int:
         if args.timing:
             raise CGVQMError(f"--timing is offered for CGVQM only, not {name}")
         return _cmd_score_peer(args, name)
+    _refuse_emap_over_inputs(args)
     (name,) = _variant_of_weights(args, [name], bool(args.metric or args.variant))
     (metric,) = _metrics(args, [name])
     state = _csv_before_scoring(args, metric_name(metric), args.pool)

@@ -103,6 +103,10 @@ def check_options(args: argparse.Namespace) -> None:
                   "test videos scored together")
     if args.random_backbone is not None:
         check_seed(args.random_backbone, "--random-backbone SEED")
+    if getattr(args, "device", None):
+        from .devices import torch_device
+
+        torch_device(args.device)
     check_rate(getattr(args, "fps", None), "--fps")
     png = getattr(args, "emap_png", None)
     if png and Path(png).exists() and not Path(png).is_dir():

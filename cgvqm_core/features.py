@@ -17,6 +17,7 @@ from torch import nn
 from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 from .backbone import Conv2Plus1D, VideoResNet, build_backbone
+from .devices import torch_device
 from .errors import CGVQMError
 from .fused_conv import fusable, fused_stage
 from .hub import Backbone
@@ -95,13 +96,7 @@ class FeatureNet:
                  stem_2d: bool = False, stem_s2d: bool = False) -> None:
         if not 1 <= n_levels <= 6:
             raise CGVQMError(f"n_levels must be 1..6, got {n_levels}")
-        try:
-            self.device = torch.device(device)
-        except (RuntimeError, ValueError):
-            raise CGVQMError(f"unknown device {device!r}; use cpu or cuda") from None
-        if self.device.type == "cuda" and not torch.cuda.is_available():
-            raise CGVQMError("--device cuda was asked for but this PyTorch has no usable CUDA "
-                             "device; use --device cpu")
+        self.device = torch_device(device)
         requested = precision
         precision = resolve(precision, self.device)
         self.precision_info = check(precision, self.device)

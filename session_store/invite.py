@@ -96,10 +96,16 @@ def read_invites(path: str | Path) -> list[Invite]:
 
     path = Path(path)
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.DictReader(fh))
     except FileNotFoundError:
         raise StudyError(f"invites file not found: {path}") from None
+    except IsADirectoryError:
+        raise StudyError(f"{path} is a folder; give the invites CSV file") from None
+    except (UnicodeDecodeError, csv.Error):
+        raise StudyError(f"{path} is not a UTF-8 invites CSV (columns participant,token,"
+                         "server); use the file 'cgvq-study invite' wrote, or save it again "
+                         "as CSV UTF-8") from None
     if not rows or not {"participant", "token", "server"} <= set(rows[0]):
         raise StudyError(f"{path} is not an invites CSV (columns participant,token,server)")
     return [Invite(r["server"], r["participant"], r["token"]) for r in rows]

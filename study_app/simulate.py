@@ -249,11 +249,14 @@ def _prepare_output(out: Path, participants: list[str], overwrite: bool) -> None
             f"{out} already holds simulated sessions ({existing[0].name}, ...); choose another "
             "--out or pass --overwrite"
         )
-    for t in existing:
-        t.unlink()
-        for suffix in ("-wal", "-shm"):
-            Path(str(t) + suffix).unlink(missing_ok=True)
+    _remove_sessions(existing)
     out.mkdir(parents=True, exist_ok=True)
+
+
+def _remove_sessions(paths: list[Path]) -> None:
+    for t in paths:
+        for suffix in ("", "-wal", "-shm"):
+            Path(str(t) + suffix).unlink(missing_ok=True)
 
 
 def _earlier_sessions(out: Path) -> list[Path]:
@@ -507,6 +510,10 @@ def run_simulation(manifest_path: str | Path, out_dir: str | Path, opts: Simulat
             raters = [rater(k) for k in range(opts.raters)]
         else:
             raters, statuses = rate_and_upload(rater, participants, out, upload, t0, SESSION_SUFFIX)
+    except KeyboardInterrupt:
+        if upload is None:  # a part of a panel, without its truth, would pass for a panel
+            _remove_sessions([out / f"{p}{SESSION_SUFFIX}" for p in participants])
+        raise
     finally:
         bar.close()
     truth_path = _write_truth(panel, opts, raters)

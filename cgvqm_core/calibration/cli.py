@@ -6,6 +6,7 @@ Hooked into ``cgvqm_core.cli`` with ``register(subparsers)`` and ``run(args)``.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import sys
@@ -198,8 +199,21 @@ def _check(args: argparse.Namespace) -> None:
         raise CGVQMError(f"--out {out}: is a folder; give a file name ending in .json")
     if not out.parent.is_dir():
         raise CGVQMError(f"--out {out}: folder {out.parent} does not exist")
+    if out.exists() and not _is_weights_file(out):
+        raise CGVQMError(f"--out {out} exists and is not a CGVQM weights file (a dataset's "
+                         "manifest, say); choose another --out (only weights written before "
+                         "are replaced)")
     if args.report is not None:
         _check_report(Path(args.report), out, args.dataset)
+
+
+def _is_weights_file(path: Path) -> bool:
+    """Whether ``path`` holds a weights JSON this command (or the published set) wrote."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and str(data.get("format", "")).startswith("cgvqm-weights/")
 
 
 def _same_file(a: Path, b: Path) -> bool:

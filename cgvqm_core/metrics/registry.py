@@ -299,17 +299,9 @@ def parse_metric_list(text: str | Sequence[str],
 
 def check_device(device: str) -> None:
     """Refuse a device this PyTorch cannot use, in one line."""
-    import torch
+    from ..devices import torch_device
 
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, ValueError):
-        raise CGVQMError(f"unknown device {device!r}; use cpu or cuda") from None
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise CGVQMError("--device cuda was asked for but this PyTorch has no usable CUDA "
-                         "device; use --device cpu")
-    if dev.type not in ("cpu", "cuda"):
-        raise CGVQMError(f"device {device!r} is not supported; use cpu or cuda")
+    torch_device(device)
 
 
 def readers(option: str, names: Sequence[str] | None = None) -> list[str]:

@@ -1,4 +1,6 @@
-"""The demo, reduced to tiny sizes, end to end: the analysis must recover the simulation."""
+"""The demo, reduced to tiny sizes, end to end: the analysis must recover the simulation.
+
+Slow (about 90 s together): kept out of `make test`'s 15 minutes; CI runs them after it."""
 
 from __future__ import annotations
 
@@ -9,8 +11,10 @@ import sys
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 REPO = Path(__file__).resolve().parents[2]
+pytestmark = pytest.mark.slow
 
 
 def test_reduced_demo_finds_the_outlier_and_orders_levels(egl, tmp_path):

@@ -77,6 +77,7 @@ class _Participant:
         return answer
 
 
+@pytest.mark.slow  # about 30 s: CI runs it after `make test` (.ci/run), as does `make test-slow`
 def test_an_adaptive_study_end_to_end(tmp_path, invites, server_factory):
     study = _adaptive_study(tmp_path / "adaptive")
     inv = invites(7, study=study)

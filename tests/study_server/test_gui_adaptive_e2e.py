@@ -20,7 +20,8 @@ from study_app.remote.admin import pull
 
 from .conftest import ADMIN, REPO, cli_env
 
-pytestmark = pytest.mark.gui
+# about 35 s: CI runs it after `make test` (.ci/run), as does `make test-slow`
+pytestmark = [pytest.mark.gui, pytest.mark.slow]
 
 ARTIFACTS = REPO / "test-artifacts" / "server" / "app-adaptive"
 

@@ -26,7 +26,8 @@ from study_app.vision.isochromatic import plate_series
 
 from .conftest import ADMIN, REPO, cli_env
 
-pytestmark = pytest.mark.gui
+# about 35 s: CI runs it after `make test` (.ci/run), as does `make test-slow`
+pytestmark = [pytest.mark.gui, pytest.mark.slow]
 ARTIFACTS = REPO / "test-artifacts" / "study_app" / "questionnaire"
 COMMENT = "<b>Nice</b> & clear"
 

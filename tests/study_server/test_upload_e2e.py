@@ -29,6 +29,7 @@ def _assert_all_arrived_once(local_dir: Path, pulled_dir: Path, participants: li
         assert len(trials) == len(set(trials)) == n_trials
 
 
+@pytest.mark.slow  # about 65 s: CI runs it after `make test` (.ci/run), as does `make test-slow`
 def test_twenty_participants_240_ratings_each_at_once(tmp_path, invites, server_factory):
     study = make_served_study(tmp_path / "big", refs=20, conds=3, repetitions=3,
                               file_bytes=512)

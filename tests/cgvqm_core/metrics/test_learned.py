@@ -391,6 +391,7 @@ def test_identity_and_symmetry(wfiles):
 LEVELS = {"blur": [0.6, 1.2, 2.0, 3.0], "noise": [4.0, 8.0, 16.0, 32.0]}
 
 
+@pytest.mark.slow  # about 13 s: CI runs it with test_monotonic.py after `make test` (.ci/run)
 def test_graded_blur_and_noise_are_ordered(tmp_path, wfiles):
     """Through the streamed path on a real photograph. LPIPS and DISTS order these with
     random weights (so does PIQ with the same weights: the cross-checks above); PieAPP with

@@ -109,6 +109,9 @@ class Pages:
         flags.sort(key=lambda pf: pf[1]["last_at"], reverse=True)
         started = sum(1 for r in rows if r["s"] is not None)
         arrived = sum(r["s"]["n_ratings"] for r in rows if r["s"] is not None)
+        current = {v["manifest_sha256"] for v in listing["versions"] if v["current"]}
+        arrived_earlier = sum(r["s"]["n_ratings"] for r in rows
+                              if r["s"] is not None and r["s"]["manifest_sha256"] not in current)
         to_go = sum((snap.planned_per_participant if r["s"] is None else
                      0 if r["s"]["finished_at"] else
                      max(r["planned"] - r["s"]["n_ratings"], 0)) for r in rows)
@@ -123,7 +126,7 @@ class Pages:
             "below_target": sum(1 for n in counts if n < snap.target_per_stimulus),
             "n_stimuli": len(counts), "scenes": scenes, "flags": flags,
             "n_invited": len(rows), "n_started": started, "n_finished": finished,
-            "n_arrived": arrived, "n_to_go": to_go,
+            "n_arrived": arrived, "n_arrived_earlier": arrived_earlier, "n_to_go": to_go,
             "n_withdrawn": len(listing["withdrawn"]),
             "versions": {v["manifest_sha256"]: v["version"] for v in listing["versions"]},
         }

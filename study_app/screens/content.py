@@ -92,7 +92,7 @@ def preflight_failed(failed: Sequence[Check], name_keys: NameKeys,
     else:
         status = (f"Your {saved[0]} of {saved[1]} answers so far are saved, and nothing was "
                   "changed.")
-        again = "run the same command again to continue where you left off"
+        again = "start the study again the same way to continue where you left off"
     body = ("This computer cannot show the study's videos exactly as needed yet. " + status
             + "\n\n" + items + f"\n\nPlease change the above and {again}. If it still does "
             "not work, tell the experimenter what this screen says.")

@@ -68,7 +68,7 @@ def test_a_returning_participant_whose_display_fails_is_told_the_answers_are_kep
     back = content.preflight_failed(failed, _names, (3, 9))
     assert "Nothing was recorded" not in back.body
     assert "Your 3 of 9 answers so far are saved" in back.body
-    assert "run the same command again" in back.body
+    assert "start the study again the same way" in back.body
 
 
 def test_an_unreadable_note_of_the_last_download_gives_one_line(tmp_path, capsys):

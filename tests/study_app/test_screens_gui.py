@@ -14,7 +14,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.sessions import plain_result
 
+from session_store import SessionStore
+from session_store.schedule import make_schedule, schedule_items
+from session_store.study_folder import load_study
 from stimuli_manifests import (
     fill_checksums,
     load_manifest,
@@ -22,6 +26,7 @@ from stimuli_manifests import (
     save_manifest,
     write_video,
 )
+from study_app.app import App, RunOptions
 from study_app.layout import video_rect
 from study_app.screens.draw import REFERENCE_LINE, TEST_FILL
 
@@ -77,6 +82,19 @@ def _make_study(folder: Path, video: tuple[int, int], min_display: tuple[int, in
     save_manifest(fill_checksums(load_manifest(folder / "manifest.json")),
                   folder / "manifest.json")
     return folder
+
+
+def _half_done_session(study_dir: Path, participant: str, answered: int) -> None:
+    """A session of ``participant`` with its first ``answered`` trials rated, as a participant
+    who stopped halfway leaves it."""
+    study = load_study(study_dir)
+    path = App(study, RunOptions(participant=participant)).session_path
+    plan = make_schedule(schedule_items(study.manifest), study.manifest.protocol.repetitions, 3)
+    with SessionStore.create(path, participant=participant, study_id=study.manifest.study_id,
+                             manifest_sha256=study.loaded.sha256, seed=3, app_version="t",
+                             plan=plan) as store:
+        for trial in plan[:answered]:
+            store.record(trial.index, plain_result(50.0))
 
 
 def _rate(app) -> None:
@@ -158,6 +176,15 @@ def test_every_screen_fits_and_never_draws_on_the_video(tmp_path, xvfb_factory, 
     app = app_driver(env, [str(big), "--participant", "P02", "--screenshots", str(shots),
                            PILOT])
     assert app.leave_failed_preflight("Escape") == 2
+    # ... and a resumed session there: the screen says the answers so far are kept
+    _half_done_session(big, "P03", answered=1)
+    resumed = shots / "resumed"
+    app = app_driver(env, [str(big), "--participant", "P03", "--screenshots", str(resumed),
+                           PILOT])
+    assert app.leave_failed_preflight("Escape") == 2
+    assert (resumed / "preflight-failed.png").exists()
+    assert not np.array_equal(_png(resumed / "preflight-failed.png"),
+                              _png(shots / "preflight-failed.png"))
 
     missing = [s for s in SCREENS if not (shots / f"{s}.png").exists()]
     assert not missing, missing

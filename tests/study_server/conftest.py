@@ -209,3 +209,17 @@ def db_dump(study: Path) -> dict[str, list[tuple]]:
                 for t in tables}
     finally:
         con.close()
+
+
+def replace_a_video(study: Path) -> None:
+    """Version 2 of a served study: SRC01_HRC01 gets another video (same id, level 3), as
+    before ``serve --new-version``."""
+    path = study / "manifest.json"
+    data = json.loads(path.read_text())
+    for c in data["conditions"]:
+        if c["id"] == "SRC01_HRC01":
+            c.update(path="ref0_strong.mkv", level=3)
+            c.pop("sha256", None)
+    (study / "videos" / "ref0_strong.mkv").write_bytes(b"\x07" * 64)
+    save_manifest(parse_manifest(data), path)
+    save_manifest(fill_checksums(load_manifest(path)), path)

@@ -13,7 +13,7 @@ import pytest
 
 from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
 
-from .conftest import ADMIN, ARTIFACTS, REPO, make_served_study
+from .conftest import ADMIN, ARTIFACTS, REPO, make_served_study, replace_a_video
 
 
 def _demo_server() -> ModuleType:
@@ -39,6 +39,35 @@ def browser():
 def dashboard_study(tmp_path: Path) -> Path:
     return make_served_study(tmp_path / "study", refs=4, conds=3, repetitions=2,
                              file_bytes=256)
+
+
+def _log_in_and_wait_for_statistics(browser, figure: bool = True) -> None:
+    """Log in on the open login page, then reload until the statistics (and the figure, when
+    ``figure``) show."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    browser.find_element(By.ID, "token").send_keys(ADMIN)
+    browser.find_element(By.ID, "login").click()
+    WebDriverWait(browser, 30).until(ec.presence_of_element_located((By.ID, "participants")))
+    deadline = time.monotonic() + 120  # the statistics arrive in the background
+    while "statistics computed" not in browser.find_element(By.ID, "stats-age").text:
+        assert time.monotonic() < deadline, "statistics never computed"
+        time.sleep(1.0)
+        browser.refresh()
+    if figure:
+        WebDriverWait(browser, 30).until(
+            ec.presence_of_element_located((By.ID, "dmos-figure")))
+
+
+def _full_page_screenshot(browser, name: str) -> Path:
+    ARTIFACTS.mkdir(exist_ok=True)
+    browser.set_window_size(1500, browser.execute_script(
+        "return document.body.scrollHeight") + 150)
+    shot = ARTIFACTS / name
+    assert browser.save_screenshot(str(shot))
+    return shot
 
 
 def test_dashboard_in_a_real_browser(browser, tmp_path, invites, server_factory):
@@ -74,15 +103,7 @@ def test_dashboard_in_a_real_browser(browser, tmp_path, invites, server_factory)
     message = WebDriverWait(browser, 30).until(
         ec.presence_of_element_located((By.ID, "login-message")))
     assert "That is not the admin token" in message.text
-    browser.find_element(By.ID, "token").send_keys(ADMIN)
-    browser.find_element(By.ID, "login").click()
-    WebDriverWait(browser, 30).until(ec.presence_of_element_located((By.ID, "participants")))
-    deadline = time.monotonic() + 120  # the statistics arrive in the background
-    while "statistics computed" not in browser.find_element(By.ID, "stats-age").text:
-        assert time.monotonic() < deadline, "statistics never computed"
-        time.sleep(1.0)
-        browser.refresh()
-    WebDriverWait(browser, 30).until(ec.presence_of_element_located((By.ID, "dmos-figure")))
+    _log_in_and_wait_for_statistics(browser)
     rows = browser.find_elements(By.CSS_SELECTOR, "#participants tr[data-participant]")
     assert len(rows) == 8
     text = {r.get_attribute("data-participant"): r.text for r in rows}
@@ -103,9 +124,41 @@ def test_dashboard_in_a_real_browser(browser, tmp_path, invites, server_factory)
     # times were turned into local time by the page's script (no ISO 'Z' left)
     first_time = browser.find_element(By.CSS_SELECTOR, "#flags time")
     assert first_time.text and not first_time.text.endswith("Z")
-    ARTIFACTS.mkdir(exist_ok=True)
-    browser.set_window_size(1500, browser.execute_script(
-        "return document.body.scrollHeight") + 150)
-    shot = ARTIFACTS / "dashboard.png"
-    assert browser.save_screenshot(str(shot))
+    shot = _full_page_screenshot(browser, "dashboard.png")
     shutil.copy(shot, tmp_path / "dashboard.png")
+
+
+def test_the_dashboard_after_a_new_version_counts_only_its_sessions(
+        browser, tmp_path, invites, server_factory):
+    """Two participants rate version 1, two more the version served after ``--new-version``:
+    the statistics are on the second pair, and the page says where the other ratings went."""
+    from selenium.webdriver.common.by import By
+
+    study = dashboard_study(tmp_path)
+    tokens = {i.participant: i.token for i in invites(4, study=study)}
+    halves = [dict(list(tokens.items())[:2]), dict(list(tokens.items())[2:])]
+    for version, (args, half) in enumerate(zip(([], ["--new-version"]), halves, strict=True)):
+        if version:
+            replace_a_video(study)
+        srv = server_factory(study, "--stats-every", "1", *args)
+        run_simulation(study / "manifest.json", tmp_path / f"local{version}",
+                       SimulationOptions(raters=2, seed=version + 1), progress=False,
+                       upload=UploadOptions(srv.url, half, timeout_s=120))
+        if not version:
+            srv.stop()
+    browser.get(srv.url + "/dashboard")
+    _log_in_and_wait_for_statistics(browser, figure=False)  # two raters: too few for DMOS
+    per_session = 32  # 4 scenes x (3 conditions + hidden reference) x 2 repetitions
+    assert browser.find_element(By.ID, "n-ratings").text == str(4 * per_session)
+    assert browser.find_element(By.ID, "n-ratings-earlier").text == str(2 * per_session)
+    deadline = time.monotonic() + 60  # until the statistics include the last upload
+    while f"on {2 * per_session} ratings" not in browser.find_element(By.ID, "stats-age").text:
+        assert time.monotonic() < deadline, browser.find_element(By.ID, "stats-age").text
+        time.sleep(1.0)
+        browser.refresh()
+    assert browser.find_element(By.ID, "other-versions").text.startswith(
+        "2 participant(s) rated an earlier version")
+    versions = [r.find_elements(By.TAG_NAME, "td")[1].text for r in
+                browser.find_elements(By.CSS_SELECTOR, "#participants tr[data-participant]")]
+    assert sorted(versions) == ["v1", "v1", "v2", "v2"]
+    _full_page_screenshot(browser, "dashboard_new_version.png")

@@ -5,7 +5,6 @@ averaged into its DMOS, and the old raters counted towards the target."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from support.sessions import session_entries
@@ -13,12 +12,12 @@ from support.sessions import session_entries
 from analysis.inputs import load_ratings
 from session_store import TrialResult, utc_now
 from session_store.protocol import PROTOCOL
-from stimuli_manifests import fill_checksums, load_manifest, parse_manifest, save_manifest
+from stimuli_manifests import load_manifest
 from study_server.config import ServerConfig
 from study_server.operations import invite
 from study_server.state import ServerState
 
-from .conftest import make_served_study, write_session
+from .conftest import make_served_study, replace_a_video, write_session
 
 
 def _rate(state: ServerState, study: Path, folder: Path, pid: str, seed: int,
@@ -37,18 +36,6 @@ def _rate(state: ServerState, study: Path, folder: Path, pid: str, seed: int,
                               "entries": [e.as_json() for e in entries]}, None)
 
 
-def _replace_a_video(study: Path) -> None:
-    path = study / "manifest.json"
-    data = json.loads(path.read_text())
-    for c in data["conditions"]:
-        if c["id"] == "SRC01_HRC01":
-            c.update(path="ref0_strong.mkv", level=3)
-            c.pop("sha256", None)
-    (study / "videos" / "ref0_strong.mkv").write_bytes(b"\x07" * 64)
-    save_manifest(parse_manifest(data), path)
-    save_manifest(fill_checksums(load_manifest(path)), path)
-
-
 def test_the_dashboard_counts_only_the_version_now_served(tmp_path):
     study = make_served_study(tmp_path / "study", refs=2, conds=2, repetitions=1, file_bytes=64)
     invite(study, 6, tmp_path / "invites.csv", server="http://127.0.0.1:8000")
@@ -59,7 +46,7 @@ def test_the_dashboard_counts_only_the_version_now_served(tmp_path):
         _rate(state, study, sessions, pid, 10 + k, {"SRC01_HRC01": 80.0})
     state.stop()
 
-    _replace_a_video(study)
+    replace_a_video(study)
     state = ServerState.open(ServerConfig(study, new_version=True, stats_in_background=False))
     try:
         for k, pid in enumerate(("P04", "P05", "P06")):
@@ -99,7 +86,7 @@ def test_pull_saves_each_versions_manifest_to_analyse_its_sessions_with(
                    SimulationOptions(raters=2, seed=1), progress=False,
                    upload=UploadOptions(srv.url, first, timeout_s=120))
     srv.stop()
-    _replace_a_video(study)
+    replace_a_video(study)
     v2 = load_manifest(study / "manifest.json").sha256
     srv = server_factory(study, "--new-version")
     rest = {p: t for p, t in tokens.items() if p not in first}

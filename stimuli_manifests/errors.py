@@ -29,5 +29,10 @@ class VideoError(StimuliError):
     """A video (or frame folder / .npy array) is missing, corrupt, empty or unsupported."""
 
 
+class UnshowableVideoError(VideoError):
+    """A video that decodes but that the toolkit would show and score otherwise than media
+    players do (a display matrix, non-square pixels): re-encoding fixes it."""
+
+
 class TableError(StimuliError):
     """A CSV table (ratings, scores, DMOS) lacks columns or has an unsupported format version."""

@@ -19,7 +19,7 @@ from typing import Literal
 import av
 import numpy as np
 
-from .errors import VideoError
+from .errors import UnshowableVideoError, VideoError
 from .frame_files import ordered_frames
 from .lossless import LosslessCodec, codec_spec
 
@@ -109,19 +109,19 @@ class VideoSource:
                 raise VideoError(f"{self.path}: contains no video stream")
             stream = container.streams.video[0]
             ctx = stream.codec_context
-            rate = stream.average_rate or stream.guessed_rate or stream.base_rate
-            if self._fps_override is not None:
-                fps = float(self._fps_override)
-            elif rate:
-                fps = float(rate)
-            else:
-                raise VideoError(f"{self.path}: frame rate unknown; pass fps explicitly")
             frames = stream.frames
             if not frames:
                 try:
                     frames = sum(1 for pkt in container.demux(stream) if pkt.size > 0)
                 except av.error.FFmpegError as exc:
                     raise VideoError(f"{self.path}: corrupt video ({exc})") from None
+            rate = _frame_rate(stream, frames)
+            if self._fps_override is not None:
+                fps = float(self._fps_override)
+            elif rate:
+                fps = float(rate)
+            else:
+                raise VideoError(f"{self.path}: frame rate unknown; pass fps explicitly")
             width, height = ctx.width, ctx.height
             pix_fmt = ctx.pix_fmt or "unknown"
             codec = ctx.name
@@ -333,9 +333,9 @@ def _refuse_non_square_pixels(path: Path, stream: av.video.stream.VideoStream) -
     pixels, so an anamorphic video would be seen and scored squeezed."""
     sar = stream.sample_aspect_ratio or stream.codec_context.sample_aspect_ratio
     if sar and sar != 1:
-        raise VideoError(f"{path}: non-square pixels (sample aspect ratio {sar.numerator}:"
-                         f"{sar.denominator}); re-encode it with square pixels at its display "
-                         "size")
+        raise UnshowableVideoError(
+            f"{path}: non-square pixels (sample aspect ratio {sar.numerator}:"
+            f"{sar.denominator}); re-encode it with square pixels at its display size")
 
 
 def _refuse_display_rotation(path: Path) -> None:
@@ -353,9 +353,10 @@ def _refuse_display_rotation(path: Path) -> None:
     finally:
         container.close()
     if turn is not None:
-        raise VideoError(f"{path}: carries a display matrix ({turn}) that media players apply "
-                         "but the toolkit does not (it shows and scores the stored pixels); "
-                         "re-encode it upright (FFmpeg applies the matrix when it re-encodes)")
+        raise UnshowableVideoError(
+            f"{path}: carries a display matrix ({turn}) that media players apply but the "
+            "toolkit does not (it shows and scores the stored pixels); re-encode it upright "
+            "(FFmpeg applies the matrix when it re-encodes)")
 
 
 def _display_turn(frame: av.VideoFrame) -> str | None:
@@ -416,6 +417,22 @@ def iter_clips(
 ) -> Iterator[np.ndarray]:
     """Stream a video as clips of ``clip_len`` frames (the last may be shorter)."""
     return VideoSource(path, fps=fps, on_conversion=on_conversion).clips(clip_len)
+
+
+ROUNDED_TIMESTAMPS_S = 2e-3
+"""How far timestamps rounded to milliseconds (captures remuxed by OBS, FLV) can move a video's
+length: its start and its end by up to 1 ms each."""
+
+
+def _frame_rate(stream: av.video.stream.VideoStream, frames: int) -> Fraction | None:
+    """The stream's average frame rate, or its nominal one (FFmpeg's r_frame_rate) where the
+    two differ only as much as timestamps rounded to milliseconds explain: 60 fps stored with
+    1 ms timestamps averages 60.0019 over 10 s, and is 60 for the player and the metrics."""
+    average, nominal = stream.average_rate, stream.base_rate
+    if average and nominal and frames and average != nominal and abs(
+            frames / float(average) - frames / float(nominal)) <= ROUNDED_TIMESTAMPS_S:
+        return Fraction(nominal)
+    return average or stream.guessed_rate or nominal
 
 
 def _as_fraction(fps: float | Fraction) -> Fraction:

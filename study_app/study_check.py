@@ -95,10 +95,11 @@ _RAISE_HZ = {"manifest": "raise display.min_refresh_hz in the manifest",
 
 
 def playback_findings(sid: str, info: VideoInfo, disp: DisplayRequirements, *,
-                      settings: Literal["manifest", "init"] = "manifest"
-                      ) -> tuple[list[str], list[str]]:
+                      settings: Literal["manifest", "init"] = "manifest",
+                      transcoding: bool = False) -> tuple[list[str], list[str]]:
     """(errors, warnings) on showing one video frame-accurately on the study's minimum
-    display: 1:1 pixels, every frame shown, an even cadence, a lossless codec."""
+    display: 1:1 pixels, every frame shown, an even cadence, a lossless codec.
+    ``transcoding``: the video is a source init is making a lossless copy of."""
     errors: list[str] = []
     warnings: list[str] = []
     if info.width > disp.min_width or info.height > disp.min_height:
@@ -129,7 +130,10 @@ def playback_findings(sid: str, info: VideoInfo, disp: DisplayRequirements, *,
     elif info.kind == "video" and info.codec not in LOSSLESS_DECODER_NAMES | {"h264"}:
         warnings.append(f"{sid}: codec {info.codec}; make sure decoding is lossless "
                         "enough for a quality study")
-    if info.needs_conversion:
+    if info.needs_conversion and transcoding:
+        warnings.append(f"{sid}: {info.bit_depth}-bit{' with alpha' if info.has_alpha else ''}"
+                        f" ({info.pix_fmt}); its copy holds 8-bit RGB, what the player shows")
+    elif info.needs_conversion:
         warnings.append(f"{sid}: {info.bit_depth}-bit{' with alpha' if info.has_alpha else ''}"
                         f" ({info.pix_fmt}); the player shows it as 8-bit RGB, and cgvqm scores "
                         "it only with --allow-convert (init --transcode stores 8-bit copies)")

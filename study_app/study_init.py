@@ -32,6 +32,7 @@ from stimuli_manifests.from_folder.mapping import (
     DEFAULT_REFERENCE_PATTERN,
     DEFAULT_TEST_PATTERN,
     FolderMapping,
+    MappedVideo,
     Problem,
     map_by_csv,
     map_by_pattern,
@@ -58,6 +59,11 @@ class InitOptions:
     study_id: str | None = None
     transcode: LosslessCodec | None = None
     display: DisplayRequirements | None = None
+    """All three display requirements; default: the previous manifest's, else the defaults."""
+    min_display: tuple[int, int] | None = None
+    """Replaces the minimum screen size of ``display`` (or of the previous manifest)."""
+    min_refresh_hz: float | None = None
+    """Replaces the minimum refresh rate of ``display`` (or of the previous manifest)."""
     force: bool = False
     progress: bool = False
 
@@ -94,7 +100,7 @@ def init_study(opts: InitOptions) -> InitResult:
         raise StudyError(f"--study-id {opts.study_id!r} may contain only letters, digits, "
                          "'_', '-' and '.', and must start with a letter or digit")
     previous = _previous_manifest(out)
-    display = opts.display or (previous.display if previous else DisplayRequirements())
+    display = _display(opts, previous)
     result = InitResult(_map(opts, folder, out))
     if not result.mapping.videos and not result.mapping.problems:
         how = f"listed in {opts.mapping_csv}" if opts.mapping_csv else (
@@ -110,13 +116,16 @@ def init_study(opts: InitOptions) -> InitResult:
     why = (f"not listed in {opts.mapping_csv.name}" if opts.mapping_csv else
            "matches no pattern")
     result.warnings += [f"{p}: {why}, left out" for p in result.mapping.unmatched]
+    result.warnings += [
+        f"{p.as_posix() if p.parts else '.'}/: {n} single frames (an image sequence), left "
+        "out; init takes video files: encode the frames losslessly first (see docs: Bring "
+        "your own videos)" for p, n in sorted(result.mapping.frame_sequences.items())]
     paths = [folder / v.path for v in result.mapping.videos]
     result.probes = probe_files(paths, progress=opts.progress)
-    _video_problems(result, folder, display, check_speed=opts.transcode is None)
-    if result.problems:
-        return result
+    result.warnings += _naming_warnings(result.mapping, result.probes, folder)
+    _video_problems(result, folder, display, transcoding=opts.transcode is not None)
     placements = place(result.mapping.videos, result.probes, folder, opts.transcode)
-    result.problems += shared_paths(placements)
+    result.problems += shared_paths(placements)  # listed with the others, not after them
     if result.problems:
         return result
     study_id = opts.study_id or (previous.study_id if previous else _default_study_id(out))
@@ -125,7 +134,7 @@ def init_study(opts: InitOptions) -> InitResult:
     created = [p for p in (out, *out.parents) if not p.exists()]  # removed again on failure
     out.mkdir(parents=True, exist_ok=True)
     try:
-        shas = materialise(placements, out, previous, progress=opts.progress)
+        shas, written = materialise(placements, out, previous, progress=opts.progress)
         if opts.transcode is not None:
             result.study_probes = probe_files([out / p.study_path for p in placements],
                                               progress=opts.progress, desc="probing copies")
@@ -141,6 +150,7 @@ def init_study(opts: InitOptions) -> InitResult:
     manifest = build_manifest(placements, shas, study_id=study_id, previous=previous,
                               display=display)
     result.changes = compare(previous, manifest)
+    result.changes.files_written = written
     result.changes.files_deleted = delete_stale(previous, manifest, out)
     result.manifest = manifest
     path = out / MANIFEST_NAME
@@ -151,6 +161,17 @@ def init_study(opts: InitOptions) -> InitResult:
         tmp.replace(path)
         result.manifest_written = True
     return result
+
+
+def _display(opts: InitOptions, previous: Manifest | None) -> DisplayRequirements:
+    """The requirements asked for; what was not asked for stays as the study had it."""
+    base = opts.display or (previous.display if previous else DisplayRequirements())
+    update: dict[str, float] = {}
+    if opts.min_display is not None:
+        update.update(min_width=opts.min_display[0], min_height=opts.min_display[1])
+    if opts.min_refresh_hz is not None:
+        update["min_refresh_hz"] = opts.min_refresh_hz
+    return DisplayRequirements(**{**base.model_dump(), **update})
 
 
 def _previous_manifest(out: Path) -> Manifest | None:
@@ -182,6 +203,28 @@ def _default_study_id(out: Path) -> str:
     return name if name and is_valid_id(name) else "study"
 
 
+def _naming_warnings(mapping: FolderMapping, probes: dict[Path, ProbedVideo],
+                     folder: Path) -> list[str]:
+    """Export slips that are legal but rarely meant: a reference without test videos, and
+    a test video byte-identical to its reference or to another test video."""
+    out = []
+    tested = {v.scene for v in mapping.videos if v.role == "test"}
+    out += [f"{v.path}: the reference of scene {v.scene!r} has no test video (check the "
+            "names of its test videos)" for v in mapping.videos
+            if v.role == "reference" and v.scene not in tested]
+    refs = mapping.references()
+    first: dict[str, MappedVideo] = {}
+    for v in sorted((v for v in mapping.videos if v.role == "test"), key=lambda v: v.path):
+        sha = probes[folder / v.path].sha256
+        ref = refs.get(v.scene)
+        if ref is not None and probes[folder / ref.path].sha256 == sha:
+            out.append(f"{v.path}: the same file as its reference {ref.path} (byte for byte)")
+        elif sha in first:
+            out.append(f"{v.path}: the same file as {first[sha].path} (byte for byte)")
+        first.setdefault(sha, v)
+    return out
+
+
 def _remove_created(created: list[Path]) -> None:
     """Remove the folders this run created (deepest first), with what it wrote into them."""
     if created:
@@ -194,19 +237,20 @@ def _remove_created(created: list[Path]) -> None:
 
 
 def _video_problems(result: InitResult, folder: Path, display: DisplayRequirements, *,
-                    check_speed: bool) -> None:
-    """Undecodable files, pair mismatches and what the player cannot show."""
+                    transcoding: bool) -> None:
+    """Undecodable files, pair mismatches and what the player cannot show (how fast the
+    sources decode only matters when they are not transcoded)."""
     videos = result.mapping.videos
     infos = {}
     for video in videos:
         probe = result.probes[folder / video.path]
         if probe.info is None:
-            result.problems.append(Problem("undecodable", str(video.path), str(probe.error)))
+            result.problems.append(Problem(probe.error_kind, str(video.path), str(probe.error)))
             continue
         infos[video.stimulus_id] = probe.info
         result.warnings += [f"{video.path}: {w}" for w in probe.warnings]
         errors, warnings = playback_findings(str(video.path), probe.info, display,
-                                             settings="init")
+                                             settings="init", transcoding=transcoding)
         result.problems += [Problem("player", str(video.path), e.split(": ", 1)[1])
                             for e in errors]
         result.warnings += warnings
@@ -222,7 +266,7 @@ def _video_problems(result: InitResult, folder: Path, display: DisplayRequiremen
                                                message.split(": ", 1)[1]))
     if (problem := label_room_problem(infos.values(), display, settings="init")) is not None:
         result.problems.append(Problem("player", "all videos", problem))
-    if check_speed:
+    if not transcoding:
         _speed_problems(result, {v.stimulus_id: folder / v.path for v in videos},
                         result.probes, transcoded=False)
 

@@ -54,23 +54,23 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="change stimuli even when the study already holds sessions")
 
 
-def _display(args: argparse.Namespace):
+def _display(args: argparse.Namespace) -> tuple[tuple[int, int] | None, float | None]:
+    """(minimum screen, minimum refresh rate) given on the command line; None where not
+    given, so that a re-run keeps the manifest's value of the other."""
     from session_store.errors import StudyError
-    from stimuli_manifests import DisplayRequirements
 
     from .run import parse_size
 
-    if args.min_display is None and args.min_refresh_hz is None:
-        return None
-    base = DisplayRequirements()
-    width, height = (parse_size(args.min_display, option="--min-display")
-                     if args.min_display else (base.min_width, base.min_height))
-    if width < 1 or height < 1:
-        raise StudyError(f"--min-display must be at least 1x1 pixels, got {args.min_display}")
-    hz = base.min_refresh_hz if args.min_refresh_hz is None else args.min_refresh_hz
-    if not 1 <= hz <= 1000:
+    size = None
+    if args.min_display is not None:
+        size = parse_size(args.min_display, option="--min-display")
+        if size[0] < 1 or size[1] < 1:
+            raise StudyError(f"--min-display must be at least 1x1 pixels, got "
+                             f"{args.min_display}")
+    hz = args.min_refresh_hz
+    if hz is not None and not 1 <= hz <= 1000:
         raise StudyError(f"--min-refresh-hz must be between 1 and 1000, got {hz:g}")
-    return DisplayRequirements(min_width=width, min_height=height, min_refresh_hz=hz)
+    return size, hz
 
 
 def run(args: argparse.Namespace) -> int:
@@ -88,11 +88,13 @@ def run(args: argparse.Namespace) -> int:
     if args.mapping is not None and given:
         raise StudyError(f"{given[0]} maps files by their names; --mapping lists them in a CSV "
                          "instead: give one or the other")
+    min_display, min_refresh_hz = _display(args)
     opts = InitOptions(folder=args.folder, out=args.out, mapping_csv=args.mapping,
                        test_pattern=args.pattern or DEFAULT_TEST_PATTERN,
                        reference_pattern=args.reference_pattern or DEFAULT_REFERENCE_PATTERN,
                        study_id=args.study_id, transcode=args.transcode,
-                       display=_display(args), force=args.force,
+                       min_display=min_display, min_refresh_hz=min_refresh_hz,
+                       force=args.force,
                        progress=sys.stderr.isatty())  # no bar in the one-line error of a pipe
     result = init_study(opts)
     print_probe_table(result, opts.folder)

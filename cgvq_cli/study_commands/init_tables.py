@@ -51,7 +51,7 @@ def print_warnings(warnings: list[str]) -> None:
 def print_problems(problems: list[Problem]) -> None:
     print(f"problems ({len(problems)}):")
     print(format_table(["problem", "file or stimulus", "what to do"],
-                       [[p.kind, p.subject, p.detail] for p in problems], max_width=200))
+                       [[p.kind, p.subject, p.detail] for p in problems], max_width=1000))
 
 
 def print_changes(result: InitResult, out: Path) -> None:
@@ -68,11 +68,19 @@ def print_changes(result: InitResult, out: Path) -> None:
                        ("settings changed", changes.settings)):
         if ids:
             print(f"  {label}: {', '.join(ids)}")
+    if "display" in changes.settings:
+        d = manifest.display
+        print(f"  the participant's display now needs at least {d.min_width}x{d.min_height} "
+              f"pixels at {d.min_refresh_hz:g} Hz or more")
+    if changes.restored:
+        print(f"  copied again (the study's copy was missing or edited): "
+              f"{', '.join(changes.restored)}")
     if changes.files_deleted:
         n = len(changes.files_deleted)
         print(f"  deleted {n} cop{'y' if n == 1 else 'ies'} nothing refers to any more")
     if not result.manifest_written:
-        print(f"no changes: {out / 'manifest.json'} is up to date")
+        print(f"no changes: {out / 'manifest.json'} is up to date"
+              + (" (copies restored as listed)" if changes.restored else ""))
     else:
         print(f"wrote {out / 'manifest.json'}; next: cgvq-study check {out}, then "
               f"cgvq-study preview {out}")

@@ -51,9 +51,15 @@ class StudyChanges:
     removed: list[str] = field(default_factory=list)
     replaced: list[str] = field(default_factory=list)
     settings: list[str] = field(default_factory=list)
-    files_written: int = 0
-    files_kept: int = 0
+    files_written: list[str] = field(default_factory=list)
+    """Ids whose copy was written (new, replaced, or missing or edited in the study)."""
     files_deleted: list[str] = field(default_factory=list)
+
+    @property
+    def restored(self) -> list[str]:
+        """Ids whose copy was written again although their source did not change: the copy
+        in the study was missing or no longer had its checksum."""
+        return [i for i in self.files_written if i not in {*self.added, *self.replaced}]
 
     @property
     def stimuli_changed(self) -> bool:
@@ -108,12 +114,13 @@ def _recorded_sources(manifest: Manifest | None) -> dict[str, tuple[dict[str, An
 
 
 def materialise(placements: list[Placement], study: Path, previous: Manifest | None, *,
-                progress: bool = False) -> dict[str, str]:
+                progress: bool = False) -> tuple[dict[str, str], list[str]]:
     """Copy or transcode what is not already in the study; returns id -> sha256 of the file
-    in the study. A file is kept when the previous manifest recorded the same source, path
-    and codec and the file there still has the recorded checksum."""
+    in the study, and the ids written. A file is kept when the previous manifest recorded the
+    same source, path and codec and the file there still has the recorded checksum."""
     recorded = _recorded_sources(previous)
     shas: dict[str, str] = {}
+    written: list[str] = []
     bar = tqdm(placements, desc="copying videos", unit="video", disable=not progress)
     for pl in bar:
         sid = pl.video.stimulus_id
@@ -129,10 +136,11 @@ def materialise(placements: list[Placement], study: Path, previous: Manifest | N
             shutil.copyfile(pl.source.path, tmp)
             tmp.replace(dest)
         else:
-            source = VideoSource(pl.source.path)
+            source = VideoSource(pl.source.path, on_conversion="quiet")  # init warned of it
             write_video(dest, source.frames(), source.info.fps, codec=pl.codec)
         shas[sid] = sha256_file(dest)
-    return shas
+        written.append(sid)
+    return shas, written
 
 
 def build_manifest(placements: list[Placement], shas: dict[str, str], *, study_id: str,
@@ -193,4 +201,11 @@ def delete_stale(previous: Manifest | None, new: Manifest, study: Path) -> list[
         if path.is_file():
             path.unlink()
             gone.append(entry.path)
+            for folder in path.parents:  # and the folders that held only it
+                if folder == study / VIDEOS_DIR or not folder.is_relative_to(study):
+                    break
+                try:
+                    folder.rmdir()
+                except OSError:  # not empty
+                    break
     return gone

@@ -14,7 +14,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
-from typing import Literal
+from typing import Literal, TextIO
 
 from ..model import is_valid_id
 
@@ -23,7 +23,12 @@ Role = Literal["reference", "test"]
 DEFAULT_TEST_PATTERN = "{scene}/{method}_L{level}.{ext}"
 DEFAULT_REFERENCE_PATTERN = "{scene}/reference.{ext}"
 VIDEO_SUFFIXES = frozenset({".mkv", ".mp4", ".mov", ".avi", ".webm", ".nut", ".y4m", ".m4v",
-                            ".mpg", ".mpeg", ".ts", ".mxf"})
+                            ".mpg", ".mpeg", ".ts", ".mxf", ".flv", ".f4v", ".m2ts", ".mts",
+                            ".wmv", ".asf", ".ogv", ".3gp", ".vob", ".dv", ".ivf"})
+FRAME_SUFFIXES = frozenset({".png", ".exr", ".jpg", ".jpeg", ".tif", ".tiff", ".dpx", ".bmp",
+                            ".tga", ".webp"})
+"""Single frames: a folder of them is a frame sequence, which init does not take (it is named,
+not left out without a word)."""
 CSV_COLUMNS = ("path", "scene", "role", "method", "level", "setting")
 _PLACEHOLDERS = {
     "scene": r"(?P<scene>[^/]+?)",
@@ -74,14 +79,18 @@ class FolderMapping:
     videos: list[MappedVideo] = field(default_factory=list)
     unmatched: list[PurePosixPath] = field(default_factory=list)
     problems: list[Problem] = field(default_factory=list)
+    frame_sequences: dict[PurePosixPath, int] = field(default_factory=dict)
+    """Folders holding single frames (an image sequence), with how many."""
 
     def references(self) -> dict[str, MappedVideo]:
         return {v.scene: v for v in self.videos if v.role == "reference"}
 
 
-def compile_pattern(pattern: str, *, required: tuple[str, ...]) -> re.Pattern[str]:
+def compile_pattern(pattern: str, *, required: tuple[str, ...],
+                    scenes: list[str] | None = None) -> re.Pattern[str]:
     """A filename pattern with ``{placeholders}`` as a regular expression over relative
-    POSIX paths; ``ValueError`` names an unknown or missing placeholder."""
+    POSIX paths; ``ValueError`` names an unknown or missing placeholder. With ``scenes``,
+    ``{scene}`` matches only those names, the longest first."""
     names = re.findall(r"{([^{}]*)}", pattern)
     for name in names:
         if name not in _PLACEHOLDERS:
@@ -92,8 +101,12 @@ def compile_pattern(pattern: str, *, required: tuple[str, ...]) -> re.Pattern[st
     for name in required:
         if name not in names:
             raise ValueError(f"pattern {pattern!r} needs a {{{name}}} placeholder")
+    pieces = dict(_PLACEHOLDERS)
+    if scenes:
+        alternatives = "|".join(re.escape(n) for n in sorted(scenes, key=len, reverse=True))
+        pieces["scene"] = f"(?P<scene>{alternatives})"
     regex = "".join(
-        _PLACEHOLDERS[part[1:-1]] if part.startswith("{") else re.escape(part)
+        pieces[part[1:-1]] if part.startswith("{") else re.escape(part)
         for part in re.split(r"({[^{}]*})", pattern) if part
     )
     return re.compile(regex)
@@ -113,9 +126,19 @@ def broken_links(folder: Path, *, exclude: Path | None = None) -> list[Problem]:
             if target is not None]
 
 
-def _walk(folder: Path, exclude: Path | None) -> list[tuple[PurePosixPath, str | None]]:
+def frame_sequences(folder: Path, *, exclude: Path | None = None) -> dict[PurePosixPath, int]:
+    """Folders under ``folder`` (itself included) with two or more single frames (PNG, EXR,
+    ...): image sequences, with their number of frames."""
+    found: dict[PurePosixPath, int] = {}
+    _walk(folder, exclude, frames=found)
+    return {k: n for k, n in found.items() if n >= 2}
+
+
+def _walk(folder: Path, exclude: Path | None, frames: dict[PurePosixPath, int] | None = None
+          ) -> list[tuple[PurePosixPath, str | None]]:
     """(relative path, None) for each video file and (relative path, link target) for each
-    broken link, following linked folders once each (a link back up is not a loop)."""
+    broken link, following linked folders once each (a link back up is not a loop); counts
+    single frames per folder into ``frames``."""
     out: list[tuple[PurePosixPath, str | None]] = []
     seen: set[str] = set()
     for root, dirs, files in os.walk(folder, followlinks=True):
@@ -131,7 +154,12 @@ def _walk(folder: Path, exclude: Path | None) -> list[tuple[PurePosixPath, str |
         dirs[:] = sorted(d for d in dirs if not d.startswith("."))
         for name in files:
             path = here / name
-            if name.startswith(".") or path.suffix.lower() not in VIDEO_SUFFIXES:
+            if name.startswith("."):
+                continue
+            if frames is not None and path.suffix.lower() in FRAME_SUFFIXES:
+                rel_dir = PurePosixPath(here.relative_to(folder).as_posix())
+                frames[rel_dir] = frames.get(rel_dir, 0) + 1
+            if path.suffix.lower() not in VIDEO_SUFFIXES:
                 continue
             rel = PurePosixPath(path.relative_to(folder).as_posix())
             if path.is_file():
@@ -147,16 +175,27 @@ def map_by_pattern(folder: Path, *, test_pattern: str = DEFAULT_TEST_PATTERN,
     """Map every video file under ``folder`` with the two filename patterns."""
     test_re = compile_pattern(test_pattern, required=("scene", "method", "level"))
     ref_re = compile_pattern(reference_pattern, required=("scene",))
-    out = FolderMapping(problems=broken_links(folder, exclude=exclude))
+    out = FolderMapping(problems=broken_links(folder, exclude=exclude),
+                        frame_sequences=frame_sequences(folder, exclude=exclude))
+    tests: list[PurePosixPath] = []
     for rel in video_files(folder, exclude=exclude):
         text = rel.as_posix()
         if m := ref_re.fullmatch(text):
             out.videos.append(MappedVideo(rel, m["scene"], "reference"))
-        elif m := test_re.fullmatch(text):
-            out.videos.append(MappedVideo(rel, m["scene"], "test", m["method"],
-                                          int(m["level"]), m.groupdict().get("setting")))
+        elif test_re.fullmatch(text):
+            tests.append(rel)
         else:
             out.unmatched.append(rel)
+    # A scene name may hold the separator the pattern puts after it (sponza_atrium_dlss_L1
+    # beside sponza_reference): a split at a scene that has a reference, the longest, wins.
+    known = compile_pattern(test_pattern, required=("scene", "method", "level"),
+                            scenes=list(out.references())) if out.references() else None
+    for rel in tests:
+        text = rel.as_posix()
+        m = (known.fullmatch(text) if known else None) or test_re.fullmatch(text)
+        assert m is not None
+        out.videos.append(MappedVideo(rel, m["scene"], "test", m["method"],
+                                      int(m["level"]), m.groupdict().get("setting")))
     _check(out)
     return out
 
@@ -167,7 +206,7 @@ def map_by_csv(folder: Path, csv_path: Path) -> FolderMapping:
     out = FolderMapping()
     try:
         with open(csv_path, newline="", encoding="utf-8-sig") as fh:
-            reader = csv.DictReader(fh)
+            reader = csv.DictReader(fh, dialect=_dialect(fh))
             columns = [c.strip() for c in reader.fieldnames or []]
             missing = [c for c in ("path", "scene", "role") if c not in columns]
             if missing:
@@ -180,12 +219,26 @@ def map_by_csv(folder: Path, csv_path: Path) -> FolderMapping:
             for line, row in enumerate(reader, start=2):
                 clean = {k.strip(): (v or "").strip() for k, v in row.items() if k}
                 _csv_row(folder, clean, f"{csv_path.name} line {line}", out)
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+    except UnicodeDecodeError:
+        raise ValueError(f"cannot read {csv_path}: it is not UTF-8 text; save it as "
+                         "'CSV UTF-8'") from None
+    except (OSError, csv.Error) as exc:
         raise ValueError(f"cannot read {csv_path}: {exc}") from None
     listed = {v.path for v in out.videos}
     out.unmatched = [p for p in video_files(folder) if p not in listed]
     _check(out)
     return out
+
+
+def _dialect(fh: TextIO) -> type[csv.Dialect] | csv.Dialect:
+    """Commas, or the semicolons (tabs) that spreadsheets write in many locales, read from the
+    header line; the file is left at its start."""
+    header = fh.readline()
+    fh.seek(0)
+    try:
+        return csv.Sniffer().sniff(header, delimiters=",;\t")
+    except csv.Error:  # one column, or none: commas
+        return csv.excel
 
 
 def _csv_row(folder: Path, row: dict[str, str], where: str, out: FolderMapping) -> None:

@@ -12,12 +12,26 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+import av
 from tqdm import tqdm
 
 from ..checksums import sha256_file
-from ..errors import StimuliError
+from ..errors import StimuliError, UnshowableVideoError
 from ..video import VideoInfo, VideoSource
 from .timing import decoder_errors, uneven_timing, video_streams
+
+# FFmpeg's color_trc values of the HDR transfer functions
+_HDR_TRANSFERS = {16: "PQ transfer, SMPTE ST 2084", 18: "HLG transfer, ARIB STD-B67"}
+
+
+def hdr_transfer(path: Path) -> str | None:
+    """The HDR transfer function the first video stream is tagged with, if any."""
+    try:
+        with av.open(str(path)) as container:
+            trc = container.streams.video[0].codec_context.color_trc
+    except (av.error.FFmpegError, IndexError, AttributeError):
+        return None
+    return _HDR_TRANSFERS.get(int(trc or 0))
 
 
 @dataclass(frozen=True)
@@ -31,6 +45,7 @@ class ProbedVideo:
     decode_seconds: float = 0.0
     error: str | None = None
     warnings: tuple[str, ...] = ()
+    error_kind: str = "undecodable"
 
     @property
     def decode_fps(self) -> float:
@@ -49,6 +64,9 @@ class DecodeFindings:
     decode_seconds: float = 0.0
     error: str | None = None
     warnings: tuple[str, ...] = ()
+    error_kind: str = "undecodable"
+    """What ``error`` is: 'undecodable', or 'not as stored' (it decodes, but media players
+    show it otherwise than the toolkit would)."""
 
 
 def decode_findings(path: Path) -> DecodeFindings:
@@ -64,6 +82,9 @@ def decode_findings(path: Path) -> DecodeFindings:
             start = time.perf_counter()
             count = sum(1 for _ in source.frames())
             seconds = time.perf_counter() - start
+    except UnshowableVideoError as exc:
+        return DecodeFindings(None, error=str(exc).removeprefix(f"{path}: "),
+                              error_kind="not as stored")
     except StimuliError as exc:
         message = str(exc).removeprefix(f"{path}: ")
         return DecodeFindings(None, error=f"cannot be decoded: {message}")
@@ -71,7 +92,10 @@ def decode_findings(path: Path) -> DecodeFindings:
     if count != info.frame_count:
         return DecodeFindings(None, error=(
             f"truncated or damaged: its container lists {info.frame_count} frames but "
-            f"{count} decode; re-export or re-encode it"))
+            f"{count} decode"
+            + (" (or it was cut without re-encoding, and its edit list hides frames the "
+               "container still holds)" if count < info.frame_count else "")
+            + "; re-export or re-encode it"))
     if errors:
         return DecodeFindings(None, error=(
             f"damaged: the decoder reported {errors[0]}"
@@ -83,6 +107,10 @@ def decode_findings(path: Path) -> DecodeFindings:
                         f"1/{info.fps:g} s, so the file's own timing is not reproduced")
     if info.kind == "video" and (n := video_streams(path)) > 1:
         warnings.append(f"{n} video streams; only the first is shown and scored")
+    if info.kind == "video" and (hdr := hdr_transfer(path)) is not None:
+        warnings.append(f"HDR video ({hdr}); the player and the metrics show its code values "
+                        "as SDR RGB without tone mapping, so it looks washed out: export SDR "
+                        "(BT.709) renders for the study")
     return DecodeFindings(info, seconds, warnings=tuple(warnings))
 
 
@@ -92,7 +120,7 @@ def probe_file(path: Path) -> ProbedVideo:
     size = path.stat().st_size
     found = decode_findings(path)
     return ProbedVideo(path, sha, size, found.info, found.decode_seconds, found.error,
-                       found.warnings)
+                       found.warnings, found.error_kind)
 
 
 def probe_files(paths: Iterable[Path], *, progress: bool = False,

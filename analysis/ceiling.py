@@ -126,6 +126,8 @@ class CiCurve:
     decay_rate: float = float("nan")
     decay_scale: float = float("nan")
     reduction_power: float = float("nan")
+    decay_from: int = 0
+    """The first participant whose reduction the decay fit used (5, or 3 in short curves)."""
 
     def reduction_per_rater(self) -> dict[int, float]:
         """Mean DMOS CI reduction gained by adding the n-th rater (the paper's reading;
@@ -206,6 +208,7 @@ def ci_width_curve(rs: RatingSet, draws: int = 100, seed: int = 0) -> CiCurve:
         if use.sum() < 3:
             use = np.isfinite(red) & (red > 0)
         if use.sum() >= 2:
+            curve.decay_from = int(red_n[use].min())
             slope, intercept = np.polyfit(red_n[use], np.log(red[use]), 1)
             curve.decay_rate, curve.decay_scale = float(-slope), float(np.exp(intercept))
             curve.reduction_power = _power_fit(red_n[use], red[use])[1]

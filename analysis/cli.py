@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import shlex
 import sys
 from pathlib import Path
 
@@ -219,7 +220,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"warning: {analysis.scores.fallback}", file=sys.stderr)
     print(summary_text(analysis))
     if args.command == "report":
-        path = write_report(analysis, args.out, notes=notes)
+        path = write_report(analysis, args.out, notes=notes, inputs=_provenance(args))
         print(f"report: {path}")
     elif args.out:
         Path(args.out).mkdir(parents=True, exist_ok=True)
@@ -228,9 +229,28 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _provenance(args: argparse.Namespace) -> dict[str, object]:
+    """The files a report was made from, each with its sha256, and the command line."""
+    from stimuli_manifests.checksums import sha256_file
+
+    def files(paths: list[str] | None) -> list[dict[str, str]]:
+        return [{"path": str(Path(p).resolve()),
+                 **({"sha256": sha256_file(Path(p))} if Path(p).is_file() else {})}
+                for p in paths or []]
+
+    out: dict[str, object] = {"command": shlex.join(["cgvq-analyze", *args.argv])}
+    if args.manifest:
+        out["manifest"] = files([args.manifest])[0]
+    for key in ("sessions", "ratings", "metric"):
+        if getattr(args, key, None):
+            out[key] = files(getattr(args, key))
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     if args.command is None:
         parser.print_help()
         return 0

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 from matplotlib import colormaps, rc_context
 from matplotlib.figure import Figure
-from matplotlib.ticker import MaxNLocator
+from matplotlib.ticker import LogFormatter, MaxNLocator, NullFormatter
 
 from .data import RatingSet
 from .panel_figure import draw_survey
@@ -20,10 +20,21 @@ from .quality import THRESHOLDS
 _DPI = 100
 
 
-def _save(fig: Figure, path: Path) -> Path:
-    fig.tight_layout()
+def _save(fig: Figure, path: Path, *, tight: bool = True) -> Path:
+    """The figure as PNG (for the HTML page) and as PDF beside it (vector, for papers)."""
+    if tight:
+        fig.tight_layout()
     fig.savefig(path, dpi=_DPI)
+    fig.savefig(path.with_suffix(".pdf"))
     return path
+
+
+def _lowest(t: pd.DataFrame) -> float:
+    """The lowest PLCC or SRCC or lower CI bound (at most 0): an axis from there shows every
+    whisker whole, including intervals that reach below 0."""
+    cols = [c for c in ("plcc", "srcc", "plcc_ci95_low", "srcc_ci95_low") if c in t.columns]
+    values = t[cols].to_numpy(dtype=float)
+    return min(0.0, float(np.nanmin(values))) if np.isfinite(values).any() else 0.0
 
 
 def _grid(n: int, max_cols: int = 4) -> tuple[int, int]:
@@ -83,8 +94,7 @@ def dmos_per_scene(a: Analysis, path: Path) -> Path:
     fig.legend(handles, labels, loc="lower center", ncol=min(6, len(labels)), fontsize=7,
                bbox_to_anchor=(0.5, 0.0))
     fig.tight_layout(rect=(0, 0.06, 1, 1))
-    fig.savefig(path, dpi=_DPI)
-    return path
+    return _save(fig, path, tight=False)
 
 
 def metric_scatter(a: Analysis, path: Path) -> Path | None:
@@ -212,6 +222,9 @@ def ci_curve(a: Analysis, path: Path) -> Path | None:
                      label=f"{c.decay_scale:.3g} exp(-{c.decay_rate:.3f} n)")
         if (r > 0).sum() >= 2:
             ax2.set_yscale("log")  # an exponential decay is a straight line
+            # plain numbers: the default labels are mathtext, which literal_text turns off
+            ax2.yaxis.set_major_formatter(LogFormatter(labelOnlyBase=False))
+            ax2.yaxis.set_minor_formatter(NullFormatter())
         ax2.set_xlabel("n-th rater added")
         ax2.set_ylabel("DMOS CI width reduction")
         ax2.legend(fontsize=8)
@@ -251,8 +264,7 @@ def metric_comparison(a: Analysis, path: Path) -> Path | None:
         err = np.nan_to_num(np.abs(np.vstack([val - lo, hi - val])))
         ax.bar(x + off, val, w, yerr=err, capsize=3, color=col, label=key.upper())
     ax.set_xticks(x, t["metric"], rotation=20, ha="right", fontsize=8)
-    ax.set_ylim(min(0.0, float(np.nanmin(t[["plcc", "srcc"]].to_numpy(dtype=float))) - 0.05),
-                1.05)
+    ax.set_ylim(_lowest(t) - 0.05, 1.05)
     ax.legend(fontsize=8)
     ax.set_title("metrics versus DMOS (95% bootstrap CI)", fontsize=10)
     return _save(fig, path)
@@ -287,7 +299,7 @@ def metric_benchmark(a: Analysis, path: Path) -> Path | None:
     for tick, name in zip(ax.get_yticklabels(), t["metric"], strict=True):
         if name in a.metrics.untrained:
             tick.set_color("#a00")
-    ax.set_xlim(min(0.0, float(np.nanmin(t[["plcc", "srcc"]].to_numpy(float))) - 0.05), 1.0)
+    ax.set_xlim(_lowest(t) - 0.05, 1.0)
     ax.set_xlabel("correlation with DMOS")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_title("metric benchmark (95% two-way bootstrap CIs; hatched: flagged)", fontsize=10)
@@ -459,5 +471,8 @@ def draw_all(a: Analysis, folder: Path) -> dict[str, tuple[Path, str]]:
         for name, (fn, caption) in FIGURES.items():
             path = fn(a, folder / f"{name}.png")
             if path is not None:
+                if a.ceiling is None:  # captions say only what is drawn
+                    caption = caption.replace("; the grey band is the human ceiling", "")
+                    caption = caption.replace(", human ceiling alongside", "")
                 out[name] = (path, caption)
     return out

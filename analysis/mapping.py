@@ -16,9 +16,11 @@ same bounds and the same monotone-or-line rule per resample.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import least_squares
 
 log = logging.getLogger(__name__)
 
@@ -82,19 +84,44 @@ def fit_mapping(q: np.ndarray, y: np.ndarray) -> Mapping:
     b4 = (0.0, yr) if sign > 0 else (-yr, 0.0)
     lower = (b1[0], 1e-2, float(z.min()), b4[0], float(y.min()) - 10 * yr)
     upper = (b1[1], 20.0, float(z.max()), b4[1], float(y.max()) + 10 * yr)
-    mid = float(np.clip(np.median(z), lower[2], upper[2]))
-    starts = np.array([[sign * yr * f, b2, mid, 0.0, float(np.mean(y))]
-                       for b2 in (1.0, 3.0, 0.3) for f in (1.0, 2.0)])
+    # Starts over the range of the knee (b3) and of its steepness (b2): from one start the
+    # fit can settle on a near-line (b2 at its floor) although a better logistic exists.
+    knees = np.clip(np.quantile(z, [0.1, 0.3, 0.5, 0.7, 0.9]), lower[2], upper[2])
+    starts = np.array([[sign * yr * f, b2, float(b3), 0.0, float(np.mean(y))]
+                       for b2 in (0.3, 1.0, 3.0, 10.0) for b3 in knees for f in (1.0, 2.0)])
     params, sse = _lm_batch(np.tile(z, (len(starts), 1)), np.tile(y, (len(starts), 1)),
                             starts, np.array(lower), np.array(upper), iterations=400)
     grid = np.linspace(z.min(), z.max(), 200)
-    good = np.isfinite(sse) & np.array([_monotone(logistic5(grid, *p), 1e-9 * yr)
-                                        for p in params])
+
+    def monotone(p: np.ndarray) -> bool:
+        return _monotone(logistic5(grid, *p), 1e-9 * yr)
+
+    good = np.isfinite(sse) & np.array([monotone(p) for p in params])
     if not good.any():
         log.info("no monotone logistic fit over the data; using a linear mapping")
         return line
-    best = params[int(np.argmin(np.where(good, sse, np.inf)))]
+    best = _polish(z, y, params, np.where(good, sse, np.inf), lower, upper, monotone)
     return Mapping("logistic5", tuple(float(p) for p in best), center, scale, lower, upper)
+
+
+def _polish(z: np.ndarray, y: np.ndarray, params: np.ndarray, sse: np.ndarray,
+            lower: tuple[float, ...], upper: tuple[float, ...],
+            monotone: Callable[[np.ndarray], bool]) -> np.ndarray:
+    """The best of the batch's fits after SciPy's bounded trust-region solver has refined
+    the three best (distinct) ones; a refinement counts only while it stays monotone."""
+    best_i = int(np.argmin(sse))
+    best, best_sse = params[best_i], float(sse[best_i])
+    for i in np.argsort(sse)[:3]:
+        if not np.isfinite(sse[i]):
+            break
+        x0 = np.clip(params[i], np.nextafter(lower, upper), np.nextafter(upper, lower))
+        with np.errstate(over="ignore"):
+            res = least_squares(lambda p: logistic5(z, *p) - y, x0, bounds=(lower, upper),
+                                method="trf", x_scale="jac", max_nfev=2000)
+        cost = float(2.0 * res.cost)
+        if np.isfinite(cost) and cost < best_sse and monotone(res.x):
+            best, best_sse = res.x, cost
+    return best
 
 
 # -- many resamples at once -----------------------------------------------------------------

@@ -314,6 +314,14 @@ def small_sample_factor(n: int, strata: int) -> float:
     return float(np.sqrt(n / (n - strata)) * stats.t.ppf(0.975, n - 3) / stats.norm.ppf(0.975))
 
 
+CORR_CLIP = 0.999999
+"""Correlations are clipped here before Fisher's z; resamples at the clip carry no spread."""
+
+MIN_INTERVAL_STIMULI = 6
+"""Fewer stimuli (in one distortion method) give no interval: Student's quantile with
+n - 3 <= 2 degrees of freedom widens it past any use (an rmse interval of [0.4, 1199])."""
+
+
 def _basic_interval(point: float, ref: float, boot: np.ndarray, kind: str, *,
                     factor: float = 1.0) -> tuple[float, float]:
     """Basic bootstrap interval on Fisher's z (correlations) or log (rmse):
@@ -327,9 +335,15 @@ def _basic_interval(point: float, ref: float, boot: np.ndarray, kind: str, *,
             not np.isfinite(factor):
         return float("nan"), float("nan")
     if kind == "corr":
-        fwd, inv = (lambda x: np.arctanh(np.clip(x, -0.999999, 0.999999))), np.tanh
+        fwd, inv = (lambda x: np.arctanh(np.clip(x, -CORR_CLIP, CORR_CLIP))), np.tanh
+        degenerate = np.abs(boot) >= CORR_CLIP  # |r| = 1: z is infinite
     else:
         fwd, inv = (lambda x: np.log(np.maximum(x, 1e-12))), np.exp
+        degenerate = boot <= 1e-12  # rmse 0: log is -infinite
+    if degenerate.mean() > 0.025:
+        # A tail of resamples at the scale's end (a few stimuli, all in order) has no spread
+        # on z: the interval would be set by the clip ([-1, 0.998], or zero width).
+        return float("nan"), float("nan")
     lo_q, mid, hi_q = np.percentile(fwd(boot), [2.5, 50.0, 97.5])
     centre = fwd(np.array(point)) - (mid - fwd(np.array(ref)))
     return (float(inv(centre - factor * (hi_q - mid))),
@@ -458,6 +472,12 @@ def validate_metrics(
             problems.append(InputProblem(name, None, f"{name}: {why}; metric not evaluated"))
             skipped.append(f"{name}: {why}")
             continue
+        if len(m) < len(sid):  # ranked against metrics that saw every stimulus: say so
+            missing = sorted(set(sid) - set(m["stimulus"].astype(str)))
+            problems.append(InputProblem(name, None, (
+                f"{name}: {len(missing)} of {len(sid)} stimuli have no score ("
+                + ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
+                + f"); its statistics are on the other {len(m)} only")))
         pos = sid.get_indexer(m["stimulus"].astype(str))
         order = np.argsort(pos)
         pos = pos[order]
@@ -583,7 +603,8 @@ def _per_method(f: _Fitted, ci: np.ndarray, y_ref: np.ndarray,
             row[key] = point[key]
             row[f"{key}_ci95_low"], row[f"{key}_ci95_high"] = _basic_interval(
                 point[key], ref[key], boot[key], "rmse" if key == "rmse" else "corr",
-                factor=small_sample_factor(int(sel.sum()), 1))
+                factor=small_sample_factor(int(sel.sum()), 1)
+                if sel.sum() >= MIN_INTERVAL_STIMULI else float("nan"))
         row["rmse_star"] = rmse_star(f.y[sel], f.pred[sel], ci[sel], 0)
         row["outlier_ratio"] = outlier_ratio(f.y[sel], f.pred[sel], ci[sel])
         out.append(row)
@@ -641,7 +662,8 @@ def _comparisons(fitted: dict[str, _Fitted], y_all: np.ndarray, yb_all: np.ndarr
                 "scope": scope, "metric_a": a, "metric_b": b, "n": int(sel.sum()),
                 "plcc_a": float(pearson_columns(y[sel], pa[sel])[0]),
                 "plcc_b": float(pearson_columns(y[sel], pb[sel])[0]),
-                "boot_p": float(np.mean(diff <= 0)) if diff.size and resamples_vary(
+                "boot_p": float((np.sum(diff <= 0) + 1) / (diff.size + 1))
+                if diff.size and resamples_vary(
                     {scope: blk} if scope != "all" else blocks) else float("nan"),
                 **tests,
                 "rmse_F": f_rmse, "rmse_p": p_rmse, "rmse_star_F": f_star,

@@ -18,13 +18,14 @@ import numpy as np
 import pandas as pd
 
 from .exports import write_dmos_csv, write_rating_matrix
-from .figures import draw_all
+from .figures import FIGURES, draw_all
 from .panel import panel_json
 from .pipeline import Analysis
 from .quality import THRESHOLDS
 from .reliability import Reliability
 from .report_html import write_html
 from .sureal_io import write_sureal_json
+from .version import __version__
 
 log = logging.getLogger(__name__)
 
@@ -303,6 +304,8 @@ def write_tables(a: Analysis, out: Path) -> dict[str, Path]:
         t["comparisons"] = a.metrics.comparisons
     t["problems"] = pd.DataFrame([p.__dict__ for p in a.problems],
                                  columns=["source", "row", "message"])
+    unknown = set(t) - set(TABLE_NAMES)
+    assert not unknown, f"add {unknown} to TABLE_NAMES (a rerun removes only those)"
     paths = {}
     (out / "tables").mkdir(parents=True, exist_ok=True)
     for name, frame in t.items():
@@ -313,20 +316,38 @@ def write_tables(a: Analysis, out: Path) -> dict[str, Path]:
     return paths
 
 
-def write_report(a: Analysis, out: str | Path, *, notes: str | None = None) -> Path:
-    """Write the full report folder and return the path of report.html."""
+TABLE_NAMES = ("exclusions", "outliers", "screening", "data_quality", "icc", "inter_rater",
+               "intra_rater", "raters", "content_ambiguity", "ceiling", "ci_vs_raters",
+               "metrics", "metrics_per_method", "significance_p", "williams_p", "comparisons",
+               "problems")
+"""Every table a report can write (``tables/<name>.csv``); a rerun removes them all first."""
+
+
+def write_report(a: Analysis, out: str | Path, *, notes: str | None = None,
+                 inputs: dict[str, Any] | None = None) -> Path:
+    """Write the full report folder and return the path of report.html. ``inputs``: where
+    the numbers came from (files with their sha256, the command), kept in summary.json and
+    shown under the title, so that a table copied into a paper can be traced back."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     # report.html and summary.json say the folder is finished: an earlier run's go first and
     # come back last, so an interrupted rerun never leaves them beside newer tables.
     for finished in ("report.html", "summary.json"):
         (out / finished).unlink(missing_ok=True)
+    # An earlier run's tables and figures go too: one this run does not write (no --metric
+    # now) would otherwise pass for part of this report.
+    for name in TABLE_NAMES:
+        (out / "tables" / f"{name}.csv").unlink(missing_ok=True)
+    for name in FIGURES:
+        for suffix in (".png", ".pdf"):
+            (out / "figures" / f"{name}{suffix}").unlink(missing_ok=True)
     write_dmos_csv(a.screened, a.scores, out / "dmos.csv")
     write_sureal_json(a.ratings, out / "sureal_dataset.json")
     write_rating_matrix(a.ratings, out / "rating_matrix_p910.csv")
     write_tables(a, out)
     figures = draw_all(a, out / "figures")
     facts = summary(a)
+    facts["inputs"] = {"tool_version": __version__, **(inputs or {})}
     (out / "summary.json").write_text(json.dumps(facts, indent=1, default=_num),
                                       encoding="utf-8")
     return write_html(a, out, figures, facts, notes)

@@ -195,12 +195,22 @@ def curve_text(a: Analysis) -> str:
         first = min(red, key=lambda n: abs(n - 5))
         last = max(red)
         txt += (f" The paper's reading: the average DMOS 95% CI width shrinks by "
-                f"{red[first]:.3g} when the {first}th participant is added and by "
-                f"{red[last]:.3g} for the {last}th; fitted from the 5th on, this reduction "
-                f"decays as exp(-{c.decay_rate:.3f} n) (power law: n^-{c.reduction_power:.2f})."
-                " The CGVQM+D paper reports 1.83 at the 5th and 0.12 at the 20th participant "
+                f"{red[first]:.3g} when the {ordinal(first)} participant is added")
+        txt += (f" and by {red[last]:.3g} for the {ordinal(last)}" if last != first else "")
+        if np.isfinite(c.decay_rate):
+            txt += (f"; fitted from the {ordinal(c.decay_from)} on, this reduction decays as "
+                    f"exp(-{c.decay_rate:.3f} n) (power law: n^-{c.reduction_power:.2f})")
+        else:
+            txt += "; too few participants to fit how this reduction decays"
+        txt += (". The CGVQM+D paper reports 1.83 at the 5th and 0.12 at the 20th participant "
                 "and a decay rate of 0.19 for this reduction; it is not comparable with b.")
     return txt
+
+
+def ordinal(n: int) -> str:
+    """1st, 2nd, 3rd, 4th, ..., 11th, 12th, 13th, 21st."""
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
 
 
 def _environment() -> Environment:

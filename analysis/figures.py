@@ -50,7 +50,7 @@ def _method_colors(methods: list[str]) -> dict[str, tuple]:
 def _stimulus_ticks(sd: pd.DataFrame) -> list[str]:
     """Short tick labels (method and level), or the stimulus ids where those would not tell
     the stimuli apart (a SUREAL dataset's are all 'distorted', without a level)."""
-    short = [f"{str(m)[:6]}{'' if pd.isna(lv) else int(lv)}"
+    short = [f"{m}{'' if pd.isna(lv) else f' L{int(lv)}'}"
              for m, lv in zip(sd["method"], sd["level"], strict=True)]
     return short if len(set(short)) == len(short) else [str(s) for s in sd["stimulus"]]
 
@@ -62,10 +62,15 @@ def dmos_per_scene(a: Analysis, path: Path) -> Path:
     scenes = list(dict.fromkeys(d["scene"]))
     methods = list(dict.fromkeys(d["method"]))
     colors = _method_colors(methods)
+    shapes = {m: "osD^v<>ph"[i % 9] for i, m in enumerate(methods)}  # not by colour alone
     rows, cols = _grid(len(scenes))
-    fig = Figure(figsize=(4.2 * cols, 3.2 * rows))
+    fig = Figure(figsize=(4.2 * cols, 3.4 * rows + 0.4))
     preds = a.metrics.data if a.metrics is not None else {}
-    markers = "xov^sPD*"
+    markers = "x+1234|_"
+    # one DMOS axis for every scene, from the lowest CI bound to the top of the scale
+    low = float(np.nanmin([d["ci95_low"].min(), d["dmos"].min()]))
+    high = float(np.nanmax([d["ci95_high"].max(), d["dmos"].max(), a.screened.ref_score]))
+    pad = 0.03 * (high - low or 1.0)
     for k, scene in enumerate(scenes):
         ax = fig.add_subplot(rows, cols, k + 1)
         sd = d[d["scene"] == scene].sort_values(["method", "level"], na_position="last")
@@ -75,7 +80,7 @@ def dmos_per_scene(a: Analysis, path: Path) -> Path:
             r = sd[sel]
             ax.errorbar(x[sel], r["dmos"], yerr=[r["dmos"] - r["ci95_low"],
                                                  r["ci95_high"] - r["dmos"]],
-                        fmt="o", color=colors[method], capsize=2, ms=4, ls="none")
+                        fmt=shapes[method], color=colors[method], capsize=2, ms=4, ls="none")
         for j, (name, pdata) in enumerate(preds.items()):
             p = pdata.set_index("stimulus")["predicted"]
             y = [p.get(s, np.nan) for s in sd["stimulus"]]
@@ -85,15 +90,17 @@ def dmos_per_scene(a: Analysis, path: Path) -> Path:
         ax.set_xticklabels(_stimulus_ticks(sd), rotation=90, fontsize=6)
         ax.set_title(str(scene), fontsize=9)
         ax.set_ylabel("DMOS")
+        ax.set_ylim(low - pad, high + pad)
         ax.axhline(a.screened.ref_score, color="0.7", lw=0.8)
-    handles = [fig.axes[0].plot([], [], "o", color=c)[0] for c in colors.values()]
+    handles = [fig.axes[0].plot([], [], shapes[m], color=c)[0] for m, c in colors.items()]
     labels = list(colors)
     if preds:
         h, lab = fig.axes[0].get_legend_handles_labels()
         handles, labels = handles + h, labels + lab
-    fig.legend(handles, labels, loc="lower center", ncol=min(6, len(labels)), fontsize=7,
-               bbox_to_anchor=(0.5, 0.0))
-    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    # above the panels: below them it would cover the rotated stimulus labels
+    fig.legend(handles, labels, loc="upper center", ncol=min(6, len(labels)), fontsize=7,
+               bbox_to_anchor=(0.5, 1.0), frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.4 / (3.4 * rows + 0.4)))
     return _save(fig, path, tight=False)
 
 

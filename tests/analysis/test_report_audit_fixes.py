@@ -49,7 +49,7 @@ def test_ticks_fall_back_to_stimulus_ids_when_method_and_level_repeat():
     assert _stimulus_ticks(sureal_like) == ["A_1", "A_2", "A_3"]
     ours = pd.DataFrame({"method": ["blur", "blur", "noise"], "level": [1, 2, 1],
                          "stimulus": ["S_b1", "S_b2", "S_n1"]})
-    assert _stimulus_ticks(ours) == ["blur1", "blur2", "noise1"]
+    assert _stimulus_ticks(ours) == ["blur L1", "blur L2", "noise L1"]  # whole method names
 
 
 def test_methods_table_describes_the_model_and_screening_that_ran(dollar_study):

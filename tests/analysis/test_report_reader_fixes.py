@@ -167,6 +167,10 @@ def test_axes_show_whole_whiskers_and_log_ticks_are_plain(study_files, tmp_path,
     lowest = float(np.nanmin(table[["plcc_ci95_low", "srcc_ci95_low"]].to_numpy(float)))
     assert drawn["metric_benchmark"].axes[0].get_xlim()[0] <= lowest
     assert drawn["metric_comparison"].axes[0].get_ylim()[0] <= lowest
+    scenes = drawn["dmos_per_scene"].axes  # one DMOS axis for every scene
+    assert len({ax.get_ylim() for ax in scenes}) == 1
+    labels = [t.get_text() for ax in scenes for t in ax.get_xticklabels()]
+    assert "blur L1" in labels and "noise L3" in labels  # whole method names
     log_axes = [ax for ax in drawn["ci_vs_raters"].axes if ax.get_yscale() == "log"]
     assert log_axes
     for ax in log_axes:  # the labels as saved (savefig drew them)

@@ -62,7 +62,7 @@ def with_ci(frame: pd.DataFrame) -> pd.DataFrame:
             out[col] = [
                 "" if not np.isfinite(v) else
                 f"{v:.3f}" + ("" if not (np.isfinite(a) and np.isfinite(b))
-                              else f" [{a:.3f}, {b:.3f}]")
+                              else f" [{a:.3f},\u00a0{b:.3f}]")  # wraps before '[' only
                 for v, a, b in zip(frame[col].astype(float), frame[lo].astype(float),
                                    frame[hi].astype(float), strict=True)]
             out = out.drop(columns=[lo, hi])

@@ -128,7 +128,7 @@ def metric_scatter(a: Analysis, path: Path) -> Path | None:
         ax.set_title(f"{name}{flag}\nPLCC {r['plcc']:.3f}  SRCC {r['srcc']:.3f} "
                      f"({a.metrics.mappings[name].kind})", fontsize=8,
                      color="#a00" if flag else "k")
-        ax.set_xlabel("metric score" + (" (lower is better)" if sign < 0 else ""))
+        ax.set_xlabel(f"{name} score" + (" (lower is better)" if sign < 0 else ""))
         ax.set_ylabel("DMOS")
         if k == 0:
             ax.legend(fontsize=6)

@@ -31,6 +31,7 @@ from typing import Any
 from session_store import PlannedTrial, SessionStore, TrialResult
 from session_store.answers import ENDED_BY_VISION_CHECK
 from session_store.errors import StudyError
+from session_store.run_lock import RunLock
 from session_store.schedule import (
     block_trials,
     make_schedule,
@@ -64,7 +65,6 @@ from .preflight import (
 )
 from .resume_check import check_resumable
 from .reveal import reveal_in_file_manager
-from .run_lock import RunLock
 from .screens import content
 from .text_screen import TextScreen
 from .trial_screen import OnGpu, TrialScreen, upload_pair, viewing_layout_for

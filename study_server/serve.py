@@ -7,15 +7,20 @@ import errno
 import ipaddress
 import logging
 import re
+import shutil
 import socket
 import ssl
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from session_store.errors import StudyError
 
 from .config import ServerConfig
+
+if TYPE_CHECKING:
+    from session_store.run_lock import RunLock
 
 log = logging.getLogger(__name__)
 
@@ -186,6 +191,30 @@ def bind(listen: Listen) -> socket.socket:
     return sock
 
 
+def _one_server(config: ServerConfig) -> tuple[RunLock | None, Path | None]:
+    """The lock of the study's server folder for this process's life, and the folder when
+    this call made it. A second server on the same study (a forgotten one, or
+    ``--new-version`` beside the old) would hand out two versions and run two allocators on
+    one database. No lock where there is no study folder: opening the state says why."""
+    from session_store.run_lock import RunLock
+
+    from .storage import STATE_DIR, private_dir, state_path
+
+    if not config.study.is_dir():
+        return None, None
+    folder = config.study / STATE_DIR
+    made = None if folder.exists() else folder
+    private_dir(folder)
+    try:
+        return RunLock(state_path(config.study), "server", busy=lambda holder: (
+            f"this study is served already{holder}; stop that server first (one server per "
+            "study folder)")).acquire(), made
+    except BaseException:
+        if made is not None:
+            shutil.rmtree(made, ignore_errors=True)
+        raise
+
+
 def serve(config: ServerConfig, listen: Listen,
           on_ready: Callable[[str, str, bool], None] | None = None) -> None:
     """Serve until interrupted. ``on_ready(url, admin_token, token_was_created)`` is called
@@ -198,9 +227,14 @@ def serve(config: ServerConfig, listen: Listen,
     check_listen(listen)
     config.secure_cookies = config.secure_cookies or listen.tls
     sock = bind(listen)  # before the state: a port in use leaves nothing behind
+    lock, made = _one_server(config)
     try:
         state = ServerState.open(config)
     except BaseException:
+        if lock is not None:
+            lock.release()
+        if made is not None:  # a failed start leaves no server folder behind
+            shutil.rmtree(made, ignore_errors=True)
         sock.close()
         raise
     port = sock.getsockname()[1]
@@ -221,3 +255,5 @@ def serve(config: ServerConfig, listen: Listen,
         server.run(sockets=[sock])
     finally:
         sock.close()
+        if lock is not None:
+            lock.release()

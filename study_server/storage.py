@@ -231,7 +231,10 @@ def schema_version(con: sqlite3.Connection) -> int:
     if not exists:
         return 0
     row = con.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
-    return int(row[0]) if row else 0
+    try:
+        return int(row[0]) if row else 0
+    except (TypeError, ValueError):  # another program's meta table (a session file's)
+        return -1
 
 
 def migrate(con: sqlite3.Connection, path: Path, target: int = SCHEMA_VERSION) -> int:
@@ -240,6 +243,8 @@ def migrate(con: sqlite3.Connection, path: Path, target: int = SCHEMA_VERSION) -
     con.execute("BEGIN IMMEDIATE")
     try:
         found = schema_version(con)
+        if found < 0:
+            raise StudyError(f"{path} is not a study-server database; move it away")
         if found == 0:
             tables = con.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
             if tables:
@@ -271,6 +276,24 @@ def migrate(con: sqlite3.Connection, path: Path, target: int = SCHEMA_VERSION) -
     return found
 
 
+def _refuse_a_lost_database(path: Path) -> None:
+    """A missing or empty database beside what a served study leaves (the admin token,
+    backups, the database's own -wal) was lost or half restored: starting a new, empty one
+    would turn every invited participant away for good."""
+    if (path.parent.name, path.name) != (STATE_DIR, STATE_FILE) or (
+            path.is_file() and path.stat().st_size > 0):
+        return
+    own = {path.name, path.name + ".lock"}
+    left = sorted(p.name for p in path.parent.iterdir() if p.name not in own) \
+        if path.parent.is_dir() else []
+    if left:
+        state = "is empty" if path.exists() else "is missing"
+        raise StudyError(
+            f"{path} {state}, but this study was served before ({', '.join(left[:3])} "
+            f"{'is' if len(left) == 1 else 'are'} there): restore the database from a backup "
+            "(docs: Restoring a backup), or move the folder away to start the study anew")
+
+
 class ServerStore:
     """The server's database (see the module doc). Thread-safe: one connection per thread,
     writes serialised by a lock (SQLite allows one writer anyway)."""
@@ -281,6 +304,7 @@ class ServerStore:
         if not self.path.exists() and not create:
             raise StudyError(f"no study-server database at {self.path}: run "
                              "'cgvq-study serve' or 'cgvq-study invite' on the study first")
+        _refuse_a_lost_database(self.path)
         if not self.path.parent.exists() or self.path.parent.name == STATE_DIR:
             private_dir(self.path.parent)
         private_file(self.path)
@@ -571,16 +595,26 @@ class ServerStore:
         if not dest.parent.exists():
             private_dir(dest.parent)
         tmp = dest.with_name(dest.name + ".partial")
-        tmp.unlink(missing_ok=True)
-        out = sqlite3.connect(str(private_file(tmp)))
         try:
-            self._con().backup(out, pages=256)
-            check = out.execute("PRAGMA integrity_check").fetchone()[0]
+            tmp.unlink(missing_ok=True)
+            out = sqlite3.connect(str(private_file(tmp)))
+        except (OSError, sqlite3.Error) as exc:
+            raise StudyError(f"cannot write the backup {dest}: {exc}") from None
+        try:
+            try:
+                self._con().backup(out, pages=256)
+                check = out.execute("PRAGMA integrity_check").fetchone()[0]
+            finally:
+                out.close()
             if check != "ok":
                 raise StudyError(f"the backup failed its integrity check: {check}")
-        finally:
-            out.close()
-        tmp.replace(dest)
+            tmp.replace(dest)
+        except BaseException as exc:
+            tmp.unlink(missing_ok=True)  # a partial copy of personal data is not kept
+            if isinstance(exc, (OSError, sqlite3.Error)):
+                raise StudyError(f"cannot write the backup {dest} ({exc}; is the disk "
+                                 "full?); nothing was kept") from None
+            raise
         return dest
 
     def record_widths(self, raters: int, ratings: int, mean_width: float, max_width: float,

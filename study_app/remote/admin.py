@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import re
 import shutil
 import tempfile
 from collections.abc import Callable
@@ -135,6 +136,24 @@ def _save_manifests(client: ServerClient, out: Path,
     return saved
 
 
+def _check_outputs(out: Path, csv: str | Path | None, answers: str | Path | None) -> None:
+    """Before anything is fetched: the two tables are two files, neither a folder, and
+    neither one of the files pull writes into ``out`` (a session file, the listing, a
+    manifest), which it would replace without a word."""
+    named = {"--csv": csv, "--answers": answers}
+    given = {opt: Path(p).resolve() for opt, p in named.items() if p is not None}
+    if len(given) == 2 and given["--csv"] == given["--answers"]:
+        raise StudyError(f"--csv and --answers name the same file {csv}; give two files")
+    for opt, path in given.items():
+        if path.is_dir():
+            raise StudyError(f"{opt} {named[opt]} is a folder; give a file name")
+        inside = path.parent == out.resolve()
+        if inside and (path.suffix == ".sqlite" or path.name == LISTING_FILE
+                       or re.fullmatch(r"manifest\.[0-9a-f]{12}\.json", path.name)):
+            raise StudyError(f"{opt} {named[opt]} is a file pull writes into {out}; name "
+                             "the table otherwise")
+
+
 def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | None = None,
          answers: str | Path | None = None,
          progress: Callable[[str], None] | None = None) -> PullResult:
@@ -142,6 +161,7 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
     writes the ratings table, ``answers`` the questionnaire answers (and the vision checks
     beside it as ``<name>_screenings.csv``), which are personal data and never go into the
     ratings table."""
+    _check_outputs(Path(out), csv, answers)
     client = ServerClient(server, admin_token, timeout=120)
     listing = client.json("GET", ADMIN_SESSIONS)
     out = Path(out)

@@ -12,13 +12,13 @@ import pytest
 
 from cgvq_cli.study_cli import main
 from session_store.errors import StudyError
-from study_app.run_lock import RunLock, lock_path_for, read_holder
+from session_store.run_lock import RunLock, lock_path_for, read_holder
 
 REPO = Path(__file__).resolve().parents[2]
 HOLDER = """
 import sys, time
 from pathlib import Path
-from study_app.run_lock import RunLock
+from session_store.run_lock import RunLock
 lock = RunLock(Path(sys.argv[1]), "P01").acquire()
 print("locked", flush=True)
 time.sleep(60)

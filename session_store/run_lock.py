@@ -1,4 +1,5 @@
-"""One run per participant: an exclusive lock on a file beside the session file.
+"""One run per participant, and one server per study: an exclusive lock on a file beside the
+session file (or beside the server's database).
 
 The lock is an OS file lock (``fcntl.flock`` on POSIX, ``msvcrt.locking`` on Windows), held
 by an open file descriptor, so the OS releases it when the process ends in any way (crash,
@@ -14,11 +15,12 @@ import json
 import os
 import socket
 import sys
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from session_store.errors import StudyError
+from .errors import StudyError
 
 LOCK_SUFFIX = ".lock"
 
@@ -74,9 +76,12 @@ class RunLock:
     """Exclusive lock of one participant's session; use as a context manager or call
     :meth:`acquire` / :meth:`release`."""
 
-    def __init__(self, session_path: Path, participant: str) -> None:
+    def __init__(self, session_path: Path, participant: str, *,
+                 busy: Callable[[str], str] | None = None) -> None:
+        """``busy(holder)`` words the refusal (``holder``: ' (process N since T)' or '')."""
         self.path = lock_path_for(Path(session_path))
         self.participant = participant
+        self._busy = busy
         self._fd: int | None = None
         self.took_over: dict[str, Any] | None = None
 
@@ -93,6 +98,8 @@ class RunLock:
                 holder = read_holder(self.path)
                 since = f" since {holder['since']}" if holder.get("since") else ""
                 pid = f" (process {holder['pid']}{since})" if holder.get("pid") else ""
+                if self._busy is not None:
+                    raise StudyError(self._busy(pid))
                 raise StudyError(
                     f"participant {self.participant} already has a run open{pid}; finish or "
                     "close that window first (only one run per participant at a time)")

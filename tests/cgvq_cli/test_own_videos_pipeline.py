@@ -39,6 +39,7 @@ def _renders(folder: Path) -> None:
                         noisy.clip(0, 255).astype(np.uint8), FPS)
 
 
+@pytest.mark.slow  # about 24 s: CI runs it after `make test` (.ci/run), as does `make test-slow`
 def test_init_study_is_run_scored_and_analysed(tmp_path, xdisplay, app_driver):
     renders, study = tmp_path / "renders", tmp_path / "study"
     _renders(renders)

@@ -60,6 +60,7 @@ def _answer_all(app, plan, *, logmar: float, weber: float) -> int:
     return len(answers)
 
 
+@pytest.mark.slow  # about 19 s: CI runs it after `make test` (.ci/run), as does `make test-slow`
 def test_the_check_measures_the_screen_and_records_the_thresholds(tmp_path, xdisplay,
                                                                   app_driver):
     study = _study(tmp_path, "flag")

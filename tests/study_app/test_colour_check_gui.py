@@ -16,6 +16,7 @@ from study_app.vision.isochromatic import plate_series
 pytestmark = pytest.mark.gui
 
 
+@pytest.mark.slow  # about 18 s: CI runs it after `make test` (.ci/run), as does `make test-slow`
 def test_a_failed_check_ends_the_session_when_the_study_says_so(tmp_path, xdisplay,
                                                                 app_driver):
     study = make_study(tmp_path / "study", min_display=(640, 480))

@@ -29,6 +29,7 @@ def _stays(app, screen: str) -> None:
     assert app.wait(f"{screen}-done", timeout=1.0, required=False) is None
 
 
+@pytest.mark.slow  # about 14 s: CI runs it after `make test` (.ci/run), as does `make test-slow`
 def test_double_enter_on_submit_leaves_the_next_screen_standing(tmp_path, xdisplay,
                                                                  study_factory, app_driver):
     study = study_factory(tmp_path / "study")

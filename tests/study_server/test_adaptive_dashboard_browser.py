@@ -7,6 +7,8 @@ from __future__ import annotations
 import re
 import time
 
+import pytest
+
 from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
 
 from .conftest import ADMIN, ARTIFACTS
@@ -14,6 +16,7 @@ from .test_adaptive_allocation import _adaptive_study
 from .test_dashboard_browser import browser  # noqa: F401  (the fixture)
 
 
+@pytest.mark.slow  # about 13 s: CI runs it after `make test` (.ci/run), as does `make test-slow`
 def test_the_dashboard_shows_design_target_widths_and_projection(browser, tmp_path,  # noqa: F811
                                                                   invites, server_factory):
     from selenium.webdriver.common.by import By

@@ -9,6 +9,7 @@ others.
 from __future__ import annotations
 
 import contextlib
+import sqlite3
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -60,6 +61,8 @@ async def lifespan(app: Starlette) -> AsyncIterator[None]:
 def create_app(config: ServerConfig, state: ServerState | None = None) -> Starlette:
     """The application over one study folder (``state`` prepared by the caller or here)."""
     app = Starlette(routes=routes(), lifespan=lifespan,
-                    exception_handlers={Exception: common.on_error})
+                    exception_handlers={sqlite3.Error: common.on_storage_error,
+                                        OSError: common.on_storage_error,
+                                        Exception: common.on_error})
     app.state.server = state or ServerState.open(config)
     return app

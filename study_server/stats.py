@@ -64,7 +64,7 @@ class StatsSnapshot:
     computed_at: str | None = None
     """UTC time of the computation (None: not computed yet)."""
     seconds: float = 0.0
-    marker: tuple[int, int, int] | None = None
+    marker: tuple[int, ...] | None = None
     n_ratings: int = 0
     participants: dict[str, ParticipantStats] = field(default_factory=dict)
     per_stimulus: dict[str, int] = field(default_factory=dict)

@@ -25,6 +25,7 @@ all, so every migration is exercised by every test):
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import sqlite3
 import threading
@@ -212,6 +213,22 @@ def private_file(path: Path) -> Path:
     return path
 
 
+def disk_full(exc: BaseException) -> bool:
+    """The study folder's disk (or quota) is full: SQLite's SQLITE_FULL or ENOSPC/EDQUOT."""
+    if isinstance(exc, sqlite3.Error):
+        return getattr(exc, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL or (
+            "disk is full" in str(exc))
+    return isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
+
+
+def _roll_back(con: sqlite3.Connection) -> None:
+    """Undo a failed transaction, if SQLite has not already: after SQLITE_FULL it rolls back
+    by itself, and a second ROLLBACK would replace the real error with its own. A failed
+    COMMIT leaves the transaction open; it is closed here, or every later BEGIN would fail."""
+    if con.in_transaction:
+        con.execute("ROLLBACK")
+
+
 def _connect(path: Path) -> sqlite3.Connection:
     con = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False, timeout=30)
     con.row_factory = sqlite3.Row
@@ -349,10 +366,10 @@ class ServerStore:
             con.execute("BEGIN IMMEDIATE")
             try:
                 yield con
+                con.execute("COMMIT")
             except BaseException:
-                con.execute("ROLLBACK")
+                _roll_back(con)
                 raise
-            con.execute("COMMIT")
 
     @contextlib.contextmanager
     def _read(self) -> Iterator[sqlite3.Connection]:
@@ -534,9 +551,13 @@ class ServerStore:
         """Record a flag (a repeat only counts up); True when it is a new one. A
         participant's distinct flags stop at :data:`MAX_FLAGS` (their texts come from the
         client's behaviour, so a client could otherwise add rows without end); later ones
-        count up one ``too_many_flags`` row."""
+        count up one ``too_many_flags`` row. A participant who has withdrawn gets none: a
+        withdrawal that lands between an upload and its flag must leave nothing behind."""
         message = message[:500]
         with self._write() as con:
+            if con.execute("SELECT 1 FROM tombstones WHERE participant=?", (participant,)
+                           ).fetchone():  # withdrawn between the upload and its flag
+                return False
             known = con.execute("SELECT 1 FROM flags WHERE participant=? AND kind=? AND "
                                 "message=?", (participant, kind, message)).fetchone()
             if known is None:
@@ -647,13 +668,15 @@ class ServerStore:
             return False
         return busy == 0
 
-    def change_marker(self) -> tuple[int, int, int]:
-        """Changes when entries, flags or tombstones change (cheap; for the statistics)."""
+    def change_marker(self) -> tuple[int, ...]:
+        """Changes when entries, flags, tombstones or invitations change (cheap; for the
+        statistics: ``invite`` beside a running server changes the target per stimulus)."""
         with self._read() as con:
             row = con.execute(
                 "SELECT (SELECT count(*) FROM entries), (SELECT coalesce(sum(count), 0) FROM "
-                "flags), (SELECT count(*) FROM tombstones)").fetchone()
-        return int(row[0]), int(row[1]), int(row[2])
+                "flags), (SELECT count(*) FROM tombstones), (SELECT count(*) FROM "
+                "participants)").fetchone()
+        return tuple(int(v) for v in row)
 
 
 def _participant(row: sqlite3.Row) -> Participant:

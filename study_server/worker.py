@@ -8,6 +8,8 @@ import threading
 import time
 from collections.abc import Callable
 
+from .storage import disk_full
+
 log = logging.getLogger(__name__)
 
 
@@ -57,7 +59,11 @@ class ThrottledWorker:
             try:
                 self.work()
             except Exception as exc:  # the server keeps serving
-                log.exception("%s failed", self.name)
+                if disk_full(exc):  # one line: it fails again at every turn until space is freed
+                    log.error("%s failed: the disk of the study folder is full (%s)",
+                              self.name, exc)
+                else:
+                    log.exception("%s failed", self.name)
                 if self.on_error is not None:
                     self.on_error(exc)
             self._last = time.monotonic()

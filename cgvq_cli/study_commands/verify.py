@@ -27,6 +27,9 @@ def run(args: argparse.Namespace) -> int:
     for report in reports:
         info = report.info
         who = f"participant {info.participant}, study {info.study_id}" if info else "unknown"
+        if _unusable_input(report):  # nothing was checked: not a damaged file
+            print(f"{report.path}: NOT CHECKED, {_input_problem(report)}")
+            continue
         if report.state == "damaged":
             print(f"{report.path}: DAMAGED ({who}); {len(report.problems)} problem(s):")
         elif report.state == "complete":
@@ -41,10 +44,12 @@ def run(args: argparse.Namespace) -> int:
         for warning in report.warnings:
             print(f"  warning: {warning}")
     if len(reports) > 1:
-        counts = {s: sum(r.state == s for r in reports)
-                  for s in ("complete", "incomplete", "withdrawn", "damaged")}
-        print(f"{len(reports)} session files: " + ", ".join(f"{n} {s}" for s, n in
-                                                             counts.items() if n))
+        states = ["not checked" if _unusable_input(r) else r.state for r in reports]
+        counts = {s: states.count(s)
+                  for s in ("complete", "incomplete", "withdrawn", "damaged", "not checked")}
+        noun = "session files" if "not checked" not in states else "inputs"
+        print(f"{len(reports)} {noun}: " + ", ".join(f"{n} {s}" for s, n in counts.items()
+                                                      if n))
     code = max((r.exit_code for r in reports), default=2)
     if code == 2:  # the verdict stays on stdout; the failure gets its one line on stderr
         sys.stdout.flush()
@@ -52,9 +57,28 @@ def run(args: argparse.Namespace) -> int:
     return code
 
 
+def _unusable_input(report) -> bool:
+    """A path given that is missing or a folder without session files: an input problem."""
+    return report.info is None and (report.path.is_dir() or (
+        not report.path.exists() and ".zip:" not in str(report.path)))
+
+
+def _input_problem(report) -> str:
+    """Why a given path held nothing to check; a pull's folder gets its own reason."""
+    if not report.path.exists():
+        return "not found"
+    from study_app.remote.admin import LISTING_FILE
+
+    if (report.path / LISTING_FILE).is_file():
+        return ("no session file in this pull's folder: the server had received no session "
+                "when it was pulled")
+    return "the folder holds no session file (*.sqlite) or exported zip"
+
+
 def _failure_line(reports) -> str:
     """One line for stderr: the first damaged or unusable input and how many there were."""
     damaged = [r for r in reports if r.state == "damaged"]
+    unusable = [r for r in damaged if _unusable_input(r)]
     if not damaged:
         return "no session file was given (see the report on stdout)"
     first = damaged[0]
@@ -63,10 +87,13 @@ def _failure_line(reports) -> str:
         what = (f"{first.path} not found; give a session file (.sqlite), an exported .zip or "
                 "a folder of them")
     elif first.path.is_dir():
-        what = f"the folder {first.path} holds no session file (*.sqlite) or exported zip"
+        what = f"{first.path}: {_input_problem(first)}"
     else:
         what = problem if problem.startswith(str(first.path)) else f"{first.path}: {problem}"
     if len(reports) > 1:
+        if len(unusable) == len(damaged):
+            return (f"{len(damaged)} of {len(reports)} inputs hold no session file, e.g. "
+                    f"{what} (see the report on stdout)")
         return (f"{len(damaged)} of {len(reports)} inputs are damaged or unreadable, e.g. "
                 f"{what} (see the report on stdout)")
     return f"{what} (see the report on stdout)"

@@ -196,7 +196,7 @@ def map_by_pattern(folder: Path, *, test_pattern: str = DEFAULT_TEST_PATTERN,
         assert m is not None
         out.videos.append(MappedVideo(rel, m["scene"], "test", m["method"],
                                       int(m["level"]), m.groupdict().get("setting")))
-    _check(out)
+    _check(out, f"Rename it to match {reference_pattern!r}, or give --reference-pattern")
     return out
 
 
@@ -226,7 +226,7 @@ def map_by_csv(folder: Path, csv_path: Path) -> FolderMapping:
         raise ValueError(f"cannot read {csv_path}: {exc}") from None
     listed = {v.path for v in out.videos}
     out.unmatched = [p for p in video_files(folder) if p not in listed]
-    _check(out)
+    _check(out, f"It is not in {csv_path.name}: add it with role 'reference'")
     return out
 
 
@@ -276,8 +276,27 @@ def _csv_row(folder: Path, row: dict[str, str], where: str, out: FolderMapping) 
                                   row.get("setting") or None))
 
 
-def _check(out: FolderMapping) -> None:
-    """Ids that are not valid, used twice, or test videos without a reference."""
+_REFERENCE_WORDS = ("reference", "ref", "gt", "groundtruth", "ground_truth", "ground-truth",
+                    "original", "orig", "source", "src", "pristine", "clean", "master")
+
+
+def _reference_candidates(out: FolderMapping, scene: str) -> list[PurePosixPath]:
+    """Files left out that look like the missing reference of ``scene``: beside its test
+    videos, named like a reference in any case (``Reference.mp4``, ``sponza_GT.mov``)."""
+    folders = {v.path.parent for v in out.videos if v.role == "test" and v.scene == scene}
+    found = []
+    for rel in out.unmatched:
+        words = re.split(r"[^a-z0-9]+", rel.stem.lower())
+        spaced = rel.stem.lower().replace(scene.lower(), " ")
+        if rel.parent in folders and (any(w in _REFERENCE_WORDS for w in words) or
+                                      spaced.strip(" _-.") in _REFERENCE_WORDS):
+            found.append(rel)
+    return found
+
+
+def _check(out: FolderMapping, fix: str = "") -> None:
+    """Ids that are not valid, used twice, or test videos without a reference (with the
+    files left out that look like it, and ``fix``: how to take one)."""
     seen: dict[str, MappedVideo] = {}
     for video in out.videos:
         sid = video.stimulus_id
@@ -294,6 +313,9 @@ def _check(out: FolderMapping) -> None:
     missing = sorted({v.scene for v in out.videos if v.role == "test"} - set(refs))
     for scene in missing:
         tests = [str(v.path) for v in out.videos if v.role == "test" and v.scene == scene]
-        out.problems.append(Problem(
-            "missing reference", scene, f"no reference video for scene {scene!r} "
-            f"({len(tests)} test video(s), e.g. {tests[0]})"))
+        detail = (f"no reference video for scene {scene!r} ({len(tests)} test video(s), e.g. "
+                  f"{tests[0]})")
+        if candidates := _reference_candidates(out, scene):
+            names = " or ".join(c.as_posix() for c in candidates[:3])
+            detail += f"; did you mean {names}? {fix}".rstrip()
+        out.problems.append(Problem("missing reference", scene, detail))

@@ -33,7 +33,7 @@ from session_store.ids import check_participant_id
 from session_store.protocol import ADMIN_SESSIONS, admin_entries_path, admin_manifest_path
 from session_store.ratings_csv import write_ratings_csv
 
-from .http import ServerClient
+from .http import ServerClient, ServerRefused
 
 log = logging.getLogger(__name__)
 
@@ -172,9 +172,8 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
         out.chmod(0o700)  # the pulled data is personal: owner only
     sessions: list[PulledSession] = []
     not_started: list[str] = []
-    rows: list[dict[str, Any]] = []
-    answer_table: list[dict[str, Any]] = []
-    screening_table: list[dict[str, Any]] = []
+    tables: dict[str, tuple[list, list, list]] = {}  # participant: ratings, answers, checks
+    gone: list[str] = []  # listed, then no session: withdrawn while this pull ran
     for p in listing["participants"]:
         pid = check_participant_id(p["participant"])
         s = p.get("session")
@@ -183,7 +182,13 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
             continue
         if progress is not None:
             progress(pid)
-        entries = _entries(client, pid)
+        try:
+            entries = _entries(client, pid)
+        except ServerRefused as exc:
+            if exc.status != 404:
+                raise
+            gone.append(pid)
+            continue
         if not entries:
             not_started.append(pid)
             continue
@@ -195,15 +200,23 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
             pid, path, report, s.get("version"), s.get("manifest_sha256"),
             list(p.get("flags", [])), len(latest_answers(record.answers)),
             {x["test"]: x["outcome"] for x in record.screenings}))
-        if csv is not None:
-            rows += record.ratings
-        if answers is not None:
-            answer_table += answer_rows(record)
-            screening_table += screening_rows(record)
+        tables[pid] = (record.ratings if csv is not None else [],
+                       answer_rows(record) if answers is not None else [],
+                       screening_rows(record) if answers is not None else [])
+    # a withdrawal during the pull: the listing taken at the end is the one that counts
+    listing = client.json("GET", ADMIN_SESSIONS)
+    withdrawn = [check_participant_id(w["participant"]) for w in listing.get("withdrawn", [])]
+    unexplained = sorted(set(gone) - set(withdrawn))
+    if unexplained:
+        raise StudyError(f"the server lost the session of {', '.join(unexplained)} during "
+                         "this pull without a withdrawal; pull again")
+    sessions = [x for x in sessions if x.participant not in withdrawn]
+    rows = [r for pid, t in tables.items() if pid not in withdrawn for r in t[0]]
+    answer_table = [r for pid, t in tables.items() if pid not in withdrawn for r in t[1]]
+    screening_table = [r for pid, t in tables.items() if pid not in withdrawn for r in t[2]]
     listing_path = out / LISTING_FILE
     listing_path.write_text(json.dumps(listing, indent=2) + "\n", encoding="utf-8")
     listing_path.chmod(0o600)
-    withdrawn = [check_participant_id(w["participant"]) for w in listing.get("withdrawn", [])]
     result = PullResult(str(listing["study_id"]), sessions, not_started, withdrawn,
                         listing_path, removed=_remove_withdrawn(out, withdrawn),
                         manifests=_save_manifests(client, out, sessions))

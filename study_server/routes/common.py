@@ -7,12 +7,14 @@ import json
 import logging
 import math
 import re
+import time
 from collections.abc import Awaitable, Callable
 from typing import Any
 
 from starlette.requests import Request
 from starlette.responses import JSONResponse, RedirectResponse, Response
 
+from .. import storage
 from ..ingest import Refused
 from ..state import ServerState
 
@@ -89,6 +91,28 @@ async def health(request: Request) -> Response:
 
 async def root(request: Request) -> Response:
     return RedirectResponse("/dashboard", status_code=303)
+
+
+DISK_FULL_RETRY_S = 60
+_disk_full_logged_at = [-math.inf]
+
+
+async def on_storage_error(request: Request, exc: Exception) -> Response:
+    """A full disk is not a bug: every request would log a traceback while participants' apps
+    retry. It is logged in one line a minute and answered 503 with ``Retry-After``; nothing
+    was stored, and the uploads go through once space is freed, without a restart. Any other
+    storage error goes on to :func:`on_error` (handled here, a response is final: Starlette
+    re-raises what reaches ``on_error`` so that the ASGI server logs it a second time)."""
+    if not storage.disk_full(exc):
+        raise exc
+    now = time.monotonic()
+    if now - _disk_full_logged_at[0] >= DISK_FULL_RETRY_S:
+        _disk_full_logged_at[0] = now
+        log.error("the disk of the study folder is full (%s): requests that write are "
+                  "answered 503 and retried by the participants' apps; free space, "
+                  "no restart is needed", exc)
+    return error(503, "the server's disk is full; try again later",
+                 {"Retry-After": str(DISK_FULL_RETRY_S)})
 
 
 async def on_error(request: Request, exc: Exception) -> Response:

@@ -110,9 +110,28 @@ def test_verify_of_unusable_input_also_says_so_on_stderr(tmp_path, capsys, what,
     code = main(["verify", str(target)])
     out, err = capsys.readouterr()
     assert code == 2
-    assert "DAMAGED" in out  # the verdict stays on stdout
+    # the verdict stays on stdout; a missing path or an empty folder is not a damaged file
+    unchecked = what in ("missing", "empty folder")
+    assert ("NOT CHECKED" in out) == unchecked and ("DAMAGED" in out) != unchecked, out
     assert err.count("\n") == 1 and err.startswith("cgvq-study verify: error:"), err
     assert says in err
+
+
+def test_verify_of_a_pull_with_no_sessions_says_the_server_had_none(tmp_path, capsys):
+    from study_app.remote.admin import LISTING_FILE
+
+    pulled = tmp_path / "pulled"
+    pulled.mkdir()
+    (pulled / LISTING_FILE).write_text('{"participants": []}\n')
+    good = tmp_path / "P01.sqlite"
+    with bare_session(good, "P01", n=1) as store:
+        store.record(0, plain_result(1.0))
+    code = main(["verify", str(pulled), str(good)])
+    out, err = capsys.readouterr()
+    assert code == 2 and "DAMAGED" not in out, out
+    assert "the server had received no session" in out
+    assert "2 inputs: 1 incomplete, 1 not checked" in out
+    assert "1 of 2 inputs hold no session file" in err and err.count("\n") == 1
 
 
 def test_export_refuses_outputs_it_would_clobber_or_misname(tmp_path, capsys):

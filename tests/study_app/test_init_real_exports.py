@@ -233,3 +233,32 @@ def test_a_rerun_restores_a_copy_changed_by_hand_and_says_so(tmp_path, capsys, e
     code, out, _ = init(capsys, renders, "--out", study)
     assert code == 0 and "removed: b, b_m_L1" in out
     assert not (study / "videos" / "b").exists() and (study / "videos" / "a").is_dir()
+
+
+@pytest.mark.parametrize("name", ["Reference.mp4", "REF.mp4", "sponza_GT.mp4",
+                                  "original.mp4"])
+def test_a_missing_reference_names_the_file_that_looks_like_it(tmp_path, name):
+    from stimuli_manifests.from_folder.mapping import map_by_pattern
+
+    for rel in (f"sponza/{name}", "sponza/dlss_L1.mp4", "sponza/fsr_L2.mp4",
+                "bistro/reference.mp4", "bistro/dlss_L1.mp4", "bistro/notes_final.mp4"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_bytes(b"x")
+    problems = map_by_pattern(tmp_path).problems
+    assert [p.kind for p in problems] == ["missing reference"], problems
+    detail = problems[0].detail
+    assert f"did you mean sponza/{name}?" in detail and "--reference-pattern" in detail
+    assert "notes_final" not in detail
+
+
+def test_a_csv_mapping_names_the_unlisted_file_that_looks_like_the_reference(tmp_path):
+    from stimuli_manifests.from_folder.mapping import map_by_csv
+
+    for rel in ("sponza/Reference.mp4", "sponza/dlss_L1.mp4", "sponza/other.mp4"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_bytes(b"x")
+    table = tmp_path / "map.csv"
+    table.write_text("path,scene,role,method,level\nsponza/dlss_L1.mp4,sponza,test,dlss,1\n")
+    (problem,) = map_by_csv(tmp_path, table).problems
+    assert "did you mean sponza/Reference.mp4? It is not in map.csv" in problem.detail
+    assert "other.mp4" not in problem.detail

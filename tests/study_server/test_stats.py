@@ -157,3 +157,20 @@ def test_live_statistics_leave_out_withdrawals_and_count_the_raters_behind_them(
     assert snap.study.n_raters == 5 and snap.study.n_ratings == 5 * 18
     assert snap.study.n_partial == 1  # P07, below half of their trials
     assert [w[:2] for w in widths] == [(5, 5 * 18)]
+
+
+def test_invites_beside_a_running_server_move_the_target_without_an_upload(
+        served_study, invites, monkeypatch):
+    """``invite`` writes into the database the server has open: the dashboard's target per
+    stimulus follows at the next statistics turn, not only after the next upload."""
+    monkeypatch.setenv("CGVQ_ADMIN_TOKEN", ADMIN)
+    invites(2)
+    st = ServerState.open(ServerConfig(served_study, stats_in_background=False))
+    try:
+        reps = json.loads((served_study / "manifest.json").read_text())["protocol"][
+            "repetitions"]
+        assert st.stats.refresh().target_per_stimulus == 2 * reps
+        invites(3, prefix="Q")
+        assert st.stats.refresh().target_per_stimulus == 5 * reps
+    finally:
+        st.stop()

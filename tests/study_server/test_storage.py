@@ -167,6 +167,9 @@ def test_withdraw_deletes_rows_and_keeps_a_tombstone(tmp_path):
         assert store.participant("P01") is None and store.session_of("P01") is None
         assert store.entries("s1") == [] and store.flags("P01") == []
         assert store.tombstone("P01") == stone
+        # an upload that raced the withdrawal flags nothing afterwards
+        assert store.add_flag("P01", "s1", "refused", "late", "2026-01-05T00:00:01Z") is False
+        assert store.flags("P01") == []
         assert store.participant("P02") is not None
         with pytest.raises(StudyError, match="withdrawn already"):
             store.withdraw("P01", "2026-01-06T00:00:00Z", "again")

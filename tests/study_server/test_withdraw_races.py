@@ -1,0 +1,41 @@
+"""A withdrawal that races other work on a running server: a pull that is under way when
+someone withdraws keeps no copy of them and does not stop with a 404; an upload whose flag
+lands after the withdrawal leaves no flag row (``test_storage.py``)."""
+
+from __future__ import annotations
+
+import csv
+
+from study_app.remote import ServerClient, sync_session
+from study_app.remote import admin as admin_module
+
+from .conftest import ADMIN, db_dump, run_cli, write_session
+
+
+def test_a_withdrawal_during_a_pull_leaves_no_copy_and_no_abort(
+        served_study, tmp_path, invites, server_factory, monkeypatch):
+    inv = invites(3)
+    srv = server_factory(served_study)
+    for i in inv:
+        path = tmp_path / f"{i.participant}.sqlite"
+        write_session(served_study, path, i.participant, ratings=3).close()
+        assert sync_session(path, ServerClient(srv.url, i.token), i.participant)
+    fetch = admin_module._entries
+
+    def withdrawing(client, pid):
+        if pid == "P02":  # withdraws after the listing, before their entries are fetched
+            assert run_cli("withdraw", str(served_study), "P02").returncode == 0
+        entries = fetch(client, pid)
+        if pid == "P01":  # withdraws after their entries were fetched
+            assert run_cli("withdraw", str(served_study), "P01").returncode == 0
+        return entries
+
+    monkeypatch.setattr(admin_module, "_entries", withdrawing)
+    out = tmp_path / "pulled"
+    result = admin_module.pull(srv.url, ADMIN, out, csv=tmp_path / "r.csv")
+    assert [s.participant for s in result.sessions] == ["P03"]
+    assert set(result.withdrawn) == {"P01", "P02"}
+    assert sorted(p.name for p in out.glob("*.sqlite")) == ["P03.sqlite"]
+    with open(tmp_path / "r.csv", newline="") as f:
+        assert {row["participant"] for row in csv.DictReader(f)} == {"P03"}
+    assert {t[0] for t in db_dump(served_study)["tombstones"]} == {"P01", "P02"}

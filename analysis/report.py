@@ -24,6 +24,7 @@ from .pipeline import Analysis
 from .quality import THRESHOLDS
 from .reliability import Reliability
 from .report_html import write_html
+from .screening.result import RemovedRater
 from .sureal_io import write_sureal_json
 from .version import __version__
 
@@ -149,8 +150,7 @@ def summary(a: Analysis) -> dict[str, Any]:
         "exclusions": [x.__dict__ for x in a.exclusions],
         "partial_kept": [{"rater": r, "completeness": c} for r, c in a.partial_kept],
         "removed_raters": [
-            {"rater": r.rater, "method": r.method, "statistic": _num(r.statistic),
-             "critical": _num(r.critical), "value": _num(r.value), "reason": r.reason}
+            {k: _num(v) for k, v in r.__dict__.items()}
             for r in a.outliers.removed
         ],
         "screening": _records(a.outliers.table, index="rater"),
@@ -251,8 +251,7 @@ def write_tables(a: Analysis, out: Path) -> dict[str, Path]:
     t["exclusions"] = pd.DataFrame([x.__dict__ for x in a.exclusions],
                                    columns=["kind", "who", "reason", "rule"])
     t["outliers"] = pd.DataFrame([r.__dict__ for r in a.outliers.removed],
-                                 columns=["rater", "method", "statistic", "critical", "value",
-                                          "reason"])
+                                 columns=list(RemovedRater.COLUMNS))
     if a.outliers.table is not None:
         t["screening"] = a.outliers.table.reset_index()
     if a.quality is not None:

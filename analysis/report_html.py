@@ -38,6 +38,24 @@ def format_value(v: Any) -> str:
     return str(v)
 
 
+def format_column(values: pd.Series) -> list[str]:
+    """A column as the report shows it. Numbers get one number of decimals per column, so
+    that they line up and read alike (4 significant digits for the largest; whole numbers
+    none); other columns go cell by cell through :func:`format_value`."""
+    if not pd.api.types.is_float_dtype(values):
+        return [format_value(v) for v in values]
+    x = values.to_numpy(float)
+    finite = np.abs(x[np.isfinite(x)])
+    if finite.size == 0:
+        return ["" for _ in x]
+    if np.all(finite == np.round(finite)):
+        decimals = 0
+    else:
+        top = float(finite.max())
+        decimals = int(np.clip(3 - math.floor(math.log10(top)) if top > 0 else 3, 0, 4))
+    return [f"{v:.{decimals}f}" if math.isfinite(v) else "" for v in x]
+
+
 def table_html(frame: pd.DataFrame, *, index: bool = False, max_rows: int = 200,
                 classes: str = "t") -> Markup:
     """A table as HTML (values formatted and escaped by pandas), at most ``max_rows`` rows."""
@@ -45,7 +63,7 @@ def table_html(frame: pd.DataFrame, *, index: bool = False, max_rows: int = 200,
         frame = frame.head(max_rows)
     f = frame.copy()
     for col in f.columns:
-        f[col] = [format_value(v) for v in f[col]]
+        f[col] = format_column(frame[col])
     if index:
         f.index = [format_value(v) for v in f.index]
     return Markup("<div class='scroll'>" + f.to_html(index=index, na_rep="", border=0,
@@ -141,6 +159,14 @@ _SCREENING_TEXT = {
               "paper).",
     "bt500": "ITU-R BT.500's kurtosis-based rater screening (SUREAL's).",
     "none": "no rater is screened out.",
+}
+#: The columns of each screening's per-rater table, for the sentence above it.
+SCREENING_COLUMNS_TEXT = {
+    "p913": "r1: with the leave-one-out panel mean; r2: per-HRC means; inconsistency: MLE "
+            "noise s.d. and its robust z; n_raters: panel size when last tested",
+    "grubbs": "deviation: mean absolute deviation from the panel mean, before any removal",
+    "bt500": "outside_share: share of the rater's votes outside the panel's BT.500 bounds; "
+             "one_sidedness: |P-Q|/(P+Q) of those votes",
 }
 
 
@@ -250,6 +276,7 @@ def write_html(a: Analysis, out: Path, figures: dict[str, tuple[Path, str]],
         "dmos_table": a.dmos()[DMOS_COLUMNS],
         "quality_table": quality_display(a.quality) if a.quality is not None else None,
         "removed_table": pd.DataFrame([r.__dict__ for r in a.outliers.removed]),
+        "screening_columns": SCREENING_COLUMNS_TEXT.get(a.outliers.method, ""),
         "problems_table": pd.DataFrame([p.__dict__ for p in a.problems]),
         "methods": methods_table(a),
         "curve": curve_text(a) if a.ci_curve is not None else None,
@@ -263,7 +290,8 @@ def write_html(a: Analysis, out: Path, figures: dict[str, tuple[Path, str]],
     if a.reliability is not None:
         rel = a.reliability
         context["icc_table"] = pd.DataFrame(
-            [{"ICC": k, "value": v, "95% CI": f"[{rel.icc_ci[k][0]:.3f}, {rel.icc_ci[k][1]:.3f}]"}
+            [{"ICC": k, "value": f"{v:.3f}",
+              "95% CI": f"[{rel.icc_ci[k][0]:.3f}, {rel.icc_ci[k][1]:.3f}]"}
              for k, v in rel.icc.items()])
     path = out / "report.html"
     path.write_text(_environment().get_template("report.html").render(**context),

@@ -15,8 +15,9 @@ def bt500_screen(rs: RatingSet) -> OutlierResult:
     rejected, first, second = bt500_rejection(rs)
     removed = [
         RemovedRater(
-            rater=rs.raters[s], method="bt500", statistic=first[s], critical=0.05,
-            value=second[s],
+            rater=rs.raters[s], method="bt500", statistic_name="outside_share",
+            statistic=first[s], critical=0.05, second_name="one_sidedness", second=second[s],
+            second_critical=0.3,
             reason=(f"{first[s]:.1%} of the votes lie outside the BT.500 bounds (> 5%) and "
                     f"they are not one-sided (|P-Q|/(P+Q) = {second[s]:.2f} < 0.3)"),
         )

@@ -71,8 +71,9 @@ def grubbs_screen(rs: RatingSet, alpha: float = 0.05) -> OutlierResult:
         side = "larger" if dev[k] > dev.mean() else "smaller"
         who = kept.pop(k)
         removed.append(RemovedRater(
-            rater=rs.raters[who], method="grubbs", statistic=g, critical=crit,
-            value=float(dev[k]),
+            rater=rs.raters[who], method="grubbs", statistic_name="grubbs_g", statistic=g,
+            critical=crit, second_name="deviation", second=float(dev[k]),
+            second_critical=float("nan"),
             reason=(f"mean absolute deviation {dev[k]:.3g} from the panel mean is {side} than "
                     f"the others' (Grubbs G = {g:.3f} > critical {crit:.3f} at alpha {alpha}, "
                     f"n = {len(kept) + 1})"),

@@ -146,8 +146,11 @@ def p913_screen(rs: RatingSet, *, r1_min: float = R1_MIN, r2_min: float = R2_MIN
         name = rs.raters[who]
         st = stats[name]
         reason = _removal_reason(st, r1_min, r2_min, z_max, use_z)
-        removed.append(RemovedRater(rater=name, method="p913", statistic=float(r1[j]),
-                                    critical=r1_min, value=float(z[j]), reason=reason))
+        removed.append(RemovedRater(rater=name, method="p913", statistic_name="r1",
+                                    statistic=float(r1[j]), critical=r1_min,
+                                    second_name="inconsistency_z", second=float(z[j]),
+                                    second_critical=z_max if use_z else float("nan"),
+                                    reason=reason))
         stats[name]["decision"] = "removed"
         stats[name]["reason"] = reason
         log.info("P.913 screening: removed rater %s (%s)", name, reason)

@@ -9,14 +9,25 @@ import pandas as pd
 
 @dataclass(frozen=True)
 class RemovedRater:
-    """A rater taken out, with the statistic that condemned them."""
+    """A rater taken out, with the statistics that condemned them, each named with its
+    critical value: every rule here has a main test and a second one that must agree or that
+    describes the outlier (P.913: r1, then the inconsistency's robust z; BT.500: the share
+    of votes outside the bounds, then their one-sidedness; Grubbs: G, then the deviation
+    it was computed from, which has no threshold of its own)."""
 
     rater: str
     method: str
+    statistic_name: str
     statistic: float
     critical: float
-    value: float
+    second_name: str
+    second: float
+    second_critical: float
     reason: str
+
+    COLUMNS = ("rater", "method", "statistic_name", "statistic", "critical", "second_name",
+               "second", "second_critical", "reason")
+    """The order of the report's ``tables/outliers.csv``."""
 
 
 @dataclass

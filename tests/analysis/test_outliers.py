@@ -95,4 +95,39 @@ def test_bt500_screening(study) -> None:
     frame.loc[sel, "rating"] = np.clip(truth + rng.normal(0, 25, sel.sum()), 0, 100)
     result = screen_raters(ratings_from_frame(frame, study.manifest), "bt500")
     assert result.removed_names == ["P01"]
-    assert result.removed[0].statistic > 0.05 and result.removed[0].value < 0.3
+    assert result.removed[0].statistic > 0.05 and result.removed[0].second < 0.3
+
+
+@pytest.mark.parametrize("method, names, criticals", [
+    ("p913", ("r1", "inconsistency_z"), (0.75, 3.5)),
+    ("bt500", ("outside_share", "one_sidedness"), (0.05, 0.3)),
+    ("grubbs", ("grubbs_g", "deviation"), (None, None)),
+])
+def test_a_removal_names_both_statistics_with_their_thresholds(method, names, criticals,
+                                                               study):
+    """Each rule's two numbers are named (they used to share anonymous 'statistic' and
+    'value' columns that meant other things per rule) and agree with its per-rater table."""
+    st = study if method == "bt500" else synthetic_study(
+        n_scenes=8, levels=2, n_raters=16, n_outliers=2, noise_sd=5, bias_sd=3, seed=5)
+    rs = ratings_from_frame(st.ratings, st.manifest)
+    if method == "bt500":  # deviant votes on both sides of the panel, as in the test above
+        frame = st.ratings.copy()
+        sel = frame["participant"] == "P01"
+        truth = frame.loc[sel, "stimulus"].map(st.quality).to_numpy()
+        frame.loc[sel, "rating"] = np.clip(
+            truth + np.random.default_rng(1).normal(0, 25, sel.sum()), 0, 100)
+        rs = ratings_from_frame(frame, st.manifest)
+    result = screen_raters(rs, method)
+    assert result.removed
+    table = result.table
+    for r in result.removed:
+        assert (r.statistic_name, r.second_name) == names
+        if method == "grubbs":
+            assert r.statistic > r.critical
+            assert r.critical in [pytest.approx(grubbs_critical(n, 0.05)) for n in (15, 16)]
+            assert np.isnan(r.second_critical)
+            continue
+        assert (r.critical, r.second_critical) == criticals
+        row = table.loc[r.rater]
+        assert r.statistic == pytest.approx(row[names[0]])
+        assert r.second == pytest.approx(row[names[1]])

@@ -176,3 +176,35 @@ def test_axes_show_whole_whiskers_and_log_ticks_are_plain(study_files, tmp_path,
     for ax in log_axes:  # the labels as saved (savefig drew them)
         labels = [t.get_text() for t in ax.get_yticklabels()]
         assert labels and not any("$" in t or "mathdefault" in t for t in labels), labels
+
+
+def test_a_numeric_column_has_one_number_of_decimals():
+    from analysis.report_html import format_column
+
+    def col(*v):
+        return format_column(pd.Series(v, dtype=float))
+
+    assert col(0.9, 0.9525, -0.07281, np.nan) == ["0.9000", "0.9525", "-0.0728", ""]
+    assert col(27.98446, 7.41, 7.776) == ["27.98", "7.41", "7.78"]
+    assert col(28.0, 12.0) == ["28", "12"]  # counts stay whole
+    assert col(1234.5678, 2.25) == ["1235", "2"]
+    assert col(0.0, 0.0) == ["0", "0"] and col(np.nan) == [""]
+    assert format_column(pd.Series(["a", None, True])) == ["a", "", "yes"]
+
+
+def test_the_screening_section_describes_its_own_rule(study_files, tmp_path, monkeypatch):
+    """The sentence over the per-rater table named P.913's columns for every rule."""
+    from analysis import load_ratings
+    from analysis import report as report_module
+
+    monkeypatch.setattr(report_module, "draw_all", lambda a, folder: {})  # text only
+    rs = load_ratings(study_files["manifest"], ratings_csv=study_files["ratings"])
+    for rule, says in (("bt500", "outside_share: share"), ("grubbs", "deviation: mean"),
+                       ("p913", "r1: with the leave-one-out")):
+        a = run_analysis(rs, AnalysisConfig(model="mos", outliers=rule, n_boot=20,
+                                            n_splits=10, ci_draws=2), progress=False)
+        from analysis.report import write_report
+
+        html = write_report(a, tmp_path / rule).read_text()
+        section = html[html.index("id='screening'"):html.index("id='screening'") + 1500]
+        assert says in section and ("r1: with" in section) == (rule == "p913")

@@ -665,6 +665,7 @@ def _comparisons(fitted: dict[str, _Fitted], y_all: np.ndarray, yb_all: np.ndarr
                 "boot_p": float((np.sum(diff <= 0) + 1) / (diff.size + 1))
                 if diff.size and resamples_vary(
                     {scope: blk} if scope != "all" else blocks) else float("nan"),
+                "boot_n": int(diff.size),  # resamples where both correlations exist
                 **tests,
                 "rmse_F": f_rmse, "rmse_p": p_rmse, "rmse_star_F": f_star,
                 "rmse_star_p": p_star,

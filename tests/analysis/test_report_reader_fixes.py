@@ -46,6 +46,7 @@ def test_a_paired_bootstrap_p_is_never_zero():
     c = v.comparisons.set_index(["scope", "metric_a", "metric_b"])
     # every resample favours 'good': (0 + 1) / (200 + 1), not 0
     assert c.loc[("all", "good", "bad"), "boot_p"] == pytest.approx(1 / 201)
+    assert (c["boot_n"] == 200).all()  # the B of (k + 1) / (B + 1), in the table
     assert c.loc[("all", "bad", "good"), "boot_p"] == pytest.approx(1.0)
 
 

@@ -86,9 +86,9 @@ def session_files(paths: Sequence[str | Path]) -> Iterator[tuple[list, list[Inpu
         notes = []
         for prob in found:
             where = Path(prob.path)
-            if prob.message == "not found":
+            if prob.nothing_to_check and not where.exists():
                 raise AnalysisError(f"session path {where} does not exist")
-            if "holds no session file" in prob.message and where.resolve() in named:
+            if prob.nothing_to_check and where.resolve() in named:
                 # what was named holds nothing; a stray zip found in a folder is only noted
                 raise AnalysisError(f"no session files (*.sqlite) in {where}")
             notes.append(InputProblem(str(where), prob.row, prob.message))

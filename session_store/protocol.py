@@ -47,6 +47,8 @@ def participant_path(participant: str, what: str) -> str:
 
 
 ADMIN_SESSIONS: Final = f"{API}/admin/sessions"
+PULL_LISTING_FILE: Final = "server_listing.json"
+"""What the server listed when ``pull`` ran, written beside the pulled session files."""
 
 
 def admin_manifest_path(manifest_sha256: str) -> str:

@@ -47,11 +47,14 @@ class TrialResult:
 
 @dataclass(frozen=True)
 class SessionProblem:
-    """Something wrong with a session file; ``row`` is the trial index when one is concerned."""
+    """Something wrong with a session file; ``row`` is the trial index when one is concerned.
+    ``nothing_to_check``: the path given is missing or a folder without session files, so no
+    file was looked at (not a damaged file)."""
 
     path: Path
     row: int | None
     message: str
+    nothing_to_check: bool = False
 
     def __str__(self) -> str:
         where = f" (trial {self.row})" if self.row is not None else ""

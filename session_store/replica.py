@@ -33,6 +33,7 @@ from .outbox import (
     read_entries,
 )
 from .schema import DAMAGE_ERRORS, connect, has_table, open_existing
+from .sqlite_errors import roll_back
 
 
 class ContradictionError(StudyError):
@@ -97,7 +98,7 @@ class Replica:
             apply_change(con, "session", first.body)
             insert_verbatim(con, first)
         except BaseException:
-            con.execute("ROLLBACK")
+            roll_back(con)
             con.close()
             raise
         con.execute("COMMIT")
@@ -194,10 +195,10 @@ class Replica:
                 apply_change(self._con, e.kind, e.body)
                 insert_verbatim(self._con, e)
             yield fresh
+            self._con.execute("COMMIT")
         except BaseException:
-            self._con.execute("ROLLBACK")
+            roll_back(self._con)
             raise
-        self._con.execute("COMMIT")
 
     def accept(self, entries: Sequence[OutboxEntry]) -> int:
         """Store the new entries of a batch (all or nothing); returns the acknowledged

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import StudyError
+from .protocol import PULL_LISTING_FILE
 from .records import SessionProblem
 
 CHECKSUM_MEMBER = "SHA256SUMS"
@@ -122,7 +123,8 @@ def _from_zip(path: Path, workdir: Path, counter: Iterator[int]
         members = [i for i in zf.infolist() if not i.is_dir() and _is_session_name(i.filename)]
         if not members:
             return [], [SessionProblem(path, None, "holds no session file (*.sqlite); send "
-                                       "the zip made by 'cgvq-study export'")]
+                                       "the zip made by 'cgvq-study export'",
+                                       nothing_to_check=True)]
         try:
             sums = _read_sums(zf, path)
         except StudyError as exc:
@@ -151,6 +153,18 @@ def _from_zip(path: Path, workdir: Path, counter: Iterator[int]
     return sources, problems
 
 
+NOT_FOUND = ("not found; give a session file (.sqlite), an exported .zip or a folder of "
+             "them")
+
+
+def _empty_folder(folder: Path) -> str:
+    """Why a folder given holds nothing to read; a pull's folder gets its own reason."""
+    if (folder / PULL_LISTING_FILE).is_file():
+        return ("no session file in this pull's folder: the server had received no session "
+                "when it was pulled")
+    return "folder holds no session file (*.sqlite) or exported zip"
+
+
 @contextlib.contextmanager
 def session_sources(paths: Iterable[str | Path]
                     ) -> Iterator[tuple[list[SessionSource], list[SessionProblem]]]:
@@ -168,13 +182,13 @@ def session_sources(paths: Iterable[str | Path]
                 found = sorted(q for q in p.rglob("*") if q.is_file() and (
                     _is_session_name(q.name) or q.suffix == ".zip"))
                 if not found:
-                    problems.append(SessionProblem(p, None, "folder holds no session file "
-                                                   "(*.sqlite) or exported zip"))
+                    problems.append(SessionProblem(p, None, _empty_folder(p),
+                                                   nothing_to_check=True))
                 candidates = found
             elif p.is_file():
                 candidates = [p]
             else:
-                problems.append(SessionProblem(p, None, "not found"))
+                problems.append(SessionProblem(p, None, NOT_FOUND, nothing_to_check=True))
                 continue
             for c in candidates:
                 if zipfile.is_zipfile(c):

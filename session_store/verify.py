@@ -50,15 +50,25 @@ class VerifyReport:
         return bool(self.info and self.info.withdrawn)
 
     @property
+    def checked(self) -> bool:
+        """False where the path given held nothing to check (missing, or a folder without
+        session files): not a damaged file, although it fails the check as one does."""
+        return not (self.info is None and self.problems
+                    and all(p.nothing_to_check for p in self.problems))
+
+    @property
     def exit_code(self) -> int:
-        """0 intact and complete, 1 intact but incomplete (or withdrawn), 2 damaged."""
+        """0 intact and complete, 1 intact but incomplete (or withdrawn), 2 damaged or
+        nothing to check."""
         if not self.intact:
             return 2
         return 0 if self.complete else 1
 
     @property
     def state(self) -> str:
-        """One word for listings: complete, incomplete, withdrawn or damaged."""
+        """One word for listings: complete, incomplete, withdrawn, damaged or not checked."""
+        if not self.checked:
+            return "not checked"
         if not self.intact:
             return "damaged"
         if self.complete:

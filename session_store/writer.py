@@ -31,34 +31,12 @@ from .outbox import has_outbox
 from .reader import SessionRecord, read_header, record_from, session_info
 from .records import PlannedTrial, SessionInfo, TrialResult, utc_now
 from .schema import CHAINED, PANEL_DDL, connect, open_existing, wal_pending_bytes
+from .sqlite_errors import is_busy, is_disk_full, is_io_error, roll_back
 
 log = logging.getLogger(__name__)
 
 _FINITE_FIELDS = ("rating", "rt_ms", "ms_on_reference", "ms_on_test", "slider_first_move_ms",
                   "max_flip_interval_ms")
-
-
-_BUSY_CODES = (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED)
-
-
-def is_busy(exc: sqlite3.Error) -> bool:
-    """Whether ``exc`` only means another connection holds the file for now (retry later),
-    not that writing failed (a full disk, an I/O error)."""
-    code = getattr(exc, "sqlite_errorcode", None)
-    if code is None:
-        return "locked" in str(exc) or "busy" in str(exc)
-    return code & 0xFF in _BUSY_CODES
-
-
-def _is_disk_full(exc: sqlite3.Error) -> bool:
-    code = getattr(exc, "sqlite_errorcode", None)
-    return (code is not None and code & 0xFF == sqlite3.SQLITE_FULL) or "disk is full" in str(exc)
-
-
-def _is_io_error(exc: sqlite3.Error) -> bool:
-    code = getattr(exc, "sqlite_errorcode", None)
-    return code is not None and code & 0xFF in (sqlite3.SQLITE_IOERR, sqlite3.SQLITE_CANTOPEN,
-                                                 sqlite3.SQLITE_READONLY)
 
 
 def _check_finite(name: str, value: float | None) -> None:
@@ -260,18 +238,12 @@ class SessionStore:
             yield
             self._con.execute("COMMIT")
         except BaseException as exc:
-            self._rollback()
+            roll_back(self._con)
             if isinstance(exc, sqlite3.Error):
                 raise StudyError(self._write_failure(exc, committed=False)) from None
             raise
         self._checkpoint()
 
-    def _rollback(self) -> None:
-        """Undo an open transaction; SQLite may already have rolled it back itself (after a
-        full disk or an I/O error)."""
-        if self._con.in_transaction:
-            with contextlib.suppress(sqlite3.Error):
-                self._con.execute("ROLLBACK")
 
     def _checkpoint(self, *, always: bool = False) -> None:
         """Copy the WAL into the main file. Busy readers only postpone it (the next one
@@ -308,8 +280,8 @@ class SessionStore:
         n = self._ratings_so_far()
         told = ("your ratings so far" if n is None else
                 f"your {n} rating(s) so far (up to trial {n})")
-        what = ("the disk is full" if _is_disk_full(exc)
-                else f"the disk could not be written ({exc})" if _is_io_error(exc)
+        what = ("the disk is full" if is_disk_full(exc)
+                else f"the disk could not be written ({exc})" if is_io_error(exc)
                 else f"the session file could not be written ({exc})")
         lost = "" if committed else "; the rating on screen was not saved"
         if committed or wal_pending_bytes(self.path) > 0:
@@ -462,7 +434,7 @@ class SessionStore:
 
 def _space_advice(exc: sqlite3.Error) -> str:
     """What the participant can do about a failed write."""
-    if _is_disk_full(exc):
+    if is_disk_full(exc):
         return "free some disk space and run the same command again"
     return "check the disk (is it still connected?) and run the same command again"
 

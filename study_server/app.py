@@ -65,4 +65,5 @@ def create_app(config: ServerConfig, state: ServerState | None = None) -> Starle
                                         OSError: common.on_storage_error,
                                         Exception: common.on_error})
     app.state.server = state or ServerState.open(config)
+    app.state.disk_full_log = common.Every(common.DISK_FULL_RETRY_S)
     return app

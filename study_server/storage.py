@@ -25,7 +25,6 @@ all, so every migration is exercised by every test):
 from __future__ import annotations
 
 import contextlib
-import errno
 import os
 import sqlite3
 import threading
@@ -35,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from session_store.errors import StudyError
+from session_store.sqlite_errors import roll_back
 
 FORMAT = "cgvq-server"
 STATE_DIR = "server"
@@ -213,22 +213,6 @@ def private_file(path: Path) -> Path:
     return path
 
 
-def disk_full(exc: BaseException) -> bool:
-    """The study folder's disk (or quota) is full: SQLite's SQLITE_FULL or ENOSPC/EDQUOT."""
-    if isinstance(exc, sqlite3.Error):
-        return getattr(exc, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL or (
-            "disk is full" in str(exc))
-    return isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
-
-
-def _roll_back(con: sqlite3.Connection) -> None:
-    """Undo a failed transaction, if SQLite has not already: after SQLITE_FULL it rolls back
-    by itself, and a second ROLLBACK would replace the real error with its own. A failed
-    COMMIT leaves the transaction open; it is closed here, or every later BEGIN would fail."""
-    if con.in_transaction:
-        con.execute("ROLLBACK")
-
-
 def _connect(path: Path) -> sqlite3.Connection:
     con = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False, timeout=30)
     con.row_factory = sqlite3.Row
@@ -276,7 +260,7 @@ def migrate(con: sqlite3.Connection, path: Path, target: int = SCHEMA_VERSION) -
                 f"{SCHEMA_VERSION}: upgrade the toolkit (or serve from a backup made for it)")
         con.execute("COMMIT")
     except BaseException:
-        con.execute("ROLLBACK")
+        roll_back(con)
         raise
     for version in range(found, target):
         con.execute("BEGIN IMMEDIATE")
@@ -288,7 +272,7 @@ def migrate(con: sqlite3.Connection, path: Path, target: int = SCHEMA_VERSION) -
             con.execute("UPDATE meta SET value=? WHERE key='schema'", (str(version + 1),))
             con.execute("COMMIT")
         except BaseException:
-            con.execute("ROLLBACK")
+            roll_back(con)
             raise
     return found
 
@@ -368,7 +352,7 @@ class ServerStore:
                 yield con
                 con.execute("COMMIT")
             except BaseException:
-                _roll_back(con)
+                roll_back(con)
                 raise
 
     @contextlib.contextmanager

@@ -8,7 +8,7 @@ import threading
 import time
 from collections.abc import Callable
 
-from .storage import disk_full
+from session_store.sqlite_errors import is_disk_full
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +59,7 @@ class ThrottledWorker:
             try:
                 self.work()
             except Exception as exc:  # the server keeps serving
-                if disk_full(exc):  # one line: it fails again at every turn until space is freed
+                if is_disk_full(exc):  # one line: it fails again at every turn until space is freed
                     log.error("%s failed: the disk of the study folder is full (%s)",
                               self.name, exc)
                 else:

@@ -6,6 +6,10 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from session_store import VerifyReport
 
 NAME = "verify"
 HELP = ("check returned session files, exported zips or folders of them (exit 0 all intact "
@@ -27,8 +31,8 @@ def run(args: argparse.Namespace) -> int:
     for report in reports:
         info = report.info
         who = f"participant {info.participant}, study {info.study_id}" if info else "unknown"
-        if _unusable_input(report):  # nothing was checked: not a damaged file
-            print(f"{report.path}: NOT CHECKED, {_input_problem(report)}")
+        if not report.checked:  # a missing path or an empty folder: not a damaged file
+            print(f"{report.path}: NOT CHECKED, {report.problems[0].message}")
             continue
         if report.state == "damaged":
             print(f"{report.path}: DAMAGED ({who}); {len(report.problems)} problem(s):")
@@ -44,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         for warning in report.warnings:
             print(f"  warning: {warning}")
     if len(reports) > 1:
-        states = ["not checked" if _unusable_input(r) else r.state for r in reports]
+        states = [r.state for r in reports]
         counts = {s: states.count(s)
                   for s in ("complete", "incomplete", "withdrawn", "damaged", "not checked")}
         noun = "session files" if "not checked" not in states else "inputs"
@@ -57,43 +61,17 @@ def run(args: argparse.Namespace) -> int:
     return code
 
 
-def _unusable_input(report) -> bool:
-    """A path given that is missing or a folder without session files: an input problem."""
-    return report.info is None and (report.path.is_dir() or (
-        not report.path.exists() and ".zip:" not in str(report.path)))
-
-
-def _input_problem(report) -> str:
-    """Why a given path held nothing to check; a pull's folder gets its own reason."""
-    if not report.path.exists():
-        return "not found"
-    from study_app.remote.admin import LISTING_FILE
-
-    if (report.path / LISTING_FILE).is_file():
-        return ("no session file in this pull's folder: the server had received no session "
-                "when it was pulled")
-    return "the folder holds no session file (*.sqlite) or exported zip"
-
-
-def _failure_line(reports) -> str:
+def _failure_line(reports: list[VerifyReport]) -> str:
     """One line for stderr: the first damaged or unusable input and how many there were."""
-    damaged = [r for r in reports if r.state == "damaged"]
-    unusable = [r for r in damaged if _unusable_input(r)]
-    if not damaged:
+    failed = [r for r in reports if r.exit_code == 2]
+    if not failed:
         return "no session file was given (see the report on stdout)"
-    first = damaged[0]
+    first = failed[0]
     problem = first.problems[0].message if first.problems else "damaged"
-    if not first.path.exists() and ".zip:" not in str(first.path):  # not a zip's member
-        what = (f"{first.path} not found; give a session file (.sqlite), an exported .zip or "
-                "a folder of them")
-    elif first.path.is_dir():
-        what = f"{first.path}: {_input_problem(first)}"
-    else:
-        what = problem if problem.startswith(str(first.path)) else f"{first.path}: {problem}"
+    what = problem if problem.startswith(str(first.path)) else f"{first.path}: {problem}"
     if len(reports) > 1:
-        if len(unusable) == len(damaged):
-            return (f"{len(damaged)} of {len(reports)} inputs hold no session file, e.g. "
-                    f"{what} (see the report on stdout)")
-        return (f"{len(damaged)} of {len(reports)} inputs are damaged or unreadable, e.g. "
-                f"{what} (see the report on stdout)")
+        kind = ("hold no session file" if not any(r.checked for r in failed)
+                else "are damaged or unreadable")
+        return (f"{len(failed)} of {len(reports)} inputs {kind}, e.g. {what} (see the report "
+                "on stdout)")
     return f"{what} (see the report on stdout)"

@@ -206,7 +206,7 @@ def map_by_csv(folder: Path, csv_path: Path) -> FolderMapping:
     out = FolderMapping()
     try:
         with open(csv_path, newline="", encoding="utf-8-sig") as fh:
-            reader = csv.DictReader(fh, dialect=_dialect(fh))
+            reader = csv.DictReader(fh, delimiter=_delimiter(fh))
             columns = [c.strip() for c in reader.fieldnames or []]
             missing = [c for c in ("path", "scene", "role") if c not in columns]
             if missing:
@@ -230,15 +230,13 @@ def map_by_csv(folder: Path, csv_path: Path) -> FolderMapping:
     return out
 
 
-def _dialect(fh: TextIO) -> type[csv.Dialect] | csv.Dialect:
+def _delimiter(fh: TextIO) -> str:
     """Commas, or the semicolons (tabs) that spreadsheets write in many locales, read from the
-    header line; the file is left at its start."""
+    header line (ties: commas); the file is left at its start. Only the delimiter is guessed:
+    quoting stays Excel's, where a doubled quote inside a quoted field is one quote."""
     header = fh.readline()
     fh.seek(0)
-    try:
-        return csv.Sniffer().sniff(header, delimiters=",;\t")
-    except csv.Error:  # one column, or none: commas
-        return csv.excel
+    return max(",;\t", key=header.count)
 
 
 def _csv_row(folder: Path, row: dict[str, str], where: str, out: FolderMapping) -> None:

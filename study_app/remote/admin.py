@@ -30,7 +30,12 @@ from session_store.answers import (
 )
 from session_store.errors import StudyError
 from session_store.ids import check_participant_id
-from session_store.protocol import ADMIN_SESSIONS, admin_entries_path, admin_manifest_path
+from session_store.protocol import (
+    ADMIN_SESSIONS,
+    PULL_LISTING_FILE,
+    admin_entries_path,
+    admin_manifest_path,
+)
 from session_store.ratings_csv import write_ratings_csv
 
 from .http import ServerClient, ServerRefused
@@ -38,7 +43,7 @@ from .http import ServerClient, ServerRefused
 log = logging.getLogger(__name__)
 
 PAGE = 1000
-LISTING_FILE = "server_listing.json"
+LISTING_FILE = PULL_LISTING_FILE
 
 
 @dataclass

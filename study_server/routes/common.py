@@ -9,12 +9,14 @@ import math
 import re
 import time
 from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
 from typing import Any
 
 from starlette.requests import Request
 from starlette.responses import JSONResponse, RedirectResponse, Response
 
-from .. import storage
+from session_store.sqlite_errors import is_disk_full
+
 from ..ingest import Refused
 from ..state import ServerState
 
@@ -94,7 +96,22 @@ async def root(request: Request) -> Response:
 
 
 DISK_FULL_RETRY_S = 60
-_disk_full_logged_at = [-math.inf]
+
+
+@dataclass
+class Every:
+    """True at most once per ``seconds``: one log line for a condition that repeats with
+    every request (one per application, made by :func:`study_server.app.create_app`)."""
+
+    seconds: float
+    _last: float = -math.inf
+
+    def due(self) -> bool:
+        now = time.monotonic()
+        if now - self._last < self.seconds:
+            return False
+        self._last = now
+        return True
 
 
 async def on_storage_error(request: Request, exc: Exception) -> Response:
@@ -103,11 +120,9 @@ async def on_storage_error(request: Request, exc: Exception) -> Response:
     was stored, and the uploads go through once space is freed, without a restart. Any other
     storage error goes on to :func:`on_error` (handled here, a response is final: Starlette
     re-raises what reaches ``on_error`` so that the ASGI server logs it a second time)."""
-    if not storage.disk_full(exc):
+    if not is_disk_full(exc):
         raise exc
-    now = time.monotonic()
-    if now - _disk_full_logged_at[0] >= DISK_FULL_RETRY_S:
-        _disk_full_logged_at[0] = now
+    if request.app.state.disk_full_log.due():
         log.error("the disk of the study folder is full (%s): requests that write are "
                   "answered 503 and retried by the participants' apps; free space, "
                   "no restart is needed", exc)

@@ -262,3 +262,21 @@ def test_a_csv_mapping_names_the_unlisted_file_that_looks_like_the_reference(tmp
     (problem,) = map_by_csv(tmp_path, table).problems
     assert "did you mean sponza/Reference.mp4? It is not in map.csv" in problem.detail
     assert "other.mp4" not in problem.detail
+
+
+@pytest.mark.parametrize("sep", [",", ";", "\t"])
+def test_a_mapping_csv_keeps_excel_quoting_whatever_its_delimiter(tmp_path, sep):
+    """Excel writes a quote inside a quoted field doubled: one quote, as before the
+    delimiter was guessed (the guessed dialect kept both)."""
+    from stimuli_manifests.from_folder.mapping import map_by_csv
+
+    for name in ("gt.mkv", "ours.mkv"):
+        (tmp_path / name).write_bytes(b"x")
+    table = tmp_path / "map.csv"
+    rows = [["path", "scene", "role", "method", "level", "setting"],
+            ["gt.mkv", "bistro", "reference", "", "", ""],
+            ["ours.mkv", "bistro", "test", "ours", "1", '"4 ""spp"", denoised"']]
+    table.write_text("\n".join(sep.join(r) for r in rows) + "\n", encoding="utf-8")
+    mapping = map_by_csv(tmp_path, table)
+    assert not mapping.problems
+    assert [v.setting for v in mapping.videos if v.role == "test"] == ['4 "spp", denoised']

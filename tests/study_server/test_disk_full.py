@@ -5,6 +5,7 @@ minute, nothing half-stored, and the same upload goes through once space is free
 from __future__ import annotations
 
 import asyncio
+import errno
 import json
 import logging
 import sqlite3
@@ -14,10 +15,10 @@ from support.sessions import session_entries
 
 from session_store import utc_now
 from session_store.protocol import PROTOCOL
+from session_store.sqlite_errors import is_disk_full
 from study_server import storage
 from study_server.app import create_app
 from study_server.config import ServerConfig
-from study_server.routes import common
 from study_server.routes.participants import PREFIX
 from study_server.state import ServerState
 
@@ -73,7 +74,6 @@ def full_disk(monkeypatch):
 def test_a_full_disk_is_a_503_to_retry_and_one_log_line(served_study, invites, tmp_path,
                                                          monkeypatch, caplog, full_disk):
     monkeypatch.setenv("CGVQ_ADMIN_TOKEN", ADMIN)
-    monkeypatch.setattr(common, "_disk_full_logged_at", [float("-inf")])
     token = {i.participant: i.token for i in invites(2)}["P01"]
     state = ServerState.open(ServerConfig(served_study, stats_in_background=False))
     try:
@@ -116,8 +116,13 @@ def test_a_full_disk_is_a_503_to_retry_and_one_log_line(served_study, invites, t
 
 
 def test_only_a_full_disk_counts_as_one():
-    assert storage.disk_full(sqlite3.OperationalError("database or disk is full"))
-    assert storage.disk_full(OSError(28, "No space left on device"))
-    assert not storage.disk_full(sqlite3.OperationalError("database is locked"))
-    assert not storage.disk_full(OSError(13, "Permission denied"))
-    assert not storage.disk_full(ValueError("disk is full"))
+    con = sqlite3.connect(":memory:")
+    con.execute("CREATE TABLE t (x BLOB)")
+    con.execute(f"PRAGMA max_page_count = {con.execute('PRAGMA page_count').fetchone()[0]}")
+    with pytest.raises(sqlite3.Error) as full:  # SQLite's own SQLITE_FULL
+        con.execute("INSERT INTO t VALUES (zeroblob(100000))")
+    assert is_disk_full(full.value)
+    assert is_disk_full(OSError(errno.ENOSPC, "No space left on device"))
+    assert not is_disk_full(sqlite3.OperationalError("database is locked"))
+    assert not is_disk_full(OSError(errno.EACCES, "Permission denied"))
+    assert not is_disk_full(ValueError("disk is full"))

@@ -433,8 +433,8 @@ def panel_survey(a: Analysis, path: Path) -> Path | None:
 
 FIGURES = {
     "metric_benchmark": (metric_benchmark, "metric benchmark: PLCC and SRCC with 95% two-way "
-                         "bootstrap CIs, sorted; the grey band is the human ceiling; flagged "
-                         "metrics (random backbone, uniform weights) hatched"),
+                         "bootstrap CIs, sorted{ceiling}; flagged metrics (random backbone, "
+                         "uniform weights) hatched"),
     "metric_per_method": (metric_per_method, "SRCC of each metric within each distortion "
                           "method"),
     "rater_agreement": (rater_agreement, "each rater's correlation with the leave-one-out "
@@ -447,7 +447,7 @@ FIGURES = {
                        "(metric predictions after the logistic mapping as black markers)"),
     "metric_scatter": (metric_scatter, "each metric against DMOS with its fitted mapping"),
     "metric_comparison": (metric_comparison, "metric comparison: PLCC and SRCC with 95% "
-                          "bootstrap CIs, human ceiling alongside"),
+                          "bootstrap CIs{ceiling}"),
     "inter_rater": (inter_rater_heatmap, "inter-rater Pearson correlation"),
     "intra_rater": (intra_rater_bars, "intra-rater reliability (mean r between repetitions)"),
     "rater_bias": (rater_bias, "rater bias and inconsistency with 95% CIs"),
@@ -461,6 +461,10 @@ FIGURES = {
                      "share of each answer, disagreement left of zero and agreement right; "
                      "n = participants who chose a point"),
 }
+"""Each figure's drawing function and caption; ``{ceiling}`` in a caption is
+:data:`CEILING_NOTES`' text for it where the human ceiling is drawn, and nothing where not."""
+CEILING_NOTES = {"metric_benchmark": "; the grey band is the human ceiling",
+                 "metric_comparison": ", human ceiling alongside"}
 
 
 def literal_text() -> contextlib.AbstractContextManager:
@@ -477,9 +481,7 @@ def draw_all(a: Analysis, folder: Path) -> dict[str, tuple[Path, str]]:
     with literal_text():
         for name, (fn, caption) in FIGURES.items():
             path = fn(a, folder / f"{name}.png")
-            if path is not None:
-                if a.ceiling is None:  # captions say only what is drawn
-                    caption = caption.replace("; the grey band is the human ceiling", "")
-                    caption = caption.replace(", human ceiling alongside", "")
-                out[name] = (path, caption)
+            if path is not None:  # captions say only what is drawn
+                note = CEILING_NOTES.get(name, "") if a.ceiling is not None else ""
+                out[name] = (path, caption.replace("{ceiling}", note))
     return out

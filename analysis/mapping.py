@@ -108,13 +108,18 @@ def _polish(z: np.ndarray, y: np.ndarray, params: np.ndarray, sse: np.ndarray,
             lower: tuple[float, ...], upper: tuple[float, ...],
             monotone: Callable[[np.ndarray], bool]) -> np.ndarray:
     """The best of the batch's fits after SciPy's bounded trust-region solver has refined
-    the three best (distinct) ones; a refinement counts only while it stays monotone."""
+    the three best distinct ones (many starts end at the same optimum); a refinement counts
+    only while it stays monotone."""
     best_i = int(np.argmin(sse))
     best, best_sse = params[best_i], float(sse[best_i])
-    for i in np.argsort(sse)[:3]:
-        if not np.isfinite(sse[i]):
+    picked: list[np.ndarray] = []
+    for i in np.argsort(sse):
+        if not np.isfinite(sse[i]) or len(picked) == 3:
             break
-        x0 = np.clip(params[i], np.nextafter(lower, upper), np.nextafter(upper, lower))
+        if any(np.allclose(params[i], q, rtol=1e-4, atol=1e-6) for q in picked):
+            continue
+        picked.append(params[i])
+    for x0 in picked:
         with np.errstate(over="ignore"):
             res = least_squares(lambda p: logistic5(z, *p) - y, x0, bounds=(lower, upper),
                                 method="trf", x_scale="jac", max_nfev=2000)

@@ -58,12 +58,10 @@ class InitOptions:
     reference_pattern: str = DEFAULT_REFERENCE_PATTERN
     study_id: str | None = None
     transcode: LosslessCodec | None = None
-    display: DisplayRequirements | None = None
-    """All three display requirements; default: the previous manifest's, else the defaults."""
     min_display: tuple[int, int] | None = None
-    """Replaces the minimum screen size of ``display`` (or of the previous manifest)."""
+    """Replaces the minimum screen size of the previous manifest (else of the defaults)."""
     min_refresh_hz: float | None = None
-    """Replaces the minimum refresh rate of ``display`` (or of the previous manifest)."""
+    """Replaces the minimum refresh rate of the previous manifest (else of the defaults)."""
     force: bool = False
     progress: bool = False
 
@@ -165,7 +163,7 @@ def init_study(opts: InitOptions) -> InitResult:
 
 def _display(opts: InitOptions, previous: Manifest | None) -> DisplayRequirements:
     """The requirements asked for; what was not asked for stays as the study had it."""
-    base = opts.display or (previous.display if previous else DisplayRequirements())
+    base = previous.display if previous else DisplayRequirements()
     update: dict[str, float] = {}
     if opts.min_display is not None:
         update.update(min_width=opts.min_display[0], min_height=opts.min_display[1])

@@ -20,7 +20,14 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlencode
 
-from session_store import OutboxEntry, Replica, VerifyReport, read_session, verify_session
+from session_store import (
+    OutboxEntry,
+    Replica,
+    SessionRecord,
+    VerifyReport,
+    read_session,
+    verify_session,
+)
 from session_store.answers import (
     answer_rows,
     latest_answers,
@@ -118,9 +125,19 @@ def _build(path: Path, entries: list[OutboxEntry]) -> None:
     path.chmod(0o600)
 
 
+_MANIFEST_NAME = re.compile(r"manifest\.[0-9a-f]{12}\.json")
+
+
 def manifest_name(manifest_sha256: str) -> str:
     """The file a pull saves a version's manifest as (beside the sessions)."""
-    return f"manifest.{manifest_sha256[:12]}.json"
+    name = f"manifest.{manifest_sha256[:12]}.json"
+    assert _MANIFEST_NAME.fullmatch(name), name
+    return name
+
+
+def screenings_name(answers: Path) -> Path:
+    """Where the vision checks go beside the answers table (personal data too)."""
+    return answers.with_name(f"{answers.stem}_screenings.csv")
 
 
 def _save_manifests(client: ServerClient, out: Path,
@@ -147,14 +164,16 @@ def _check_outputs(out: Path, csv: str | Path | None, answers: str | Path | None
     manifest), which it would replace without a word."""
     named = {"--csv": csv, "--answers": answers}
     given = {opt: Path(p).resolve() for opt, p in named.items() if p is not None}
-    if len(given) == 2 and given["--csv"] == given["--answers"]:
-        raise StudyError(f"--csv and --answers name the same file {csv}; give two files")
+    if len(given) == 2 and given["--csv"] in (given["--answers"],
+                                              screenings_name(given["--answers"])):
+        raise StudyError(f"--csv {csv} is a file --answers writes ({given['--csv'].name}); "
+                         "give two files")
     for opt, path in given.items():
         if path.is_dir():
             raise StudyError(f"{opt} {named[opt]} is a folder; give a file name")
         inside = path.parent == out.resolve()
         if inside and (path.suffix == ".sqlite" or path.name == LISTING_FILE
-                       or re.fullmatch(r"manifest\.[0-9a-f]{12}\.json", path.name)):
+                       or _MANIFEST_NAME.fullmatch(path.name)):
             raise StudyError(f"{opt} {named[opt]} is a file pull writes into {out}; name "
                              "the table otherwise")
 
@@ -166,10 +185,10 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
     writes the ratings table, ``answers`` the questionnaire answers (and the vision checks
     beside it as ``<name>_screenings.csv``), which are personal data and never go into the
     ratings table."""
-    _check_outputs(Path(out), csv, answers)
+    out = Path(out)
+    _check_outputs(out, csv, answers)
     client = ServerClient(server, admin_token, timeout=120)
     listing = client.json("GET", ADMIN_SESSIONS)
-    out = Path(out)
     if out.exists() and not out.is_dir():
         raise StudyError(f"--out {out} is a file; give a folder")
     if not out.exists():
@@ -177,7 +196,7 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
         out.chmod(0o700)  # the pulled data is personal: owner only
     sessions: list[PulledSession] = []
     not_started: list[str] = []
-    tables: dict[str, tuple[list, list, list]] = {}  # participant: ratings, answers, checks
+    records: dict[str, SessionRecord] = {}
     gone: list[str] = []  # listed, then no session: withdrawn while this pull ran
     for p in listing["participants"]:
         pid = check_participant_id(p["participant"])
@@ -205,9 +224,7 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
             pid, path, report, s.get("version"), s.get("manifest_sha256"),
             list(p.get("flags", [])), len(latest_answers(record.answers)),
             {x["test"]: x["outcome"] for x in record.screenings}))
-        tables[pid] = (record.ratings if csv is not None else [],
-                       answer_rows(record) if answers is not None else [],
-                       screening_rows(record) if answers is not None else [])
+        records[pid] = record
     # a withdrawal during the pull: the listing taken at the end is the one that counts
     listing = client.json("GET", ADMIN_SESSIONS)
     withdrawn = [check_participant_id(w["participant"]) for w in listing.get("withdrawn", [])]
@@ -216,9 +233,7 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
         raise StudyError(f"the server lost the session of {', '.join(unexplained)} during "
                          "this pull without a withdrawal; pull again")
     sessions = [x for x in sessions if x.participant not in withdrawn]
-    rows = [r for pid, t in tables.items() if pid not in withdrawn for r in t[0]]
-    answer_table = [r for pid, t in tables.items() if pid not in withdrawn for r in t[1]]
-    screening_table = [r for pid, t in tables.items() if pid not in withdrawn for r in t[2]]
+    kept = [records[x.participant] for x in sessions]
     listing_path = out / LISTING_FILE
     listing_path.write_text(json.dumps(listing, indent=2) + "\n", encoding="utf-8")
     listing_path.chmod(0o600)
@@ -226,16 +241,18 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
                         listing_path, removed=_remove_withdrawn(out, withdrawn),
                         manifests=_save_manifests(client, out, sessions))
     if csv is not None:
+        rows = [row for r in kept for row in r.ratings]
         write_ratings_csv(rows, csv)
         Path(csv).chmod(0o600)
         result.csv_path, result.n_csv_rows = Path(csv), len(rows)
     if answers is not None:
         answers = Path(answers)
+        answer_table = [row for r in kept for row in answer_rows(r)]
         result.answers_path = write_answers_csv(answer_table, answers)
         Path(result.answers_path).chmod(0o600)
         result.n_answer_rows = len(answer_table)
-        if screening_table:
-            result.screenings_path = write_screenings_csv(
-                screening_table, answers.with_name(f"{answers.stem}_screenings.csv"))
+        if screening_table := [row for r in kept for row in screening_rows(r)]:
+            result.screenings_path = write_screenings_csv(screening_table,
+                                                          screenings_name(answers))
             Path(result.screenings_path).chmod(0o600)
     return result

@@ -90,6 +90,7 @@ def test_a_three_rater_panel_is_described_as_it_is(small_study, tmp_path):
 
     html = write_report(a, tmp_path / "r").read_text()
     assert "Only 3 rater(s): too few for the human ceiling" in html
+    assert "{ceiling}" not in html and "grey band" not in html
     assert "No split-half ceiling: it needs at least 4 raters, and 3 remain" in html
 
 
@@ -136,7 +137,10 @@ def test_a_rerun_leaves_nothing_of_the_last_and_figures_come_as_pdf(study_files,
     assert inputs["metric"][0]["sha256"] == hashlib.sha256(
         study_files["scores"].read_bytes()).hexdigest()
     assert inputs["command"].startswith("cgvq-analyze report --manifest")
-    assert sha[:12] in (out / "report.html").read_text()
+    html = (out / "report.html").read_text()
+    assert sha[:12] in html
+    # 8 raters: a ceiling is drawn, and the captions say where
+    assert "the grey band is the human ceiling" in html and "{ceiling}" not in html
     # the same folder without --metric: no metric table or figure of the first run is left
     assert _report(study_files, out) == 0
     left = [p.name for p in (out / "tables").iterdir()] + [

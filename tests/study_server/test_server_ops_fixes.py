@@ -82,7 +82,9 @@ def test_a_foreign_sqlite_file_as_the_database_is_named(served_study, tmp_path):
 def test_pull_tables_that_would_replace_each_other_or_pulled_files_are_refused(tmp_path):
     out = tmp_path / "pulled"
     nowhere = "http://127.0.0.1:9"  # refused before any request: no server needed
-    cases = [({"csv": tmp_path / "t.csv", "answers": tmp_path / "t.csv"}, "the same file"),
+    cases = [({"csv": tmp_path / "t.csv", "answers": tmp_path / "t.csv"}, "a file --answers"),
+             ({"csv": tmp_path / "a_screenings.csv", "answers": tmp_path / "a.csv"},
+              "a file --answers writes"),
              ({"csv": out / "P01.sqlite"}, "a file pull writes into"),
              ({"answers": out / "server_listing.json"}, "a file pull writes into"),
              ({"csv": out / "manifest.0123456789ab.json"}, "a file pull writes into"),

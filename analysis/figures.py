@@ -450,8 +450,8 @@ FIGURES = {
                           "bootstrap CIs{ceiling}"),
     "inter_rater": (inter_rater_heatmap, "inter-rater Pearson correlation"),
     "intra_rater": (intra_rater_bars, "intra-rater reliability (mean r between repetitions)"),
-    "rater_bias": (rater_bias, "rater bias and inconsistency with 95% CIs"),
-    "content_ambiguity": (content_ambiguity, "content ambiguity with 95% CIs"),
+    "rater_bias": (rater_bias, "rater bias and inconsistency with 95% CIs{split}"),
+    "content_ambiguity": (content_ambiguity, "content ambiguity with 95% CIs{split}"),
     "split_half": (split_half_hist, "split-half (human ceiling) distributions"),
     "ci_vs_raters": (ci_curve, "left: mean 95% CI width of MOS (power-law fit) and of DMOS "
                      "versus the number of raters (random panels); right: the DMOS CI "
@@ -465,6 +465,13 @@ FIGURES = {
 :data:`CEILING_NOTES`' text for it where the human ceiling is drawn, and nothing where not."""
 CEILING_NOTES = {"metric_benchmark": "; the grey band is the human ceiling",
                  "metric_comparison": ", human ceiling alongside"}
+SPLIT_NOTE = ("; the score model identifies only inconsistency\u00b2 + ambiguity\u00b2 of each "
+              "rating: a constant can move from every rater's inconsistency\u00b2 to every "
+              "content's ambiguity\u00b2 without changing the fit, so compare raters (and "
+              "contents) with each other, not with an absolute level; an estimate at 0 sits "
+              "at that boundary and has no CI")
+"""``{split}`` in a caption, where the model has both rater inconsistency and content
+ambiguity (SUREAL's full MLE)."""
 
 
 def literal_text() -> contextlib.AbstractContextManager:
@@ -483,5 +490,6 @@ def draw_all(a: Analysis, folder: Path) -> dict[str, tuple[Path, str]]:
             path = fn(a, folder / f"{name}.png")
             if path is not None:  # captions say only what is drawn
                 note = CEILING_NOTES.get(name, "") if a.ceiling is not None else ""
-                out[name] = (path, caption.replace("{ceiling}", note))
+                split = SPLIT_NOTE if a.scores.content_ambiguity is not None else ""
+                out[name] = (path, caption.replace("{ceiling}", note).replace("{split}", split))
     return out

@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from session_store.mutations import BLOCK_EVENT
+
 from .data import Exclusion, RatingSet, balanced_subset, drop_unrated
 from .errors import AnalysisError
 from .reliability import repetition_correlation
@@ -32,8 +34,9 @@ THRESHOLDS: dict[str, float] = {
 }
 
 FACT_COLUMNS = ("sessions", "files", "n_ratings", "n_planned", "completeness", "timing_mode",
-                "vsync", "preflight_skipped", "finished", "presentations", "dropped_frames",
-                "trials_with_drops", "requeued", "median_viewing_s", "median_toggles")
+                "blocks_planned_by", "vsync", "preflight_skipped", "finished", "presentations",
+                "dropped_frames", "trials_with_drops", "requeued", "median_viewing_s",
+                "median_toggles")
 
 
 def _median(values: Iterable[Any]) -> float:
@@ -71,12 +74,15 @@ def facts_from_sessions(records: list) -> pd.DataFrame:
         drops = [int(p.get("dropped_frames") or 0) for p in pres]
         vsync = [r.vsync for r in recs if r.vsync is not None]
         modes = sorted({r.timing_mode for r in recs if r.timing_mode})
+        planners = sorted({str(e.get("issued_by")) for r in recs for e in r.events
+                           if e.get("kind") == BLOCK_EVENT and e.get("issued_by")})
         rows.append({
             "rater": participant,
             "sessions": len(recs),
             "files": "; ".join(r.path for r in recs),
             "n_planned": max(r.n_planned for r in recs),
             "timing_mode": ", ".join(modes),
+            "blocks_planned_by": ", ".join(planners),
             "vsync": (all(vsync) if vsync else None),
             "preflight_skipped": any(r.info.preflight_skipped for r in recs),
             "finished": all(r.info.finished_at is not None for r in recs),

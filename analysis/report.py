@@ -67,15 +67,24 @@ def ratings_per_stimulus(a: Analysis) -> dict[str, float]:
             "max": int(counts.max())}
 
 
-def _adaptive_words(settings: dict[str, Any] | None) -> str:
-    """The adaptive settings in a few words (empty when unknown)."""
+_PLANNERS = {"server": "by the study server from the DMOS intervals",
+             "session": "uniformly by the app (no study server)"}
+
+
+def _adaptive_words(settings: dict[str, Any] | None, planned_by: set[str]) -> str:
+    """The adaptive settings in a few words (empty when unknown); ``planned_by``: who planned
+    the later blocks, as the session files record it (empty: not known, e.g. from a CSV)."""
     if not settings:
         return ""
     n = settings.get("block_trials")
     size = f"of {n} trials" if n else "as long as block 1"
+    if planned_by <= set(_PLANNERS) and planned_by:
+        who = " planned " + " and some ".join(_PLANNERS[p] for p in sorted(planned_by))
+    else:
+        who = " planned by the study server (or uniformly by an app without one)"
     return (f"{settings.get('blocks')} blocks per session; block 1 holds every stimulus once, "
-            f"later blocks {size} planned by the study server, at most "
-            f"{settings.get('max_per_block')} of one stimulus per block")
+            f"later blocks {size}{who}, at most {settings.get('max_per_block')} of one "
+            "stimulus per block")
 
 
 def allocation_sentence(a: Analysis, counts: dict[str, float]) -> str:
@@ -92,7 +101,11 @@ def allocation_sentence(a: Analysis, counts: dict[str, float]) -> str:
         return f"full design ({rs.n_repetitions} repetitions planned, partial sessions kept): " \
             + spread
     if rs.allocation == "adaptive":
-        words = _adaptive_words(rs.allocation_settings)
+        info = rs.rater_info
+        planned_by = ({p.strip() for v in info["blocks_planned_by"].dropna() for p in
+                       str(v).split(",") if p.strip()}
+                      if info is not None and "blocks_planned_by" in info.columns else set())
+        words = _adaptive_words(rs.allocation_settings, planned_by)
         return "adaptive design" + (f" ({words})" if words else "") + ": " + spread
     return ("unbalanced design (no allocation policy declared, but stimuli got different "
             "numbers of ratings): " + spread)

@@ -82,6 +82,17 @@ def _ci_pair(ci95: list, value: np.ndarray) -> np.ndarray:
     return np.c_[value - lo, value + hi]
 
 
+def _no_ci_at_zero(value: np.ndarray, ci: np.ndarray) -> np.ndarray:
+    """``ci`` with no interval where the estimate sits at its boundary 0: SUREAL's full MLE
+    identifies only inconsistency^2 + ambiguity^2 per rating, its optimiser often leaves the
+    least noisy rater (or content) at 0 on that flat ridge, and the curvature there gives a
+    "CI" like [1e-46, 2e-46], which is no interval."""
+    at_zero = value <= 1e-6 * max(float(np.nanmax(value, initial=0.0)), 1.0)
+    out = ci.copy()
+    out[at_zero] = np.nan
+    return out
+
+
 def check_not_constant(rs: RatingSet) -> None:
     """Refuse a panel whose ratings are all equal: no score model can say anything."""
     votes = rs.scores[np.isfinite(rs.scores)]
@@ -150,12 +161,14 @@ def fit_scores(rs: RatingSet, model: str = "mle", *, n_boot: int = 1000,
         result.rater_bias_ci = _ci_pair(out["observer_bias_ci95"], bias)
         inc = np.asarray(out["observer_inconsistency"], dtype=float)
         result.rater_inconsistency = inc
-        result.rater_inconsistency_ci = _ci_pair(out["observer_inconsistency_ci95"], inc)
+        result.rater_inconsistency_ci = _no_ci_at_zero(
+            inc, _ci_pair(out["observer_inconsistency_ci95"], inc))
         if "content_ambiguity" in out:
             amb = np.asarray(out["content_ambiguity"], dtype=float)
             result.content = list(dict.fromkeys(work.stimuli["reference"]))
             result.content_ambiguity = amb
-            result.content_ambiguity_ci = _ci_pair(out["content_ambiguity_ci95"], amb)
+            result.content_ambiguity_ci = _no_ci_at_zero(
+                amb, _ci_pair(out["content_ambiguity_ci95"], amb))
     result.dmos, _, dmos_problems = dmos_from_quality(rs, result.quality,
                                                       result.quality_halfwidth)
     result.problems += dmos_problems

@@ -16,7 +16,7 @@ import contextlib
 import logging
 import math
 import sqlite3
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -51,6 +51,8 @@ class SessionStore:
         self._con = con
         self.path = path
         self.durable = durable
+        self.clock: Callable[[], str] = utc_now
+        """The time each change is stamped with; a simulation sets its own made-up clock."""
         if not durable:  # simulated participants: no fsync per rating, one checkpoint at close
             self._con.execute("PRAGMA synchronous=OFF")
         self._con.execute("PRAGMA busy_timeout=5000")  # the upload client writes acks
@@ -326,7 +328,7 @@ class SessionStore:
         (``issued_by`` "server") or planned by the app without one ("session"); one committed
         transaction, in the hash-chained change log."""
         self._require_open()
-        self._change("block", {"at": utc_now(), "block": int(block), "id": str(block_id),
+        self._change("block", {"at": self.clock(), "block": int(block), "id": str(block_id),
                                "issued_by": issued_by,
                                "trials": [[s, r, int(k), bool(h)] for s, r, k, h in trials]})
         return self.plan()[-len(trials):]
@@ -338,16 +340,16 @@ class SessionStore:
 
     def log_event(self, kind: str, **details: Any) -> None:
         """Append a session event (one committed transaction)."""
-        self._change("event", {"at": utc_now(), "kind": kind, "details": details})
+        self._change("event", {"at": self.clock(), "kind": kind, "details": details})
 
     def mark_started(self, *, display: dict[str, Any] | None = None) -> None:
         """Record that the participant began (or resumed) the session, with the display."""
         self._require_open()
-        self._change("start", {"at": utc_now(), "display": display})
+        self._change("start", {"at": self.clock(), "display": display})
 
     def save_preflight(self, results: Iterable[dict[str, Any]], *, skipped: bool) -> None:
         """Store the pre-flight results (each a dict with at least name, ok, message)."""
-        self._change("preflight", {"at": utc_now(), "results": list(results),
+        self._change("preflight", {"at": self.clock(), "results": list(results),
                                    "skipped": bool(skipped)})
 
     def record(self, trial_index: int, result: TrialResult) -> str:
@@ -378,13 +380,13 @@ class SessionStore:
             "max_flip_interval_ms": result.max_flip_interval_ms,
             "switch_latencies_ms": canonical([float(x) for x in result.switch_latencies_ms]),
             "presented_at": result.presented_at,
-            "answered_at": result.answered_at or utc_now(),
+            "answered_at": result.answered_at or self.clock(),
             "app_version": header["app_version"],
             "prev_hash": header["head_hash"],
         })
         row["row_hash"] = row_hash(row)
         self._change("rating", {"row": {c: row[c] for c in (*CHAINED, "row_hash")},
-                                "presentation": _presentation(result)})
+                                "presentation": _presentation(result, self.clock())})
         return row["row_hash"]
 
     def requeue(self, trial_index: int, result: TrialResult, reason: str) -> PlannedTrial:
@@ -393,7 +395,8 @@ class SessionStore:
         trial = self._check_next(trial_index)
         new_idx = int(self._con.execute("SELECT max(idx) + 1 FROM plan").fetchone()[0])
         self._change("requeue", {"trial": trial.index, "new_idx": new_idx,
-                                 "presentation": _presentation(result, reason=reason)})
+                                 "presentation": _presentation(result, self.clock(),
+                                                               reason=reason)})
         return PlannedTrial(new_idx, trial.stimulus, trial.reference, trial.repetition,
                             trial.is_hidden_reference, trial.index)
 
@@ -403,13 +406,13 @@ class SessionStore:
         see ``stimuli_manifests.panel.check_answer``); one committed transaction, so a crash
         loses at most the answer being given. Allowed after the last trial (the post-study
         survey), refused once the participant withdrew."""
-        self._change("answer", {"at": utc_now(), "questionnaire": questionnaire,
+        self._change("answer", {"at": self.clock(), "questionnaire": questionnaire,
                                 "question": question, "value": value, "page": int(page),
                                 "ms": None if ms is None else float(ms)})
 
     def record_screening(self, test: str, outcome: str, result: dict[str, Any]) -> None:
         """Store the result of one vision check (``outcome`` passed, failed, inconclusive)."""
-        self._change("screening", {"at": utc_now(), "test": test, "outcome": outcome,
+        self._change("screening", {"at": self.clock(), "test": test, "outcome": outcome,
                                    "result": result})
 
     def finish(self, *, allow_incomplete: bool = False) -> None:
@@ -421,14 +424,14 @@ class SessionStore:
                 f"session {self.path} still has {pending} unanswered trial(s); it cannot be "
                 "finished yet"
             )
-        self._change("finish", {"at": utc_now(), "unanswered": pending})
+        self._change("finish", {"at": self.clock(), "unanswered": pending})
 
     def withdraw(self, reason: str = "participant withdrew") -> None:
         """The participant withdraws: the session is closed for good and marked withdrawn
         (its ratings stay in the file; the experimenter decides what to do with them)."""
         self._require_open()
         answered, total = self.progress()
-        self._change("withdrawn", {"at": utc_now(), "reason": reason, "answered": answered,
+        self._change("withdrawn", {"at": self.clock(), "reason": reason, "answered": answered,
                                    "total": total})
 
 
@@ -453,9 +456,9 @@ def _first_changes(preflight: Sequence[dict[str, Any]] | None, skipped: bool,
     return changes
 
 
-def _presentation(result: TrialResult, **extra: Any) -> dict[str, Any]:
+def _presentation(result: TrialResult, logged_at: str, **extra: Any) -> dict[str, Any]:
     """The presentation log of one trial attempt (what a trial measured, beyond the rating)."""
     details = {k: v for k, v in asdict(result).items() if k != "details"}
     details.update(result.details)
     details.update(extra)
-    return {"details": details, "logged_at": utc_now()}
+    return {"details": details, "logged_at": logged_at}

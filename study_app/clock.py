@@ -81,8 +81,13 @@ class FlipStats:
         """Refreshes that passed without a new frame: a late flip of ``k`` periods missed
         ``k - 1`` of them. One long stall (a 1 s freeze at 60 Hz misses 59) counts as one
         dropped frame above, which is what re-queueing must not judge by."""
-        limit = DROP_FACTOR * self.period_s
-        return sum(max(1, round(d / self.period_s) - 1) for d in self.intervals if d > limit)
+        return sum(self.missed_by(d) for d in self.intervals)
+
+    def missed_by(self, interval: float) -> int:
+        """Refreshes one flip interval hid: 0 on time, else at least 1."""
+        if interval <= DROP_FACTOR * self.period_s:
+            return 0
+        return max(1, round(interval / self.period_s) - 1)
 
     @property
     def max_interval_ms(self) -> float:

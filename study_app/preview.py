@@ -31,7 +31,7 @@ from session_store.study_folder import Study
 
 from . import realtime
 from .app import RunOptions
-from .clock import DROP_FACTOR, FlipStats
+from .clock import FlipStats
 from .decode import DecodedPair, Prefetcher, decode_pair, pair_bytes
 from .display import MIN_WINDOW, PACED_PILOT, Display
 from .keys import Keymap
@@ -39,6 +39,7 @@ from .layout import GAP, Rect, ViewingLayout, ui_px
 from .preflight import (
     Check,
     available_memory_bytes,
+    check_checksums,
     check_decode_speed,
     check_memory,
     check_pixel_mapping,
@@ -59,7 +60,7 @@ log = logging.getLogger(__name__)
 OVERLAY_MARGIN = 12
 OVERLAY_UPDATE_S = 0.25
 """The overlay's figures change four times a second: readable, and few new text textures."""
-OVERLAY_TEMPLATE = ("frame 000.0 ms, worst 000.0", "dropped 0000 (0000 in all)",
+OVERLAY_TEMPLATE = ("frame 000.0 ms, worst 000.0", "dropped 0000 (0000 in all), missed 0000",
                     "000.00 Hz paced (no vsync)")
 """The widest the overlay's lines get: its box keeps this size while the figures change."""
 REQUEUE_LIMIT = RunOptions.max_dropped_frames
@@ -96,20 +97,33 @@ class PreviewRow:
     stimulus: str
     frames_presented: int = 0
     dropped_frames: int = 0
+    """Late flips."""
+    missed_refreshes: int = 0
+    """Refreshes those flips hid (a 1 s freeze at 60 Hz: one late flip, 59 missed): what a
+    participant's run re-queues a trial by."""
     max_interval_ms: float = 0.0
     rating: float | None = None
 
     def add(self, stats: FlipStats) -> None:
         self.frames_presented += stats.frames_presented
         self.dropped_frames += stats.dropped_frames
+        self.missed_refreshes += stats.missed_refreshes
         self.max_interval_ms = max(self.max_interval_ms, stats.max_interval_ms)
+
+    @property
+    def would_requeue(self) -> bool:
+        return self.missed_refreshes > REQUEUE_LIMIT
 
     def line(self) -> str:
         rated = (f"rated {self.rating:.1f} (not stored)" if self.rating is not None else
                  "stopped before rating")
+        n = self.missed_refreshes
+        missed = (f" ({n} refresh{'es' if n != 1 else ''} missed"
+                  + ("; a run would re-queue it" if self.would_requeue else "") + ")"
+                  if self.dropped_frames else "")
         return (f"{self.stimulus}: {self.frames_presented} frames shown, "
-                f"{self.dropped_frames} dropped, worst interval {self.max_interval_ms:.1f} ms; "
-                f"{rated}")
+                f"{self.dropped_frames} dropped{missed}, worst interval "
+                f"{self.max_interval_ms:.1f} ms; {rated}")
 
 
 @dataclass
@@ -122,6 +136,8 @@ class PreviewResult:
     total: int = 0
     checks: list[Check] = field(default_factory=list)
     overlay_note: str | None = None
+    failure: str | None = None
+    """Why the preview stopped before its end (a video that would not decode), if it did."""
 
     @property
     def dropped(self) -> int:
@@ -137,15 +153,21 @@ class PreviewResult:
     def verdict(self) -> str:
         """Can this computer show the study? One sentence."""
         rows = [r for r in self.rows if r.frames_presented]
+        if self.failure is not None:
+            return (f"verdict: stopped, {self.failure}; a participant's run would refuse this "
+                    "study: run 'cgvq-study check'")
         if not rows:
             return "verdict: no stimulus was shown"
         if self.dropped:
             bad = [r for r in rows if r.dropped_frames]
             worst = max(r.max_interval_ms for r in rows)
+            requeued = [r.stimulus for r in rows if r.would_requeue]
+            run = (f"a run would re-queue {', '.join(requeued)} (more than {REQUEUE_LIMIT} "
+                   "refreshes missed)" if requeued else
+                   f"a run re-queues a trial with more than {REQUEUE_LIMIT} refreshes missed")
             return (f"verdict: {self.dropped} dropped frame(s) in {len(bad)} of {len(rows)} "
                     f"stimuli (worst interval {worst:.1f} ms): close other programs or use a "
-                    "faster computer before inviting participants (a run re-queues a trial "
-                    f"with more than {REQUEUE_LIMIT} dropped frames)")
+                    f"faster computer before inviting participants ({run})")
         if self.paced:
             return ("verdict: no dropped frames, but the flips were paced on the clock without "
                     "vsync, as in run's pilot mode: a participant's run needs vsync on this "
@@ -237,15 +259,17 @@ class TimingOverlay:
         self._machine = m
         self._seen = 0
         self._dropped = 0
+        self._missed = 0
         self._worst = 0.0
         self._recent = 0.0
         self._next = 0.0
 
     def _read(self, m: TrialMachine) -> None:
         iv = m.stats.intervals
-        limit = DROP_FACTOR * m.stats.period_s
         for d in iv[self._seen:]:
-            self._dropped += d > limit
+            missed = m.stats.missed_by(d)
+            self._dropped += missed > 0
+            self._missed += missed
             self._worst = max(self._worst, d)
             self._recent = max(self._recent, d)
         self._seen = len(iv)
@@ -255,7 +279,8 @@ class TimingOverlay:
         d = self.display
         before = sum(r.dropped_frames for r in self.result.rows)
         lines = [f"frame {1000 * self._recent:.1f} ms, worst {1000 * self._worst:.1f}",
-                 f"dropped {self._dropped} ({before + self._dropped} in all)",
+                 f"dropped {self._dropped} ({before + self._dropped} in all), "
+                 f"missed {self._missed}",
                  f"{d.refresh_hz:.2f} Hz {'vsync' if d.vsync else 'paced (no vsync)'}"]
         self._recent = 0.0
         return lines
@@ -373,10 +398,10 @@ class Preview:
             d.set_timing(pilot_allowed=True)  # a preview paces flips where vsync is missing
             result = PreviewResult(d.timing_mode, d.refresh_hz, total=len(self.trials))
             try:
-                self._first = wait_for(d, lambda: decode_pair(self.trials[0].stimulus,
-                                                              *self._paths(self.trials[0])),
-                                       "Preparing the videos...", self._on_close)
-                result.checks = self._preflight(self._first)
+                self._first, checksums = wait_for(d, lambda: (
+                    decode_pair(self.trials[0].stimulus, *self._paths(self.trials[0])),
+                    check_checksums(self.study)), "Preparing the videos...", self._on_close)
+                result.checks = [*self._preflight(self._first), checksums]
                 timing = "vsync" if d.vsync else f"paced at {d.refresh_hz:g} Hz (no vsync)"
                 if self._screen(preview_content.intro(
                         self.m.study_id, len(self.trials), timing, self.opts.timing_overlay,
@@ -456,7 +481,11 @@ class Preview:
         n = len(self.trials)
         try:
             for i, trial in enumerate(self.trials):
-                pair = self._first if i == 0 else self._pair(i)
+                try:
+                    pair = self._first if i == 0 else self._pair(i)
+                except StudyError as exc:  # the summary so far is kept, and says so
+                    result.failure = f"cannot decode stimulus {trial.stimulus} ({exc})"
+                    return
                 self._first = None  # the frames go into textures; free the decoded arrays
                 self._refuse_unshowable(pair.test.shape[2], pair.test.shape[1])
                 gpu = upload_pair(d, pair)
@@ -491,6 +520,22 @@ class Preview:
                     overlay.never_fitted else "not shown for some stimuli (no free place)"))
 
 
+def missing_videos(study: Study, trials: list[PlannedTrial]) -> list[Path]:
+    """The video files of ``trials`` that are not there, checked before any window opens (a
+    missing one would otherwise stop the preview when it is reached, maybe after 40)."""
+    loaded = study.loaded
+    paths = dict.fromkeys(p for t in trials for p in (loaded.stimulus_path(t.stimulus),
+                                                      loaded.reference_path(t.reference)))
+    return [p for p in paths if not p.exists()]
+
+
 def run_preview(study: Study, opts: PreviewOptions) -> PreviewResult:
-    """Preview ``study`` (see the module doc)."""
+    """Preview ``study`` (see the module doc); refuses before opening a window when a video
+    is missing."""
+    missing = missing_videos(study, preview_trials(study, opts.stimulus))
+    if missing:
+        shown = ", ".join(str(p) for p in missing[:3]) + (
+            f" and {len(missing) - 3} more" if len(missing) > 3 else "")
+        raise StudyError(f"{len(missing)} video file(s) of the study are missing: {shown}; "
+                         "run 'cgvq-study check'")
     return Preview(study, opts).run()

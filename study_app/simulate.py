@@ -6,8 +6,9 @@ For rater ``s``, stimulus ``e`` of content (scene) ``c`` and repetition ``r``::
 
 with true quality ``Q_e``, rater bias ``b_s`` (normal, truncated at two standard deviations),
 rater inconsistency ``sigma_s`` (uniform) and content ambiguity ``delta_c`` (uniform): the
-model of Li & Bampis that SUREAL's maximum-likelihood estimator inverts; every repetition
-draws new noise. Outlier raters ignore the stimulus: ``random``
+model of Li & Bampis that SUREAL's maximum-likelihood estimator inverts (it identifies only
+``sigma_s**2 + delta_c**2``: a constant moved from every rater to every content changes
+nothing); every repetition draws new noise. Outlier raters ignore the stimulus: ``random``
 ones answer uniformly on the scale, ``inverted`` ones answer ``min + max - Q_e`` plus their
 usual noise (they read the scale backwards).
 
@@ -19,8 +20,8 @@ for the method's levels 1..L (level 1 = strongest distortion, severity 1), per-m
 
 Every simulated participant is one session file made by :class:`~session_store.SessionStore`
 with the app's own trial schedule, so the analysis reads it exactly like a real one. The truth
-is written beside the sessions (``ground_truth.json`` and ``ground_truth_stimuli.csv``).
-"""
+is written beside the sessions (``ground_truth.json`` and ``ground_truth_stimuli.csv``), with
+what an analysis can recover from clipped ratings (:mod:`.simulate_truth`)."""
 
 from __future__ import annotations
 
@@ -52,6 +53,7 @@ from .simulate_panel import (
     simulated_answers,
     simulated_colour_check,
 )
+from .simulate_truth import expected_rating, recoverable_dmos
 from .simulate_upload import NextBlock, UploadOptions, rate_and_upload
 
 log = logging.getLogger(__name__)
@@ -329,6 +331,9 @@ def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
         seed=seed, app_version=f"{__version__}+simulated", plan=plan, settings=panel.settings,
         created_at=_iso(clock) if clock else None, durable=False,
     )
+    now = [clock]  # the made-up clock each change is stamped with (None: real time)
+    if clock is not None:
+        store.clock = lambda: _iso(now[0])
     changed = on_change or (lambda: None)
     with store:
         changed()
@@ -350,7 +355,7 @@ def _simulate_rater(panel: _Panel, opts: SimulationOptions, k: int, bar: Any,
                 rating = _rate(rng, panel.quality[stim.id], bias, sigma,
                                panel.ambiguity[stim.scene], panel.kinds[k], panel.scale,
                                lower_is_better=panel.lower_is_better)
-                result, clock = _trial_result(rng, rating, clock)
+                result, now[0] = _trial_result(rng, rating, now[0])
                 if upload is not None and upload.pace_s > 0:
                     time.sleep(upload.pace_s)
                 store.record(trial.index, result)
@@ -411,6 +416,12 @@ def _answer_panel(store: SessionStore, panel: _Panel, k: int, when: str,
 def _write_truth(panel: _Panel, opts: SimulationOptions, raters: list[RaterTruth]) -> Path:
     """``ground_truth.json`` (everything drawn) and the per-stimulus truth CSV."""
     m = panel.loaded.manifest
+    regular = [(r.bias, r.inconsistency) for r in raters if r.outlier is None]
+    expected = {s.id: expected_rating(panel.quality[s.id], regular, panel.ambiguity[s.scene],
+                                      panel.scale) for s in panel.stimuli}
+    hidden = {s.reference: s.id for s in panel.stimuli if s.is_hidden_reference}
+    dmos = recoverable_dmos(expected, {s.id: hidden[s.reference] for s in panel.stimuli
+                                       if s.reference in hidden}, panel.scale[1])
     truth = {
         "format": TRUTH_FORMAT,
         "study_id": m.study_id,
@@ -440,9 +451,14 @@ def _write_truth(panel: _Panel, opts: SimulationOptions, raters: list[RaterTruth
         "stimuli": [
             {"id": s.id, "reference": s.reference, "scene": s.scene, "method": s.method,
              "level": s.level, "is_hidden_reference": s.is_hidden_reference,
-             "true_quality": panel.quality[s.id]}
+             "true_quality": panel.quality[s.id], "expected_rating": expected[s.id],
+             "true_dmos": dmos.get(s.id)}
             for s in panel.stimuli
         ],
+        "truth_note": ("true_quality is the latent quality; ratings are clipped to the scale, "
+                       "so what an analysis can recover is expected_rating (the regular "
+                       "raters' mean expected clipped rating) and true_dmos (P.910's DMOS of "
+                       "those expectations): compare dmos.csv with true_dmos"),
     }
     truth_path = panel.out / TRUTH_JSON
     truth_path.write_text(json.dumps(truth, indent=2) + "\n", encoding="utf-8")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 NAME = "preview"
@@ -57,4 +58,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"preview of study {study.manifest.study_id} (nothing recorded):")
     for line in result.lines():
         print(f"  {line}")
+    if result.failure is not None:  # the summary so far is on stdout
+        sys.stdout.flush()
+        raise StudyError(f"the preview stopped: {result.failure}; run 'cgvq-study check'")
     return 0

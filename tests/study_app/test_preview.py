@@ -23,7 +23,8 @@ from study_app.screens.draw import LABEL_REFERENCE, LABEL_TEST
 
 REPO = Path(__file__).resolve().parents[2]
 ARTIFACTS = REPO / "test-artifacts" / "study_app" / "preview"
-ROW = re.compile(r"^  (\S+): (\d+) frames shown, (\d+) dropped, worst interval ([\d.]+) ms; "
+ROW = re.compile(r"^  (\S+): (\d+) frames shown, (\d+) dropped(?: \([^)]*\))?, worst interval "
+                 r"([\d.]+) ms; "
                  r"(rated ([\d.]+) \(not stored\)|stopped before rating)$")
 
 
@@ -81,7 +82,8 @@ def test_preview_shows_the_pair_and_slider_and_records_nothing(tmp_path, xdispla
         assert float(m.group(6)) == pytest.approx(51.0, abs=1.5)  # a click-free 50 + 2 steps
     assert {c.split(":")[0] for c in checks} == {
         f"  pre-flight {c}" for c in ("screen_size", "refresh_rate", "pixel_mapping", "memory",
-                                      "decode_speed")}
+                                      "decode_speed", "checksums")}
+    assert "  pre-flight checksums: ok" in "\n".join(checks)
     assert "verdict: " in verdict
     # nothing written into the study folder: no sessions/, no lock, same bytes
     assert tree_digest(study) == before
@@ -95,6 +97,8 @@ def test_esc_stops_early_and_still_sums_up(tmp_path, xdisplay, study_factory, ap
     """One stimulus (--stimulus), paced at 50 Hz (--no-vsync --refresh-hz), stopped with Esc
     while it plays: its timing is still listed, unrated, and nothing was written."""
     study = study_factory(tmp_path / "study")
+    other = load_study(study).loaded.stimulus_path("SRC01_HRC01")  # not previewed, damaged
+    other.write_bytes(other.read_bytes()[:-1] + b"\x00")
     before = tree_digest(study)
     shots = ARTIFACTS.with_name("preview-stop")
     shutil.rmtree(shots, ignore_errors=True)
@@ -113,8 +117,11 @@ def test_esc_stops_early_and_still_sums_up(tmp_path, xdisplay, study_factory, ap
     app.key("Escape")
     code, out = app.finish()
     assert code == 0, app.lines[-10:]
-    timing, rows, _, verdict = summary(out)
+    timing, rows, checks, verdict = summary(out)
     assert "0 of 1 stimuli previewed, 1 stopped early" in timing and "50.00 Hz" in timing
+    # a participant's run would refuse the damaged file: the preview says so, reported only
+    assert any(c.startswith("  pre-flight checksums: not met (reported only)")
+               for c in checks), checks
     assert len(rows) == 1 and rows[0].group(1) == "SRC01_HRC02"
     assert rows[0].group(5) == "stopped before rating" and int(rows[0].group(2)) > 10
     assert "paced on the clock" in verdict or "dropped frame(s)" in verdict
@@ -140,10 +147,14 @@ def test_videos_larger_than_the_window_are_refused(tmp_path, xdisplay, study_fac
     (["--window-size", "640x480"], "--window-size 640x480 is too small"),
     (["--refresh-hz", "5"], "--refresh-hz must be between 20 and 500"),
     (["--screenshots", "{study}/shots"], "outside the study folder"),
+    (["--missing"], "1 video file(s) of the study are missing: "),
 ])
 def test_user_errors_are_one_line_before_any_window(tmp_path, study_factory, capsys, args,
                                                     says):
     study = study_factory(tmp_path / "study")
+    if args == ["--missing"]:  # refused before a window, not when the preview reaches it
+        load_study(study).loaded.stimulus_path("SRC01_HRC02").unlink()
+        args = []
     before = tree_digest(study)
     code = cli_main(["preview", str(study), *(a.format(study=study) for a in args)])
     err = capsys.readouterr().err.strip().splitlines()
@@ -198,8 +209,8 @@ def test_summary_adds_up_restarts_and_says_what_it_means():
     lines = res.lines()
     assert lines[0] == ("timing: vsync at 59.95 Hz; 1 of 3 stimuli previewed, 1 stopped early; "
                         "1 dropped frame(s) in all")
-    assert lines[1] == ("SRC01_HRC01: 18 frames shown, 1 dropped, worst interval 40.0 ms; "
-                        "rated 42.0 (not stored)")
+    assert lines[1] == ("SRC01_HRC01: 18 frames shown, 1 dropped (1 refresh missed), worst "
+                        "interval 40.0 ms; rated 42.0 (not stored)")
     assert lines[2].endswith("stopped before rating")
     assert lines[3] == "pre-flight screen_size: not met (reported only): too small"
     assert lines[-1].startswith("verdict: 1 dropped frame(s) in 1 of 2 stimuli")
@@ -207,3 +218,33 @@ def test_summary_adds_up_restarts_and_says_what_it_means():
     assert "shows the study cleanly" in clean.verdict()
     assert "needs vsync" in PreviewResult("paced-pilot", 60.0, [other], total=1).verdict()
     assert PreviewResult("vsync", 60.0, [], total=1).verdict() == "verdict: no stimulus was shown"
+
+
+def test_a_freeze_counts_the_refreshes_it_hid_as_a_run_does():
+    """A 1 s freeze at 60 Hz is one late flip but 59 missed refreshes: a participant's run
+    re-queues that trial (more than 10), and the preview used to say "1 dropped"."""
+    frozen = PreviewRow("SRC01_HRC02")
+    frozen.add(_stats([1000 / 60] * 30 + [1000.0] + [1000 / 60] * 30))
+    assert (frozen.dropped_frames, frozen.missed_refreshes) == (1, 59)
+    assert "1 dropped (59 refreshes missed; a run would re-queue it)" in frozen.line()
+    verdict = PreviewResult("vsync", 60.0, [frozen], total=1).verdict()
+    assert "a run would re-queue SRC01_HRC02 (more than 10 refreshes missed)" in verdict
+
+
+def test_a_video_that_stops_decoding_mid_way_keeps_the_summary(tmp_path, study_factory,
+                                                                capsys, monkeypatch):
+    """The summary of what was previewed is printed, then one line on stderr, exit 2."""
+    from study_app import preview as preview_module
+
+    study = study_factory(tmp_path / "study")
+    row = PreviewRow("SRC01_HRC01")
+    row.add(_stats([16.7] * 20))
+    row.rating = 50.0
+    done = PreviewResult("vsync", 60.0, [row], total=3,
+                         failure="cannot decode stimulus SRC01_HRC02 (truncated)")
+    monkeypatch.setattr(preview_module, "run_preview", lambda study, opts: done)
+    code = cli_main(["preview", str(study)])
+    out, err = capsys.readouterr()
+    assert code == 2 and "SRC01_HRC01: 21 frames shown" in out
+    assert "verdict: stopped, cannot decode stimulus SRC01_HRC02" in out
+    assert err.count("\n") == 1 and "the preview stopped: cannot decode" in err

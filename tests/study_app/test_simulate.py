@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from cgvq_cli.study_cli import main
-from session_store import read_info, read_ratings, verify_session
+from session_store import read_info, read_ratings, read_session, verify_session
 from session_store.errors import StudyError
 from session_store.schedule import ScheduleItem, make_schedule
 from stimuli_manifests import parse_manifest, save_manifest
@@ -76,6 +76,14 @@ def test_full_model_sessions_outliers_and_determinism(manifest, tmp_path):
     assert truth == again
     ratings = _ratings(tmp_path / "a", 6)
     assert ratings == _ratings(tmp_path / "b", 6)  # same seed: the same sessions
+    for f in sorted((tmp_path / "a").glob("*.sqlite")):  # byte for byte: no real clock in them
+        assert f.read_bytes() == (tmp_path / "b" / f.name).read_bytes(), f.name
+        record = read_session(f)
+        last = max(r["presented_at"] for r in record.ratings)
+        assert all(e["at"] <= last or e["kind"] == "finish" for e in record.events)
+        finish = next(e["at"] for e in record.events if e["kind"] == "finish")
+        assert last <= finish < last[:10] + "T23:59"  # finished right after, not months later
+        assert all(p["logged_at"] <= finish for p in record.presentations)
     q = {s["id"]: s["true_quality"] for s in truth["stimuli"]}
     kinds = {r["participant"]: r["outlier"] for r in truth["raters"]}
     assert sorted(k for k in kinds.values() if k) == ["inverted", "random"]

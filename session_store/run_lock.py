@@ -73,14 +73,16 @@ def read_holder(path: Path) -> dict[str, Any]:
 
 
 class RunLock:
-    """Exclusive lock of one participant's session; use as a context manager or call
-    :meth:`acquire` / :meth:`release`."""
+    """Exclusive lock beside one file, held for a process's life: a participant's session
+    (one run per participant) or a study's server database (one server per study). Use as a
+    context manager or call :meth:`acquire` / :meth:`release`."""
 
-    def __init__(self, session_path: Path, participant: str, *,
+    def __init__(self, path: Path, owner: str, *,
                  busy: Callable[[str], str] | None = None) -> None:
-        """``busy(holder)`` words the refusal (``holder``: ' (process N since T)' or '')."""
-        self.path = lock_path_for(Path(session_path))
-        self.participant = participant
+        """``owner`` is written into the lock file (a participant id, or ``server``);
+        ``busy(holder)`` words the refusal (``holder``: ' (process N since T)' or '')."""
+        self.path = lock_path_for(Path(path))
+        self.owner = owner
         self._busy = busy
         self._fd: int | None = None
         self.took_over: dict[str, Any] | None = None
@@ -101,7 +103,7 @@ class RunLock:
                 if self._busy is not None:
                     raise StudyError(self._busy(pid))
                 raise StudyError(
-                    f"participant {self.participant} already has a run open{pid}; finish or "
+                    f"participant {self.owner} already has a run open{pid}; finish or "
                     "close that window first (only one run per participant at a time)")
             # The file may have been removed by a run that just ended: lock the file that is
             # on disk now, not an unlinked one.
@@ -124,7 +126,7 @@ class RunLock:
     def _write_holder(self) -> None:
         info = {"pid": os.getpid(), "host": socket.gethostname(),
                 "since": datetime.now(UTC).isoformat(timespec="seconds"),
-                "participant": self.participant}
+                "owner": self.owner}
         data = json.dumps(info).encode()
         assert self._fd is not None
         os.ftruncate(self._fd, 0)

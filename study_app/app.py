@@ -12,8 +12,8 @@ What each part does lives elsewhere: :mod:`.display` (window, DPI, vsync'd flips
 trial on screen, under the real-time guard) with :mod:`.trial` (its state machine),
 :mod:`.text_screen` and :mod:`.waiting_screen` (the screens between trials), :mod:`.input_map`
 and :mod:`.keys` (events as actions, keyboard layouts), :mod:`.layout` and :mod:`.screens`
-(what goes where, what screens say, how they are drawn), :mod:`.run_lock` (one run per
-participant).
+(what goes where, what screens say, how they are drawn), :mod:`session_store.run_lock` (one run
+per participant).
 """
 
 from __future__ import annotations

@@ -114,6 +114,7 @@ def init_study(opts: InitOptions) -> InitResult:
     why = (f"not listed in {opts.mapping_csv.name}" if opts.mapping_csv else
            "matches no pattern")
     result.warnings += [f"{p}: {why}, left out" for p in result.mapping.unmatched]
+    result.warnings += result.mapping.warnings
     result.warnings += [
         f"{p.as_posix() if p.parts else '.'}/: {n} single frames (an image sequence), left "
         "out; init takes video files: encode the frames losslessly first (see docs: Bring "

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from session_store.errors import StudyError
+from session_store.run_lock import lock_path_for
 from session_store.sqlite_errors import roll_back
 
 FORMAT = "cgvq-server"
@@ -284,8 +285,9 @@ def _refuse_a_lost_database(path: Path) -> None:
     if (path.parent.name, path.name) != (STATE_DIR, STATE_FILE) or (
             path.is_file() and path.stat().st_size > 0):
         return
-    own = {path.name, path.name + ".lock"}
-    left = sorted(p.name for p in path.parent.iterdir() if p.name not in own) \
+    own = {path.name, lock_path_for(path).name}
+    left = sorted(p.name for p in path.parent.iterdir()  # a Finder's .DS_Store is no trace
+                  if p.name not in own and not p.name.startswith(".")) \
         if path.parent.is_dir() else []
     if left:
         state = "is empty" if path.exists() else "is missing"

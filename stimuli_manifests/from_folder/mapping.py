@@ -81,6 +81,8 @@ class FolderMapping:
     problems: list[Problem] = field(default_factory=list)
     frame_sequences: dict[PurePosixPath, int] = field(default_factory=dict)
     """Folders holding single frames (an image sequence), with how many."""
+    warnings: list[str] = field(default_factory=list)
+    """Mapped, but maybe not as meant (a scene name split at its separator)."""
 
     def references(self) -> dict[str, MappedVideo]:
         return {v.scene: v for v in self.videos if v.role == "reference"}
@@ -197,7 +199,35 @@ def map_by_pattern(folder: Path, *, test_pattern: str = DEFAULT_TEST_PATTERN,
         out.videos.append(MappedVideo(rel, m["scene"], "test", m["method"],
                                       int(m["level"]), m.groupdict().get("setting")))
     _check(out, f"Rename it to match {reference_pattern!r}, or give --reference-pattern")
+    out.warnings += _split_warnings(out, test_pattern)
     return out
+
+
+def _split_warnings(out: FolderMapping, test_pattern: str) -> list[str]:
+    """Test videos whose method looks like the rest of a scene name: with
+    ``{scene}_{method}``, ``sponza_atrium_dlss_L1`` is method ``atrium_dlss`` of ``sponza``
+    unless ``sponza_atrium`` has a reference. Said when that method is found under this
+    scene only and its tail (``dlss``) is a method of other scenes."""
+    m = re.search(r"{scene}([^{}/]+){method}", test_pattern)
+    if m is None:
+        return []
+    sep = m.group(1)
+    tests = [v for v in out.videos if v.role == "test" and v.method]
+    scenes_of: dict[str, set[str]] = {}
+    for v in tests:
+        scenes_of.setdefault(str(v.method), set()).add(v.scene)
+    said, warnings = set(), []
+    for v in tests:
+        method = str(v.method)
+        head, _, tail = method.partition(sep)
+        if not tail or (v.scene, method) in said or scenes_of[method] != {v.scene}:
+            continue
+        if scenes_of.get(tail, set()) - {v.scene}:
+            said.add((v.scene, method))
+            warnings.append(f"{v.path}: read as method {method!r} of scene {v.scene!r}; if "
+                            f"{v.scene + sep + head!r} is a scene of its own, its reference "
+                            "is missing")
+    return warnings
 
 
 def map_by_csv(folder: Path, csv_path: Path) -> FolderMapping:

@@ -280,3 +280,20 @@ def test_a_mapping_csv_keeps_excel_quoting_whatever_its_delimiter(tmp_path, sep)
     mapping = map_by_csv(tmp_path, table)
     assert not mapping.problems
     assert [v.setting for v in mapping.videos if v.role == "test"] == ['4 "spp", denoised']
+
+
+def test_a_scene_whose_reference_is_missing_is_not_split_without_a_word(tmp_path):
+    """sponza_atrium has no reference: its video is read as method 'atrium_dlss' of sponza,
+    and init says so; a method with the separator in every scene ('dlss_q') is not named."""
+    from stimuli_manifests.from_folder.mapping import map_by_pattern
+
+    for name in ("sponza_reference", "sponza_dlss_L1", "sponza_dlss_q_L1",
+                 "sponza_atrium_dlss_L1", "bistro_reference", "bistro_dlss_L1",
+                 "bistro_dlss_q_L1"):
+        (tmp_path / f"{name}.mp4").write_bytes(b"x")
+    mapping = map_by_pattern(tmp_path, test_pattern="{scene}_{method}_L{level}.{ext}",
+                             reference_pattern="{scene}_reference.{ext}")
+    assert not mapping.problems
+    assert mapping.warnings == [
+        "sponza_atrium_dlss_L1.mp4: read as method 'atrium_dlss' of scene 'sponza'; if "
+        "'sponza_atrium' is a scene of its own, its reference is missing"]

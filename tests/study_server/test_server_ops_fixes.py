@@ -93,3 +93,16 @@ def test_pull_tables_that_would_replace_each_other_or_pulled_files_are_refused(t
         with pytest.raises(StudyError, match=says):
             pull(nowhere, "x" * 32, out, **kwargs)
     assert not out.exists()
+
+
+def test_a_finder_file_alone_is_no_trace_of_an_earlier_server(tmp_path):
+    from study_server.storage import ServerStore
+
+    db = state_path(tmp_path)
+    db.parent.mkdir(parents=True)
+    (db.parent / ".DS_Store").write_bytes(b"\0\0\0\1Bud1")  # macOS Finder opened the folder
+    ServerStore(db).close()  # a new study's database is created
+    db.unlink()
+    (db.parent / "backups").mkdir()  # what a served study leaves: refused
+    with pytest.raises(StudyError, match="this study was served before"):
+        ServerStore(db)

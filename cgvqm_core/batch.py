@@ -37,6 +37,7 @@ from typing import IO, Any
 from tqdm.auto import tqdm
 
 from stimuli_manifests import StimuliError, load_manifest, sha256_path
+from stimuli_manifests.file_lock import FileLock
 from stimuli_manifests.tables import FORMAT_COLUMN, SCORES
 
 from .errors import CGVQMError
@@ -315,6 +316,21 @@ def read_done(path: Path, *, flag: str = "--out") -> set[str]:
     return read_scores(path, flag=flag).keys
 
 
+class _ScoresLock(FileLock):
+    error = CGVQMError
+
+
+def scores_lock(path: str | Path, *, flag: str = "--out") -> FileLock:
+    """One writer per scores CSV, held from reading it (what is done, which slots are
+    taken) to the last row: two runs on one file each trusted what they had read, and one cut
+    the other's rows off as a "torn tail"."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return _ScoresLock(path, "cgvqm", busy=lambda holder: (
+        f"{flag} {path}: another cgvqm run is writing it{holder}; wait for it to finish, or "
+        f"give another {flag} (one run per scores CSV at a time)"))
+
+
 class Appender:
     """Appends rows to a scores CSV (header first if new), flushed to disk per write. The
     file is created with the first rows, so a run that fails before scoring anything leaves
@@ -565,8 +581,17 @@ def score_manifest(manifest: str | Path, out: str | Path, metrics: Sequence[str]
 
     ``strict`` refuses the run when any test's frame count differs from its reference's
     (checked first, from the headers); otherwise such a test is resampled in time."""
-    options = options or MetricOptions()
-    out = Path(out)
+    with scores_lock(out):
+        return _score_manifest(manifest, Path(out), metrics, options or MetricOptions(),
+                               include_references=include_references, root=root,
+                               group_size=group_size, allow_resample=allow_resample,
+                               on_conversion=on_conversion, progress=progress, strict=strict)
+
+
+def _score_manifest(manifest: str | Path, out: Path, metrics: Sequence[str],
+                    options: MetricOptions, *, include_references: bool,
+                    root: str | Path | None, group_size: int, allow_resample: bool,
+                    on_conversion: str, progress: bool, strict: bool) -> BatchSummary:
     state = read_scores(out)
     done = state.keys
     if strict:

@@ -221,6 +221,15 @@ def _refuse_emap_over_inputs(args: argparse.Namespace) -> None:
                                  "of this run; write the error-map frames into another folder")
 
 
+def _refuse_self_scoring(args: argparse.Namespace) -> None:
+    """A reference scored against itself gives a perfect score that looks like a result
+    (a path typed twice, or a link to it)."""
+    ref, test = Path(str(args.ref)).expanduser(), Path(str(args.test)).expanduser()
+    if ref.exists() and test.exists() and ref.resolve() == test.resolve():
+        raise CGVQMError(f"--ref and --test are the same file ({ref.resolve()}); give the test "
+                         "video to score against this reference")
+
+
 def _refuse_fps_for_files(args: argparse.Namespace) -> None:
     """--fps gives PNG folders and .npy arrays their rate; video files keep their own, so
     with two of them it would change nothing."""
@@ -234,10 +243,21 @@ def _refuse_fps_for_files(args: argparse.Namespace) -> None:
 
 
 def _cmd_score(args: argparse.Namespace) -> int:
+    """``--csv``: the file is held from reading it to the row written (one writer at a time)."""
+    if not args.csv:
+        return _score_pair(args)
+    from .batch import scores_lock
+
+    with scores_lock(args.csv, flag="--csv"):
+        return _score_pair(args)
+
+
+def _score_pair(args: argparse.Namespace) -> int:
     from .batch import Appender
     from .metrics.cgvqm_entry import metric_name
 
     check_options(args)
+    _refuse_self_scoring(args)
     name = (args.metric or args.variant or "cgvqm-2").strip().lower()
     if args.metric and args.variant and args.metric != args.variant:
         raise CGVQMError("give --metric or --variant, not both")

@@ -49,6 +49,7 @@ from .batch import (
     refuse_frame_count_mismatches,
     run_unit,
     scorer_plan,
+    scores_lock,
     unit_keys,
 )
 from .errors import CGVQMError
@@ -272,7 +273,12 @@ def score_units(units: Sequence[WorkUnit], out: str | Path, settings: RaySetting
                 progress: bool = True) -> RaySummary:
     """Run the units whose rows are not all in ``out`` as Ray tasks; append rows as each
     finishes. Needs a connected Ray (:func:`connected`)."""
-    out = Path(out)
+    with scores_lock(out):
+        return _score_units(units, Path(out), settings, progress=progress)
+
+
+def _score_units(units: Sequence[WorkUnit], out: Path, settings: RaySettings, *,
+                 progress: bool) -> RaySummary:
     state = read_scores(out)
     done = state.keys
     summary = RaySummary(units=len(units))

@@ -110,6 +110,10 @@ def load_backbone_file(path: str | Path, arch: str = "r3d_18") -> Backbone:
     if path.name == BACKBONE_FILE and not digest.startswith(HASH_PREFIX):
         raise CGVQMError(f"{path}: sha256 {digest} does not start with {HASH_PREFIX} as "
                          "the file name promises; the file is corrupt, download it again")
+    if arch == "r3d_18" and not digest.startswith(HASH_PREFIX):
+        log.warning("%s: not torchvision's Kinetics-400 R3D-18 file (sha256 %s...); its "
+                    "scores are not the published metric's (the backbone_sha256 column "
+                    "says which file made them)", path, digest[:12])
     return Backbone(dict(sd), digest, str(path), path.name, arch)
 
 

@@ -86,7 +86,7 @@ class FeatureWeights:
     alpha: float
     sha256: str
     source: str
-    kind: str  # "upstream-pickle" | "project" | "uniform"
+    kind: str  # "upstream-pickle" (the published file) | "pickle" | "project" | "uniform"
     provenance: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -164,8 +164,16 @@ def load_upstream_pickle(path: str | Path, *, expected_sha256: str | None = None
     variant = variant_for_channels(omega.size, path)
     alpha = float(alpha_t.reshape(()))
     _check_values(path, omega, alpha)
-    return FeatureWeights(variant.name, omega, alpha, digest, str(path),
-                          "upstream-pickle", {"origin": f"IntelLabs/cgvqm@{UPSTREAM_COMMIT}"})
+    if digest == variant.sha256:
+        return FeatureWeights(variant.name, omega, alpha, digest, str(path),
+                              "upstream-pickle", {"origin": f"IntelLabs/cgvqm@{UPSTREAM_COMMIT}"})
+    # the authors' format, but not their file (a calibration saved as their train.py does):
+    # named after the file, so that its scores never pass for the published metric's
+    log.warning("%s: weights in the authors' format but not the published %s ones (sha256 "
+                "%s...); scored as %s-%s", path, variant.name, digest[:12], variant.name,
+                path.stem)
+    return FeatureWeights(variant.name, omega, alpha, digest, str(path), "pickle",
+                          {"origin": str(path)})
 
 
 def _check_values(path: Path, omega: np.ndarray, alpha: float) -> None:

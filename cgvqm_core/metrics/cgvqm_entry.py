@@ -96,8 +96,10 @@ class CGVQMScorer(VideoScorer):
 
     def score_video(self, ref: Any, tests: Sequence[Any], *,
                     progress: bool = False) -> list[list[MetricScore]]:
+        # the engine opened and checked these sources with the user's --allow-resample and
+        # --strict; checking them again here refused what the user allowed
         results = self.metric.score_many(ref, list(tests), pool=self.pools[0],
-                                         progress=progress)
+                                         allow_resample=True, progress=progress)
         prov = self.provenance()
         out = []
         for res in results:

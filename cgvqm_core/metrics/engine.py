@@ -124,7 +124,9 @@ def score_frames_pass(ref: FrameSource, tests: Sequence[FrameSource], geom: Geom
             pf = per_frame[si][ti]
             score = float(np.mean(pf))
             if not np.isfinite(score):
-                raise CGVQMError(f"{s.name} gave a non-finite score for test {ti}")
+                bad = next(k for k, v in enumerate(pf) if not np.isfinite(v))
+                raise CGVQMError(f"{s.name} gave a non-finite score for {tests[ti].info.path} "
+                                 f"(frame {bad} of {len(pf)})")
             results[ti].append(MetricScore(
                 s.name, s.spec.direction, score, per_frame=pf,
                 extra={"seconds": seconds[si] / max(len(tests), 1)}))

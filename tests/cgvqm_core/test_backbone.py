@@ -80,8 +80,12 @@ def test_random_backbone_is_seeded_and_labelled():
     assert random_backbone(4).sha256 != a.sha256
 
 
-def test_backbone_file_env_and_errors(backbone_file, tmp_path, monkeypatch):
-    bb = load_backbone_file(backbone_file)
+def test_backbone_file_env_and_errors(backbone_file, tmp_path, monkeypatch, caplog):
+    with caplog.at_level("WARNING", logger="cgvqm_core.hub"):
+        bb = load_backbone_file(backbone_file)
+    # a file of random weights is not the published one, whatever its name: said so
+    assert any("not torchvision's Kinetics-400 R3D-18 file" in r.getMessage()
+               for r in caplog.records)
     assert len(bb.sha256) == 64 and not bb.is_random
     monkeypatch.setenv("CGVQM_BACKBONE", str(backbone_file))
     assert resolve_backbone().sha256 == bb.sha256

@@ -51,11 +51,17 @@ def _write(path, data):
 
 
 def test_own_pickle_in_upstream_format(tmp_path):
-    """A pickled [omega, alpha] tensor pair (the upstream file layout) loads safely."""
+    """A pickled [omega, alpha] tensor pair (the upstream file layout) loads safely, and is
+    not taken for the published weights: its metric is named after its file."""
+    from cgvqm_core.metrics.cgvqm_entry import metric_name
+
     omega = torch.randn(1, 131, 1, 1, 1)
     path = _write(tmp_path / "w.pickle", pickle.dumps([omega, torch.tensor(7.5)], protocol=4))
     w = load_weights(path)
-    assert w.variant == "cgvqm-2" and w.alpha == 7.5 and w.kind == "upstream-pickle"
+    assert w.variant == "cgvqm-2" and w.alpha == 7.5 and w.kind == "pickle"
+    assert w.provenance == {"origin": str(path)}
+    assert metric_name(type("M", (), {"weights": w, "variant": "cgvqm-2",
+                                      "seamless": False})()) == "cgvqm-2-w"
     np.testing.assert_array_equal(w.omega, omega.reshape(-1).numpy())
     assert w.sha256 == hashlib.sha256(path.read_bytes()).hexdigest()
     # a file named like a published one must carry its hash

@@ -51,6 +51,11 @@ def haarpsi(test: torch.Tensor, ref: torch.Tensor, *, scales: int = 3, subsample
         maps.append(similarity(iq_x, iq_y, c).sum(1, keepdim=True) / 2)
     sim = torch.cat(maps, 1)
     eps = torch.finfo(sim.dtype).eps
-    score = (((sim * alpha).sigmoid() * weights).sum(dim=(1, 2, 3)) + eps) / (
-        weights.sum(dim=(1, 2, 3)) + eps)
+    local = (sim * alpha).sigmoid()
+    total = weights.sum(dim=(1, 2, 3))
+    score = torch.where(
+        total > 0, ((local * weights).sum(dim=(1, 2, 3)) + eps) / (total + eps),
+        # two flat frames (a fade from black) give no weight anywhere: the formula reads
+        # 0/0 (PIQ returns inf); the plain mean of the local similarities is its limit
+        local.mean(dim=(1, 2, 3)))
     return (torch.log(score / (1 - score)) / alpha) ** 2

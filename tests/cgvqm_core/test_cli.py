@@ -104,8 +104,8 @@ def test_bad_inputs_exit_2(capsys, pair, weights_file, tmp_path, vids):
         lines = [ln for ln in err.strip().splitlines() if "error" in ln]
         assert len(lines) == 1 and "Traceback" not in err
         assert any(p in lines[0] for p in pattern.split("|")), lines[0]
-    rc, _, err = _run(capsys, "score", "--ref", ref, "--test", ref, "--weights", bad_w,
-                      "--random-backbone", "0")
+    rc, _, err = _run(capsys, "score", "--ref", ref, "--test", other_fps, "--weights", bad_w,
+                      "--random-backbone", "0", "--allow-resample")
     assert rc == 2 and "does not match" in err
     # allowed explicitly: resampled / converted with a warning
     rc, _, err = _run(capsys, "score", "--ref", ref, "--test", other_fps, "--allow-resample",

@@ -36,3 +36,8 @@ class UnshowableVideoError(VideoError):
 
 class TableError(StimuliError):
     """A CSV table (ratings, scores, DMOS) lacks columns or has an unsupported format version."""
+
+
+class LockedError(StimuliError):
+    """Another process holds a file's lock (:mod:`stimuli_manifests.file_lock`); the message
+    names it and says what to do. Packages raise their own type through a subclass."""

@@ -20,13 +20,9 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from .errors import ToolkitError
+from .errors import LockedError, ToolkitError
 
 LOCK_SUFFIX = ".lock"
-
-
-class LockedError(ToolkitError):
-    """Another process holds the lock; the message names it and says what to do."""
 
 
 def lock_path_for(path: Path) -> Path:

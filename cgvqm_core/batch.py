@@ -11,10 +11,13 @@ resumes and loses at most the group in progress.
 
 Each row carries a resume ``key``: the sha256 of everything that changes its number (metric
 name, its settings, backbone and weights hashes, patch scale, precision, device type,
-pooling, implementation versions including cgvqm_core's, alignment options and the sha256 of
-both input files). A row is skipped only when a row with the same key exists. A file holds
-one row per (metric, pooling, stimulus): a run whose key for one of them differs from the
-row already there (other settings, inputs or versions) is refused before any work, since
+pooling, implementation versions including cgvqm_core's and the sha256 of both input files).
+Permissions (``--allow-resample``, ``--allow-convert``) are not in it: they decide whether a
+pair is scored or refused, never its number, so adding one to resume after its error keeps
+the rows already written. Keys written before that hashed the permissions too; they are
+recognised (:func:`legacy_keys`). A row is skipped only when a row with the same key exists.
+A file holds one row per (metric, pooling, stimulus): a run whose key for one of them differs
+from the row already there (other settings, inputs or versions) is refused before any work, since
 the analysis would keep only one of the two; write such runs to a new file.
 
 Reading an existing file is strict about everything but its last row: a last row that was
@@ -38,6 +41,7 @@ from tqdm.auto import tqdm
 
 from stimuli_manifests import StimuliError, load_manifest, sha256_path
 from stimuli_manifests.file_lock import FileLock
+from stimuli_manifests.pairs import same_frame_rate
 from stimuli_manifests.tables import FORMAT_COLUMN, SCORES
 
 from .errors import CGVQMError
@@ -114,13 +118,33 @@ def scorer_identity(s: Scorer, options: MetricOptions) -> dict[str, Any]:
             "device_type": options.device.split(":")[0]}
 
 
-def row_key(identity: dict[str, Any], pooling: str | None, ref: InputFile, test: InputFile,
-            alignment: dict[str, Any]) -> str:
-    """The resume key of one row (stimulus and reference ids and contents included)."""
-    doc = {**identity, "pooling": pooling or "", "reference": ref.id,
-           "reference_sha256": ref.sha256, "stimulus": test.id, "stimulus_sha256": test.sha256,
-           "alignment": alignment}
+def _key_of(doc: dict[str, Any]) -> str:
     return hashlib.sha256(canonical_json(doc).encode()).hexdigest()
+
+
+def _key_doc(identity: dict[str, Any], pooling: str | None, ref: InputFile,
+             test: InputFile) -> dict[str, Any]:
+    return {**identity, "pooling": pooling or "", "reference": ref.id,
+            "reference_sha256": ref.sha256, "stimulus": test.id, "stimulus_sha256": test.sha256}
+
+
+def row_key(identity: dict[str, Any], pooling: str | None, ref: InputFile,
+            test: InputFile) -> str:
+    """The resume key of one row (stimulus and reference ids and contents included)."""
+    return _key_of(_key_doc(identity, pooling, ref, test))
+
+
+#: every value of the permissions that keys written before 2026-11-28 hashed
+_LEGACY_PERMISSIONS = [{"allow_resample": a, "on_conversion": c}
+                       for a in (False, True) for c in ("error", "warn")]
+
+
+def legacy_keys(identity: dict[str, Any], pooling: str | None, ref: InputFile,
+                test: InputFile) -> list[str]:
+    """The keys the same row had when permissions were hashed in (``"alignment"``): such a
+    row in an existing file counts as done, so an upgrade does not score it again."""
+    doc = _key_doc(identity, pooling, ref, test)
+    return [_key_of({**doc, "alignment": a}) for a in _LEGACY_PERMISSIONS]
 
 
 def _poolings(s: Scorer, options: MetricOptions) -> list[str | None]:
@@ -139,24 +163,33 @@ def scorer_plan(scorers: Sequence[Scorer], options: MetricOptions
 def unit_keys(unit: WorkUnit, plan: Sequence[tuple[dict[str, Any], list[str | None]]]
               ) -> list[str]:
     """The resume keys of every row ``unit`` writes (see :func:`scorer_plan`)."""
-    alignment = {"allow_resample": unit.allow_resample, "on_conversion": unit.on_conversion}
-    return [row_key(ident, p, unit.reference, t, alignment)
+    return [row_key(ident, p, unit.reference, t)
             for t in unit.tests for ident, pools in plan for p in pools]
 
 
-def planned_slots(units: Sequence[WorkUnit],
-                  plan: Sequence[tuple[dict[str, Any], list[str | None]]]
-                  ) -> list[tuple[Slot, str]]:
-    """The (metric, pooling, stimulus) slot and resume key of every row the units write."""
-    out = []
-    for unit in units:
-        alignment = {"allow_resample": unit.allow_resample, "on_conversion": unit.on_conversion}
-        for t in unit.tests:
-            for ident, pools in plan:
-                for p in pools:
-                    out.append(((ident["metric"], p or "", t.id),
-                                row_key(ident, p, unit.reference, t, alignment)))
-    return out
+@dataclass(frozen=True)
+class PlannedRow:
+    """A row a run would write: its slot, its key and the keys it had in older files."""
+
+    slot: Slot
+    key: str
+    legacy: tuple[str, ...]
+
+
+def planned_rows(units: Sequence[WorkUnit],
+                 plan: Sequence[tuple[dict[str, Any], list[str | None]]]) -> list[PlannedRow]:
+    """Every row the units write."""
+    return [PlannedRow((ident["metric"], p or "", t.id), row_key(ident, p, unit.reference, t),
+                       tuple(legacy_keys(ident, p, unit.reference, t)))
+            for unit in units for t in unit.tests for ident, pools in plan for p in pools]
+
+
+def done_keys(state: ScoresFile, planned: Sequence[PlannedRow]) -> set[str]:
+    """The keys of the file's rows, plus the key of each planned row that the file holds
+    under a legacy key (see :func:`legacy_keys`)."""
+    done = set(state.keys)
+    done.update(r.key for r in planned if not done.isdisjoint(r.legacy))
+    return done
 
 
 def _row(stimulus: str, reference: str, m: MetricScore, ident: dict[str, Any], key: str,
@@ -199,11 +232,12 @@ class ScoresFile:
         self.keys.add(row.get("key", ""))
         self.slots.setdefault(slot_of(row), set()).add(row.get("key", ""))
 
-    def clashes(self, slot: Slot, key: str) -> bool:
-        """Would a row with ``key`` in ``slot`` be a second row there? (An empty key, as
-        ``score --csv`` writes, never matches: such rows cannot be told equal.)"""
+    def clashes(self, slot: Slot, key: str, done: set[str] | None = None) -> bool:
+        """Would a row with ``key`` in ``slot`` be a second row there? ``done``: keys that
+        count as present (:func:`done_keys`). An empty key, as ``score --csv`` writes, never
+        matches: such rows cannot be told equal."""
         held = self.slots.get(slot)
-        return held is not None and (not key or key not in held)
+        return held is not None and (not key or key not in (held if done is None else done))
 
 
 def slot_of(row: dict[str, Any]) -> Slot:
@@ -216,9 +250,10 @@ def _describe(slot: Slot) -> str:
     return f"{metric}{f' ({pooling})' if pooling else ''} for {stimulus}"
 
 
-def refuse_clashes(state: ScoresFile, planned: Sequence[tuple[Slot, str]], flag: str) -> None:
+def refuse_clashes(state: ScoresFile, planned: Sequence[PlannedRow], flag: str,
+                   done: set[str] | None = None) -> None:
     """Refuse rows that would be a second row of their slot (see :meth:`ScoresFile.clashes`)."""
-    bad = [slot for slot, key in planned if state.clashes(slot, key)]
+    bad = [r.slot for r in planned if state.clashes(r.slot, r.key, done)]
     if bad:
         more = f" and {len(bad) - 1} more" if len(bad) > 1 else ""
         raise CGVQMError(
@@ -373,7 +408,8 @@ class Appender:
         if self.fh is None:
             self._open()
         assert self.state is not None
-        refuse_clashes(self.state, [(slot_of(r), r.get("key", "")) for r in rows], self.flag)
+        refuse_clashes(self.state, [PlannedRow(slot_of(r), r.get("key", ""), ()) for r in rows],
+                       self.flag)
         self.writer.writerows([[SCORES.version if c == FORMAT_COLUMN else r.get(c, "")
                                 for c in SCORE_COLUMNS] for r in rows])
         self.flush()
@@ -442,13 +478,12 @@ def run_unit(unit: WorkUnit, *, scorers: Sequence[Scorer] | None = None,
         scorers = build_scorers(unit.metrics, options)
     if verify:
         verify_inputs([unit.reference, *unit.tests])
-    alignment = {"allow_resample": unit.allow_resample, "on_conversion": unit.on_conversion}
     idents = [scorer_identity(s, options) for s in scorers]
     ref_sha = unit.reference.sha256
     plan: dict[int, list[int]] = {}  # test index -> scorer indices with a missing row
     for ti, t in enumerate(unit.tests):
         for si, s in enumerate(scorers):
-            keys = [row_key(idents[si], p, unit.reference, t, alignment)
+            keys = [row_key(idents[si], p, unit.reference, t)
                     for p in _poolings(s, options)]
             if any(k not in done for k in keys):
                 plan.setdefault(ti, []).append(si)
@@ -469,7 +504,7 @@ def run_unit(unit: WorkUnit, *, scorers: Sequence[Scorer] | None = None,
             for si in used:
                 for p in _poolings(scorers[si], options):
                     m = _result_of(per_test, scorers[si].name, p)
-                    key = row_key(idents[si], p, unit.reference, t, alignment)
+                    key = row_key(idents[si], p, unit.reference, t)
                     if key not in done:
                         group_rows.append(_row(t.id, unit.reference_id, m, idents[si], key,
                                                ref_sha, t.sha256))
@@ -498,31 +533,57 @@ def _load(manifest: str | Path, root: str | Path | None) -> Any:
         raise CGVQMError(str(exc)) from None
 
 
-def refuse_frame_count_mismatches(manifest: str | Path, *, include_references: bool = False,
-                                  root: str | Path | None = None,
-                                  on_conversion: str = "warn") -> None:
-    """``--strict``: refuse the run, before any network is built or file hashed, when a test
-    video's frame count differs from its reference's (every such pair is probed, headers only,
-    and up to five are named)."""
+def refuse_misaligned_pairs(manifest: str | Path, *, include_references: bool = False,
+                            root: str | Path | None = None, on_conversion: str = "warn",
+                            allow_resample: bool = False, strict: bool = False) -> None:
+    """Before any network is built or file hashed, probe every pair (headers only) and
+    refuse the run, naming up to five, when a video cannot be opened (or needs a conversion
+    not allowed), a test's frame rate differs from its reference's without
+    ``allow_resample``, or (``strict``) its frame count does. Found mid-run instead, the
+    first such pair stopped a batch after hours of work."""
     from .stream import open_input
 
     loaded = _load(manifest, root)
-    refs: dict[str, Any] = {}
-    bad = []
+    opened: dict[Path, Any] = {}
+    unreadable, rates, counts = [], [], []
+
+    def probe(path: Path, name: str) -> Any:
+        if path not in opened:
+            try:
+                opened[path] = open_input(path, name=name, on_conversion=on_conversion)
+            except CGVQMError as exc:
+                opened[path] = None
+                unreadable.append(str(exc))
+        return opened[path]
+
     for s in loaded.manifest.stimuli(include_hidden_references=include_references):
-        if s.reference not in refs:
-            refs[s.reference] = open_input(loaded.reference_path(s.reference),
-                                           name=s.reference, on_conversion=on_conversion)
-        ref = refs[s.reference]
-        test = open_input(loaded.stimulus_path(s.id), name=s.id, on_conversion=on_conversion)
+        ref = probe(loaded.reference_path(s.reference), s.reference)
+        test = probe(loaded.stimulus_path(s.id), s.id)
+        if ref is None or test is None:
+            continue
+        fr, ft = float(ref.info.fps), float(test.info.fps)
+        if not allow_resample and not same_frame_rate(fr, ft):
+            rates.append(f"{s.id} is at {ft:g} fps, its reference {s.reference} at {fr:g}")
         nr, nt = int(ref.info.frame_count), int(test.info.frame_count)
-        if nr != nt:
-            bad.append(f"{s.id} has {nt} frames, its reference {s.reference} {nr}")
-    if bad:
-        raise CGVQMError(f"--strict: {len(bad)} test video(s) differ from their reference in "
-                         f"frame count ({'; '.join(bad[:5])}{'; ...' if len(bad) > 5 else ''})"
-                         "; without --strict they are resampled in time (frames repeated or "
-                         "dropped); trim or re-render them")
+        if strict and nr != nt:
+            counts.append(f"{s.id} has {nt} frames, its reference {s.reference} {nr}")
+    if unreadable:
+        raise CGVQMError(f"{len(unreadable)} video(s) of the manifest cannot be scored: "
+                         f"{_first_five(unreadable)}")
+    if rates:
+        raise CGVQMError(f"{len(rates)} test video(s) differ from their reference in frame "
+                         f"rate ({_first_five(rates)}); pass --allow-resample to resample them "
+                         "to the reference's frame count as the authors' code does, or "
+                         "re-render them")
+    if counts:
+        raise CGVQMError(f"--strict: {len(counts)} test video(s) differ from their reference "
+                         f"in frame count ({_first_five(counts)}); without --strict they are "
+                         "resampled in time (frames repeated or dropped); trim or re-render "
+                         "them")
+
+
+def _first_five(items: list[str]) -> str:
+    return "; ".join(items[:5]) + ("; ..." if len(items) > 5 else "")
 
 
 def manifest_units(manifest: str | Path, metrics: Sequence[str], options: MetricOptions, *,
@@ -579,8 +640,9 @@ def score_manifest(manifest: str | Path, out: str | Path, metrics: Sequence[str]
                    progress: bool = True, strict: bool = False) -> BatchSummary:
     """Score the manifest's conditions (and hidden references if asked) with each metric.
 
-    ``strict`` refuses the run when any test's frame count differs from its reference's
-    (checked first, from the headers); otherwise such a test is resampled in time."""
+    Every pair's headers are checked first (:func:`refuse_misaligned_pairs`): a frame-rate
+    mismatch is refused unless ``allow_resample``; ``strict`` refuses a frame-count mismatch,
+    which is otherwise resampled in time."""
     with scores_lock(out):
         return _score_manifest(manifest, Path(out), metrics, options or MetricOptions(),
                                include_references=include_references, root=root,
@@ -593,15 +655,16 @@ def _score_manifest(manifest: str | Path, out: Path, metrics: Sequence[str],
                     root: str | Path | None, group_size: int, allow_resample: bool,
                     on_conversion: str, progress: bool, strict: bool) -> BatchSummary:
     state = read_scores(out)
-    done = state.keys
-    if strict:
-        refuse_frame_count_mismatches(manifest, include_references=include_references,
-                                      root=root, on_conversion=on_conversion)
+    refuse_misaligned_pairs(manifest, include_references=include_references, root=root,
+                            on_conversion=on_conversion, allow_resample=allow_resample,
+                            strict=strict)
     scorers = build_scorers(metrics, options)
     units = manifest_units(manifest, metrics, options, include_references=include_references,
                            root=root, group_size=group_size, allow_resample=allow_resample,
                            on_conversion=on_conversion, progress=progress, strict=strict)
-    refuse_clashes(state, planned_slots(units, scorer_plan(scorers, options)), "--out")
+    planned = planned_rows(units, scorer_plan(scorers, options))
+    done = done_keys(state, planned)
+    refuse_clashes(state, planned, "--out", done)
     summary = BatchSummary()
     total = sum(len(u.tests) for u in units)
     appender = Appender(out, state)
@@ -616,7 +679,7 @@ def _score_manifest(manifest: str | Path, out: Path, metrics: Sequence[str],
             summary.rows += len(rows)
             for r in rows:
                 done.add(r["key"])
-                if r["note"] and r["metric"] not in summary.not_applicable:
+                if r["note"] and not r["score"] and r["metric"] not in summary.not_applicable:
                     summary.not_applicable.append(r["metric"])
             bar.update(len(u.tests) - len(scored))  # the skipped ones
     finally:

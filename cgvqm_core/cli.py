@@ -120,19 +120,30 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
     return 0
 
 
-def _score_row(res: Any, ref: str, test: str) -> dict[str, Any]:
-    from .batch import canonical_json
+def _alignment(args: argparse.Namespace) -> str:
+    """How the test was fitted to the reference ("" if it was not; headers only)."""
+    from .stream import alignment_note, open_input
 
-    prov = res.provenance
-    return {"stimulus": Path(test).stem, "reference": Path(ref).stem, "metric": res.variant,
-            "score": f"{res.q:.8g}", "direction": "higher-better", "pooling": res.pool,
-            "patches": res.n_patches, "seconds": f"{res.seconds:.3f}",
-            "backbone": prov["backbone"]["label"],
-            "backbone_sha256": prov["backbone"]["sha256"],
-            "weights_sha256": prov["weights"]["sha256"],
-            "settings": canonical_json({"patch_scale": prov["patch_scale"],
-                                    "precision": prov["precision"], "mode": prov["mode"],
-                                    "device_type": prov["device"].split(":")[0]})}
+    conv = on_conversion(args)
+    return alignment_note(open_input(args.ref, fps=args.fps, on_conversion=conv),
+                          open_input(args.test, fps=args.fps, on_conversion=conv))
+
+
+def _score_row(res: Any, metric: Any, args: argparse.Namespace, note: str) -> dict[str, Any]:
+    """The ``score --csv`` row of a CGVQM result: the columns a batch row has, but the key
+    (a single pair is not resumed)."""
+    from .batch import canonical_json
+    from .metrics.cgvqm_entry import cgvqm_provenance, cgvqm_settings, metric_name
+
+    prov = cgvqm_provenance(metric)
+    return {**_pair_columns(args), "metric": metric_name(metric), "score": f"{res.q:.8g}",
+            "direction": "higher-better", "pooling": res.pool, "patches": res.n_patches,
+            "seconds": f"{res.seconds:.3f}", "note": note,
+            **{k: prov[k] for k in ("backbone", "backbone_sha256", "weights_sha256")},
+            "settings": canonical_json({**cgvqm_settings(metric),
+                                        "device_type": metric.net.device.type}),
+            "versions": canonical_json({k: v for k, v in prov.items() if k not in (
+                "backbone", "backbone_sha256", "weights_sha256")})}
 
 
 def _csv_before_scoring(args: argparse.Namespace, metric: str, pooling: str) -> Any:
@@ -170,7 +181,8 @@ def _cmd_score_peer(args: argparse.Namespace, name: str) -> int:
     (m,) = results
     if args.json:
         out = m.to_dict()
-        out.update({"settings": scorer.settings(), "provenance": scorer.provenance()})
+        out.update({"settings": {**scorer.settings(), "device_type": device_type(args)},
+                    "provenance": scorer.provenance()})
         print(json.dumps(out))
     elif m.score is None:
         print(f"{m.metric}: {m.note}")
@@ -182,11 +194,12 @@ def _cmd_score_peer(args: argparse.Namespace, name: str) -> int:
         prov = scorer.provenance()
         app = Appender(Path(args.csv), state, flag="--csv")
         try:
-            app.write([{"stimulus": Path(args.test).stem, "reference": Path(args.ref).stem,
-                        "metric": m.metric, "direction": m.direction, "note": m.note,
+            app.write([{**_pair_columns(args), "metric": m.metric, "direction": m.direction,
+                        "note": m.note,
                         "score": "" if m.score is None else f"{m.score:.8g}",
                         "seconds": f"{m.extra.get('seconds', 0):.3f}",
-                        "settings": canonical_json(scorer.settings()),
+                        "settings": canonical_json({**scorer.settings(),
+                                                    "device_type": device_type(args)}),
                         **{k: prov.get(k, "") for k in ("backbone", "backbone_sha256",
                                                          "weights_sha256")},
                         "versions": canonical_json({k: v for k, v in prov.items() if k not in (
@@ -194,6 +207,20 @@ def _cmd_score_peer(args: argparse.Namespace, name: str) -> int:
         finally:
             app.close()
     return 0
+
+
+def device_type(args: argparse.Namespace) -> str:
+    """"cpu" or "cuda" (what a batch row's settings record; the index is not a setting)."""
+    return str(args.device or "cpu").split(":")[0]
+
+
+def _pair_columns(args: argparse.Namespace) -> dict[str, str]:
+    """What a ``score --csv`` row records of its inputs, as a batch row does: their names
+    and sha256 (a row that names only a file cannot tell which render it scored)."""
+    from stimuli_manifests import sha256_path
+
+    return {"stimulus": Path(args.test).stem, "reference": Path(args.ref).stem,
+            "reference_sha256": sha256_path(args.ref), "stimulus_sha256": sha256_path(args.test)}
 
 
 def _refuse_mismatched_pair(args: argparse.Namespace) -> None:
@@ -285,8 +312,11 @@ def _score_pair(args: argparse.Namespace) -> int:
                        progress=sys.stderr.isatty(), strict=args.strict, clock=clock)
     if clock is not None:
         print(f"timing: {clock.report()}", file=sys.stderr)
+    note = _alignment(args) if (args.json or args.csv) else ""
     if args.json:
         out = res.to_dict(patches=True)
+        if note:
+            out["note"] = note
         if clock is not None:
             out["timing"] = {k: round(v, 6) for k, v in clock.seconds().items()}
         print(json.dumps(out))
@@ -311,9 +341,7 @@ def _score_pair(args: argparse.Namespace) -> int:
     if args.csv:
         app = Appender(Path(args.csv), state, flag="--csv")
         try:
-            row = _score_row(res, args.ref, args.test)
-            row["metric"] = metric_name(metric)
-            app.write([row])
+            app.write([_score_row(res, metric, args, note)])
         finally:
             app.close()
     return 0

@@ -42,11 +42,12 @@ from .batch import (
     BatchSummary,
     WorkUnit,
     canonical_json,
+    done_keys,
     manifest_units,
-    planned_slots,
+    planned_rows,
     read_scores,
     refuse_clashes,
-    refuse_frame_count_mismatches,
+    refuse_misaligned_pairs,
     run_unit,
     scorer_plan,
     scores_lock,
@@ -280,14 +281,15 @@ def score_units(units: Sequence[WorkUnit], out: str | Path, settings: RaySetting
 def _score_units(units: Sequence[WorkUnit], out: Path, settings: RaySettings, *,
                  progress: bool) -> RaySummary:
     state = read_scores(out)
-    done = state.keys
     summary = RaySummary(units=len(units))
     if not units:
         return summary
     log.info("ray: %d task(s) at a time on this cluster", check_resources(settings))
     u0 = units[0]
     plan = _worker_plan(u0.metrics, _options(u0), settings)
-    refuse_clashes(state, planned_slots(units, plan), "--out")
+    planned = planned_rows(units, plan)
+    done = done_keys(state, planned)
+    refuse_clashes(state, planned, "--out", done)
     task = as_task(_unit_task, settings)
     pending: dict[Any, tuple[WorkUnit, set[str]]] = {}
     skipped = 0
@@ -325,7 +327,7 @@ def _score_units(units: Sequence[WorkUnit], out: Path, settings: RaySettings, *,
             summary.nodes.add(result["node"])
             for r in rows:
                 done.add(r["key"])
-                if r["note"] and r["metric"] not in summary.not_applicable:
+                if r["note"] and not r["score"] and r["metric"] not in summary.not_applicable:
                     summary.not_applicable.append(r["metric"])
     finally:
         bar.close()
@@ -361,9 +363,9 @@ def score_manifest(manifest: str | Path, out: str | Path, metrics: Sequence[str]
                    strict: bool = False) -> RaySummary:
     """:func:`cgvqm_core.batch.score_manifest` on Ray (same units, keys, rows and CSV)."""
     read_scores(Path(out))  # a folder or a file of another layout: refused before any work
-    if strict:
-        refuse_frame_count_mismatches(manifest, include_references=include_references,
-                                      root=root, on_conversion=on_conversion)
+    refuse_misaligned_pairs(manifest, include_references=include_references, root=root,
+                            on_conversion=on_conversion, allow_resample=allow_resample,
+                            strict=strict)
     units = manifest_units(manifest, metrics, absolute_options(options),
                            include_references=include_references, root=root,
                            group_size=group_size, allow_resample=allow_resample,

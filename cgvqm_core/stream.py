@@ -231,6 +231,25 @@ def resampling_note(n_test: int, n_ref: int) -> str:
             "upstream; no interpolation); --strict refuses such a pair")
 
 
+def alignment_note(ref: FrameSource, test: FrameSource) -> str:
+    """How the test is fitted to the reference before scoring ("" when it is not): the score
+    of a resized or resampled test is not the score of the file as rendered, and its row in a
+    scores CSV says so (``note``)."""
+    r, t = ref.info, test.info
+    parts = []
+    if not same_frame_rate(float(r.fps), float(t.fps)):
+        parts.append(f"test at {float(t.fps):g} fps, reference at {float(r.fps):g} fps")
+    if (int(t.height), int(t.width)) != (int(r.height), int(r.width)):
+        parts.append(f"test resized from {t.width}x{t.height} to the reference's "
+                     f"{r.width}x{r.height} (bilinear)")
+    nt, nr = int(t.frame_count), int(r.frame_count)
+    if nt != nr:
+        used = len(np.unique(time_index(nt, nr)))
+        parts.append(f"test's {nt} frames resampled in time to the reference's {nr} "
+                     f"({nr - used} repeated, {nt - used} dropped)")
+    return "; ".join(parts)
+
+
 def frame_count_mismatch(ref: FrameSource, test: FrameSource) -> str | None:
     """Why ``test`` cannot be compared frame for frame with ``ref``, or None if it can."""
     nr, nt = int(ref.info.frame_count), int(test.info.frame_count)

@@ -53,6 +53,27 @@ def _spec(variant: str, levels: str) -> MetricSpec:
                "batch_size", "seamless", "fast_stem", "pools"))
 
 
+def cgvqm_settings(metric: Any) -> dict[str, Any]:
+    """What a scores row's ``settings`` record of a CGVQM (batch and ``score --csv`` alike)."""
+    p = metric.provenance()
+    out = {"variant": p["variant"], "patch_scale": p["patch_scale"],
+           "precision": p["precision"], "device": metric.net.device.type, "mode": p["mode"]}
+    if metric.net.differences:  # bf16 numbers differ from the plain path's
+        out["differences"] = True
+    if metric.net.tf32_stem:  # so do those of fp16 with --fast-stem
+        out["tf32_stem"] = True
+    return out
+
+
+def cgvqm_provenance(metric: Any) -> dict[str, Any]:
+    """What the resume key and the CSV's ``versions`` record besides the settings: the
+    toolkit's version too, since a release can change CGVQM's numbers."""
+    p = metric.provenance()
+    return {"backbone": p["backbone"]["label"], "backbone_sha256": p["backbone"]["sha256"],
+            "weights_sha256": p["weights"]["sha256"], "torch": p["torch_version"],
+            "cgvqm_core": p["cgvqm_core_version"]}
+
+
 class CGVQMScorer(VideoScorer):
     def __init__(self, spec: MetricSpec, options: MetricOptions) -> None:
         from ..metric import CGVQM
@@ -70,23 +91,10 @@ class CGVQMScorer(VideoScorer):
         return metric_name(self.metric)
 
     def settings(self) -> dict[str, Any]:
-        p = self.metric.provenance()
-        out = {"variant": p["variant"], "patch_scale": p["patch_scale"],
-               "precision": p["precision"], "device": self.metric.net.device.type,
-               "mode": p["mode"]}
-        if self.metric.net.differences:  # bf16 numbers differ from the plain path's
-            out["differences"] = True
-        if self.metric.net.tf32_stem:  # so do those of fp16 with --fast-stem
-            out["tf32_stem"] = True
-        return out
+        return cgvqm_settings(self.metric)
 
     def provenance(self) -> dict[str, Any]:
-        """What the resume key and the CSV's ``versions`` record besides the settings: the
-        toolkit's version too, since a release can change CGVQM's numbers."""
-        p = self.metric.provenance()
-        return {"backbone": p["backbone"]["label"], "backbone_sha256": p["backbone"]["sha256"],
-                "weights_sha256": p["weights"]["sha256"], "torch": p["torch_version"],
-                "cgvqm_core": p["cgvqm_core_version"]}
+        return cgvqm_provenance(self.metric)
 
     def not_applicable(self, height: int, width: int) -> str | None:
         if min(height, width) < self.metric.patch_scale:

@@ -24,6 +24,7 @@ from ..stream import (
     Geometry,
     _counted,
     aligned_frames,
+    alignment_note,
     check_fps,
     check_frame_count,
     open_input,
@@ -142,7 +143,8 @@ def score_reference(ref: Any, tests: Sequence[Any], scorers: Sequence[Scorer], *
                     progress: bool = False, strict: bool = False) -> list[list[MetricScore]]:
     """Score each test against ``ref`` with every scorer; per test, a list of results in
     scorer order (a metric with several poolings gives several results). ``strict`` refuses
-    a test whose frame count differs from the reference's instead of resampling it."""
+    a test whose frame count differs from the reference's instead of resampling it. A test
+    that was resized or resampled says so in each of its results' ``note``."""
     rsrc, tsrcs, geom = open_pair_sources(ref, tests, fps=fps, allow_resample=allow_resample,
                                           on_conversion=on_conversion, strict=strict)
     frame = [s for s in scorers if isinstance(s, FrameScorer)]
@@ -165,4 +167,10 @@ def score_reference(ref: Any, tests: Sequence[Any], scorers: Sequence[Scorer], *
                 for m in per_test:
                     m.extra.setdefault("seconds", sec)
             by_scorer[id(s)] = out
-    return [[m for s in scorers for m in by_scorer[id(s)][i]] for i in range(len(tsrcs))]
+    out = [[m for s in scorers for m in by_scorer[id(s)][i]] for i in range(len(tsrcs))]
+    for t, per_test in zip(tsrcs, out, strict=True):
+        note = alignment_note(rsrc, t)
+        for m in per_test:
+            if note and m.score is not None:  # a metric that does not apply keeps its reason
+                m.note = f"{m.note}; {note}" if m.note else note
+    return out

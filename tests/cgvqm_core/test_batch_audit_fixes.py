@@ -119,9 +119,9 @@ def test_the_cgvqm_core_version_enters_the_key_and_the_csv(tmp_path, monkeypatch
     from cgvqm_core.batch import InputFile
 
     ref, test = InputFile("R", "r", "a" * 64), InputFile("T", "t", "b" * 64)
-    key = row_key(scorer_identity(scorer, options), "max", ref, test, {})
+    key = row_key(scorer_identity(scorer, options), "max", ref, test)
     monkeypatch.setattr("cgvqm_core.metric.__version__", "99.0.0")
-    upgraded = row_key(scorer_identity(scorer, options), "max", ref, test, {})
+    upgraded = row_key(scorer_identity(scorer, options), "max", ref, test)
     assert upgraded != key
     manifest = _study(tmp_path)
     score_manifest(manifest, tmp_path / "s.csv", ["cgvqm-2"], options, progress=False)

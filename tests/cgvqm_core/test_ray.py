@@ -17,7 +17,13 @@ import numpy as np
 import pytest
 
 from cgvqm_core.cli import main
-from stimuli_manifests import fill_checksums, load_manifest, save_manifest, write_video
+from stimuli_manifests import (
+    StimuliError,
+    fill_checksums,
+    load_manifest,
+    save_manifest,
+    write_video,
+)
 
 from .conftest import distort, smooth_video
 
@@ -33,9 +39,34 @@ COMPARED = ("stimulus", "reference", "metric", "pooling", "score", "direction", 
             "backbone_sha256", "weights_sha256", "settings", "versions")
 
 
+def _break_after_header(path: Path) -> None:
+    """Overwrite bytes in the middle of the file until its header still gives every frame
+    but decoding them fails."""
+    from cgvqm_core.errors import CGVQMError
+    from cgvqm_core.stream import open_input
+
+    good = path.read_bytes()
+    n = int(open_input(path).info.frame_count)
+    for tenth in range(2, 9):
+        bad = bytearray(good)
+        at = len(good) * tenth // 10
+        bad[at: at + 2000] = b"\xff" * 2000
+        path.write_bytes(bytes(bad))
+        try:
+            src = open_input(path)
+            if int(src.info.frame_count) == n:
+                sum(1 for _ in src.frames())
+        except CGVQMError:
+            continue  # the header is broken too: the probe would find it
+        except StimuliError:  # the frames do not decode: what is wanted
+            return
+    raise AssertionError(f"{path}: no overwrite left the header readable and the frames not")
+
+
 def make_study(root: Path, *, broken: str | None = None) -> Path:
     """N_REFS references x 2 noise levels (32x32, 8 frames); ``broken``: a test video's file
-    name whose content is replaced by bytes no decoder reads (checksummed as it is)."""
+    name whose frames no decoder reads, behind a readable header (checksummed as it is), so
+    the batch's probe passes and its unit fails where it runs."""
     videos = root / "videos"
     refs, conds, dmos = [], [], []
     for r in range(N_REFS):
@@ -46,7 +77,7 @@ def make_study(root: Path, *, broken: str | None = None) -> Path:
             name = f"src{r}_d{lv}.mkv"
             write_video(videos / name, distort(ref, 10 * r + lv, sigma=8.0 * lv), FPS)
             if name == broken:
-                (videos / name).write_bytes(b"not a video" * 100)
+                _break_after_header(videos / name)
             conds.append({"reference": f"SRC{r + 1:02d}", "path": name, "method": "noise",
                           "level": lv})
             dmos.append(f"SRC{r + 1:02d}_HRC{lv:02d},{90 - 20 * lv - r}")

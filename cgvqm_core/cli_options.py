@@ -51,7 +51,7 @@ def add_metric_options(p: argparse.ArgumentParser, *, multi_variant: bool = Fals
                         "a CPU (bit-identical), tf32 on CUDA (PyTorch's defaults); fp32: "
                         "strict, equal to the CPU also on CUDA; bf16 (CPUs with AMX or "
                         "AVX512-BF16, refused on others with the reason; GPUs) or fp16 "
-                        "(GPUs): faster, scores drift slightly (see the README)")
+                        "(GPUs): faster, scores drift slightly (see docs/performance.md)")
     p.add_argument("--fast-stem", action="store_true",
                    help="with --precision fp16 on CUDA: run the stem in TF32 rather than true "
                         "fp32: about 1.5x faster, but q moves further from fp32 (up to 0.03 "

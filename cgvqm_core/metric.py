@@ -215,7 +215,7 @@ class CGVQM:
     on CUDA, upstream's numbers as it runs there), ``fp32`` (strict, CPU-equal also on CUDA),
     ``bf16`` (CPUs with AMX/AVX512-BF16 and GPUs), ``fp16`` or ``tf32`` (GPUs): faster, not
     bit-exact
-    (:mod:`.precision`; the measured drift is in the README); ``fp32_stem`` (default) keeps
+    (:mod:`.precision`; the measured drift is in docs/performance.md); ``fp32_stem`` (default) keeps
     the stem in fp32 under bf16/fp16, which removes most of the drift; ``differences``
     (default: on for bf16) carries each test's activations as exact differences from its
     reference's (:mod:`.ref_delta`), which removes most of the rest. ``tf32_stem``,

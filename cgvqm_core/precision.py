@@ -5,7 +5,7 @@ device: ``fp32`` on a CPU (upstream-identical, bit for bit), ``tf32`` on CUDA (P
 defaults there: cuDNN convolutions may use the tensor cores' TF32 mode, matrix products stay
 in fp32). Strict ``fp32`` on CUDA (TF32 off, equal to the CPU's numbers to 1e-4) is an
 explicit choice. The others trade bit-exactness for speed; each changes scores slightly (the
-drift measured against fp32 is in the README, section "Speed, memory, devices"):
+drift measured against fp32 is in docs/performance.md, "Speed, memory, devices"):
 
 - ``bf16``: convolutions in bfloat16 with fp32 accumulation (oneDNN on CPU, cuDNN on CUDA);
   the input normalisation, level 0, the unit normalisation across channels and the

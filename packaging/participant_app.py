@@ -2,9 +2,12 @@
 
 Opened with an invitation file (dragged onto the app, "Open with", a double-click where the
 file type is associated), it runs that invitation; opened with nothing (a double-click on
-the app), it says how to take part and waits, so a console window does not flash and close.
+the app), it says how to take part. Both wait for Enter before they end: the console window
+the system opened for the app closes with it, and with it the last lines (an error, "send
+this file back", uploads still to come).
 """
 
+import contextlib
 import multiprocessing
 import sys
 
@@ -24,14 +27,26 @@ def command_line(args: list[str]) -> list[str] | None:
     return args or None
 
 
+def wait_for_enter() -> None:
+    """Keep the console window open until the participant has read it (not when nobody can
+    press Enter: no console, or input from a file)."""
+    if sys.stdin is not None and sys.stdin.isatty():
+        with contextlib.suppress(EOFError, KeyboardInterrupt):
+            input("Press Enter to close this window.")
+
+
 def run(args: list[str]) -> int:
     argv = command_line(args)
     if argv is None:
         print(HOW_TO)
-        if sys.stdin is not None and sys.stdin.isatty():
-            input("Press Enter to close this window.")
+        wait_for_enter()
         return 0
-    return main(argv)
+    if argv == args:  # typed in a terminal, which stays open
+        return main(argv)
+    code = main(argv)
+    sys.stdout.flush()
+    wait_for_enter()
+    return code
 
 
 if __name__ == "__main__":

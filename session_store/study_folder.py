@@ -20,6 +20,9 @@ MANIFEST_NAME = "manifest.json"
 BRIEFING_NAME = "briefing.md"
 CONSENT_NAME = "consent.md"
 SESSIONS_DIR = "sessions"
+SERVER_STATE_DIR = "server"
+"""Where ``cgvq-study serve`` keeps a served study's state (sessions, invites, versions)."""
+SERVER_STATE_FILE = "state.sqlite"
 
 
 @dataclass

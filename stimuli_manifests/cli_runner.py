@@ -10,6 +10,7 @@ optional library that is not installed, or an operating-system error on a path t
 from __future__ import annotations
 
 import argparse
+import errno
 import sys
 from collections.abc import Callable
 from typing import NoReturn
@@ -37,12 +38,24 @@ class OneLineParser(argparse.ArgumentParser):
         sys.exit(EXIT_USER_ERROR)
 
 
+#: what to do about the operating-system errors a user can fix, by errno
+_OS_ADVICE = {
+    errno.ENOSPC: "the disk is full: free some space on it and run the same command again",
+    errno.EDQUOT: "your disk quota is used up: free some space and run the same command again",
+    errno.EROFS: "that disk or folder is read-only (a zip opened in place, a CD, a read-only "
+                 "share?): copy the files to a folder you can write to and run from there",
+    errno.EACCES: "you may not use that file or folder: check its permissions, or use a "
+                  "folder of your own",
+}
+
+
 def _os_error_text(exc: OSError) -> str:
     reason = exc.strerror or str(exc)
     if exc.filename is not None:
         target = exc.filename if exc.filename2 is None else f"{exc.filename} -> {exc.filename2}"
-        return f"{reason}: {target}"
-    return reason
+        reason = f"{reason}: {target}"
+    advice = _OS_ADVICE.get(exc.errno) if exc.errno is not None else None
+    return f"{reason} ({advice})" if advice else reason
 
 
 def run_command(prog: str, work: Callable[[], int], *, extra: str | None = None,

@@ -93,7 +93,16 @@ class FileLock:
         return self._fd is not None
 
     def acquire(self) -> FileLock:
-        """Take the lock or raise :attr:`error` naming the process that holds it."""
+        """Take the lock or raise :attr:`error` naming the process that holds it (an error of
+        the file system, such as a full disk, names the lock file)."""
+        try:
+            return self._acquire()
+        except OSError as exc:
+            if exc.filename is not None:
+                raise
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from None
+
+    def _acquire(self) -> FileLock:
         for _ in range(10):
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
             if not _try_lock(fd):

@@ -101,6 +101,9 @@ class RunOptions:
     upload_report: Callable[[], tuple[bool, str]] | None = None
     """With a study server: waits for the last uploads and says (everything arrived, the
     sentence for the end screen); the end screen then shows it."""
+    files_from_server: bool = False
+    """The study was downloaded from a study server: a damaged file is fetched again when
+    the participant starts again, which is what a failed file check then advises."""
     next_block: Callable[[str, int, str | None], dict[str, Any]] | None = None
     """With a study server, in an adaptive study: asks for block ``k`` of session ``id``
     (after the last stimulus shown); the server's answer. Without one the app plans uniform
@@ -436,9 +439,14 @@ class App:
         ]
         w, h = self._largest_video()
         frames = max((ref.frames or 0) for ref in self.m.references)
+        self._state("preflight")
+        files: Check | None = None
+        if not self.opts.skip_preflight:  # first: a missing first video is its finding
+            files = self._background(lambda: check_checksums(
+                self.study, from_server=self.opts.files_from_server),
+                "Checking the study files...")
         pair: DecodedPair | None = None
-        if first is not None:
-            self._state("preflight")
+        if first is not None and (files is None or files.ok):
             pair = self._background(lambda: decode_pair(first.stimulus, *self._paths(first)),
                                     "Preparing the videos...")
             t, ph, pw = pair.test.shape[:3]
@@ -450,9 +458,8 @@ class App:
         checks.append(check_memory(2 * pair_bytes(w, h, frames), available_memory_bytes()))
         if pair is not None:
             checks.append(check_decode_speed(pair.seconds))
-        if not self.opts.skip_preflight:
-            checks.append(self._background(lambda: check_checksums(self.study),
-                                           "Checking the study files..."))
+        if files is not None:
+            checks.append(files)
         self._first_pair = pair
         return checks, geom
 

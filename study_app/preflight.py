@@ -259,8 +259,10 @@ def check_decode_speed(seconds: float, limit_s: float = MAX_PAIR_DECODE_S) -> Ch
     return Check("decode_speed", ok, msg, {"seconds": round(seconds, 3)})
 
 
-def check_checksums(study: Any) -> Check:
-    """All stimulus files present and matching the manifest's sha256."""
+def check_checksums(study: Any, *, from_server: bool = False) -> Check:
+    """All stimulus files present and matching the manifest's sha256. ``from_server``: the
+    study was downloaded from a study server, which sends damaged files again at the next
+    start (a participant has no study folder to unpack)."""
     t0 = time.perf_counter()
     report = validate_manifest(study.loaded, verify_checksums=True, progress=False)
     problems = report.errors + [str(m) for m in report.mismatches]
@@ -269,8 +271,10 @@ def check_checksums(study: Any) -> Check:
     if problems:
         return Check("checksums", False,
                      "stimulus files are missing or modified (" + "; ".join(problems[:3]) +
-                     (" ..." if len(problems) > 3 else "") +
-                     "): download or unpack the study folder again", value)
+                     (" ..." if len(problems) > 3 else "") + "): " +
+                     ("close this window and start the study again: damaged files are "
+                      "downloaded again" if from_server else
+                      "download or unpack the study folder again"), value)
     if report.warnings:
         return Check("checksums", True, f"{len(report.warnings)} file(s) have no recorded "
                      "checksum", value, warning=True)

@@ -24,7 +24,7 @@ def check_resumable(path: Path, *, participant: str, study_id: str,
     try:
         record = read_session(path)
     except StudyError as exc:
-        raise StudyError(damaged_message(path, str(exc))) from None
+        raise StudyError(damaged_message(path, str(exc), readable=False)) from None
     info = record.info
     _check_owner(path, info, participant, study_id)
     _check_open(path, info, participant)
@@ -67,9 +67,16 @@ def _check_open(path: Path, info: SessionInfo, participant: str) -> None:
             "nothing left to do: send that file to the experimenter")
 
 
-def damaged_message(path: Path, problem: str) -> str:
-    """The refusal for a damaged session file: keep it as it is and send it."""
+def damaged_message(path: Path, problem: str, *, readable: bool = True) -> str:
+    """The refusal for a damaged session file: keep it as it is and send it (exported where
+    it can still be read; ``export`` refuses a file SQLite cannot open, so then the file
+    itself, with the files SQLite keeps beside it)."""
+    if readable:
+        send = (f"export it as it is ('cgvq-study export {path}') and send the zip to the "
+                "experimenter")
+    else:
+        send = (f"send the file {path} as it is to the experimenter, with any file beside it "
+                f"whose name starts with {path.name}")
     return (f"your session file {path.name} is damaged ({problem}), so it is not continued: "
-            f"do not run the study again with it; export it as it is ('cgvq-study export "
-            f"{path}') and send the zip to the experimenter, who will tell you whether to "
-            "start a fresh session")
+            f"do not run the study again with it; {send}, who will tell you whether to start "
+            "a fresh session")

@@ -17,7 +17,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from session_store.errors import StudyError
-from session_store.study_folder import MANIFEST_NAME, SESSIONS_DIR
+from session_store.study_folder import (
+    MANIFEST_NAME,
+    SERVER_STATE_DIR,
+    SERVER_STATE_FILE,
+    SESSIONS_DIR,
+)
 from stimuli_manifests import DisplayRequirements, Manifest, StimuliError, load_manifest
 from stimuli_manifests.from_folder.build import (
     StudyChanges,
@@ -294,16 +299,26 @@ def _speed_problems(result: InitResult, files: dict[str, Path],
 
 
 def _refuse_if_sessions_would_break(previous: Manifest, placements: list, out: Path) -> None:
-    """Changing stimuli under collected ratings would mix ratings of different videos."""
+    """Changing stimuli under collected ratings would mix ratings of different videos; under
+    a served study (its state in ``server/``) it would also replace files its participants
+    download by checksum, and their runs would fail."""
     sessions = sorted((out / SESSIONS_DIR).glob("*.sqlite")) if (out / SESSIONS_DIR).is_dir() \
         else []
-    if not sessions:
+    served = (out / SERVER_STATE_DIR / SERVER_STATE_FILE).is_file()
+    if not sessions and not served:
         return
     old = {str(e.id): (e.metadata.get("source"), e.path)
            for e in [*previous.references, *previous.conditions]}
     new = {p.video.stimulus_id: (p.source_record(), p.study_path.as_posix()) for p in placements}
-    if old != new:
+    if old == new:
+        return
+    if sessions:
         raise StudyError(
             f"{out} already holds {len(sessions)} session file(s) and its stimuli would change; "
             "ratings of different videos would be mixed: init into a new folder (or pass "
             "--force if no session counts)")
+    raise StudyError(
+        f"{out} is a served study ({SERVER_STATE_DIR}/{SERVER_STATE_FILE}) and its stimuli "
+        "would change under it: its participants download these files by checksum, and "
+        "sessions on the server rate the current ones: init into a new folder and serve that "
+        "(or pass --force if nobody has been invited)")

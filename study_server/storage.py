@@ -36,10 +36,11 @@ from typing import Any
 from session_store.errors import StudyError
 from session_store.run_lock import lock_path_for
 from session_store.sqlite_errors import roll_back
+from session_store.study_folder import SERVER_STATE_DIR, SERVER_STATE_FILE
 
 FORMAT = "cgvq-server"
-STATE_DIR = "server"
-STATE_FILE = "state.sqlite"
+STATE_DIR = SERVER_STATE_DIR
+STATE_FILE = SERVER_STATE_FILE
 
 
 def _script(con: sqlite3.Connection, sql: str) -> None:

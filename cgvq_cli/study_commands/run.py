@@ -129,6 +129,7 @@ def _run_served(invite, args: argparse.Namespace, opts) -> int:
     study = load_study(remote.folder)
     if opts.sessions_dir is None:
         opts.sessions_dir = remote.sessions_dir
+    opts.files_from_server = True
     path = study.session_path(opts.participant, opts.sessions_dir)
     uploader = start_uploader(invite, path)
     try:
@@ -143,6 +144,9 @@ def _run_served(invite, args: argparse.Namespace, opts) -> int:
         opts.next_block = lambda sid, k, last: request_block(client, invite.participant,
                                                              uploader, sid, k, last)
         outcome = run_study(study, opts)
+        if path.exists() and not uploader.status.all_arrived:
+            print(f"Sending your last answers to the study server (at most "
+                  f"{FLUSH_AT_END_S:.0f} s)...", flush=True)
         status = uploader.flush(FLUSH_AT_END_S if path.exists() else 0.0)
     finally:
         uploader.stop()
@@ -151,6 +155,9 @@ def _run_served(invite, args: argparse.Namespace, opts) -> int:
 
 def _report(outcome, upload=None) -> int:
     """Print how the run ended; ``upload`` (an UploadStatus) with a study server."""
+    if upload is not None and upload.withdrawn:
+        print(f"Session ended: {upload.describe()}")
+        return 0
     if upload is not None and outcome.status in ("finished", "withdrawn", "quit"):
         what = {"finished": f"Session finished: {outcome.answered} trials.",
                 "withdrawn": f"The participant withdrew after {outcome.answered} of "

@@ -13,9 +13,10 @@ if TYPE_CHECKING:
 
 NAME = "verify"
 HELP = ("check returned session files, exported zips or folders of them (exit 0 all intact "
-        "and complete, 1 some incomplete or withdrawn, 2 some damaged: a zip is damaged when "
-        "a member differs from SHA256SUMS, is missing or unlisted, or its ratings CSV does not "
-        "match the session file, which stays the authority)")
+        "and complete, 1 some incomplete or withdrawn, 2 some damaged or NOT CHECKED (a path "
+        "that holds no session file): a zip is damaged when a member differs from SHA256SUMS, "
+        "is missing or unlisted, or its ratings CSV does not match the session file, which "
+        "stays the authority)")
 
 
 def register(parser: argparse.ArgumentParser) -> None:

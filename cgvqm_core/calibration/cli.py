@@ -358,6 +358,8 @@ def _print_outcome(outcome: CalibrationOutcome, args: argparse.Namespace) -> Non
               f"SRCC {_num(c['srcc'])}, KRCC {_num(c['krcc'])}{extra}")
     if prov.get("warning"):
         print(f"warning: {prov['warning']}")
+    for warning in outcome.warnings:
+        print(f"warning: {warning}")
     print(f"wrote {outcome.path} (use: cgvqm score --weights {outcome.path} ...)")
     if args.report is None and outcome.validation is not None:
         print("(add --report PATH for the per-split table)")

@@ -29,6 +29,7 @@ from .validation import (
     CalibrationData,
     ValidationResult,
     validate,
+    wrong_scale_note,
 )
 
 log = logging.getLogger(__name__)
@@ -95,6 +96,9 @@ class CalibrationOutcome:
     validation: ValidationResult | None
     train_correlations: dict[str, dict[str, float]]
     path: Path | None = None
+    warnings: list[str] = field(default_factory=list)
+    """About the final fit (with or without validation): e.g. scores that fall as the human
+    scores rise."""
 
 
 def _file_sha(path: Path) -> str | None:
@@ -135,7 +139,7 @@ def calibrate(data: CalibrationData, variant: str, config: FitConfig, *,
     val_res = None
     if validation:
         val_res = validate(data, train_ratios, seeds, replace(config, seed=seed),
-                           val_ratio=val_ratio, anchor=anchor)
+                           val_ratio=val_ratio, anchor=anchor, dmos_scale=dmos_scale)
     final, train, val = fit_final(data, replace(config, seed=seed), val_ratio=val_ratio,
                                   seed=seed)
     omega = final.omega[0]
@@ -159,7 +163,10 @@ def calibrate(data: CalibrationData, variant: str, config: FitConfig, *,
     weights = FeatureWeights(variant, omega.astype(np.float32), float(alpha), "",
                              str(out) if out else "calibration", "project", prov)
     path = save_weights(out, weights) if out is not None else None
-    return CalibrationOutcome(weights, final, val_res, train_corr, path)
+    falling = [d for d, c in train_corr.items() if np.isfinite(c["plcc"]) and c["plcc"] < 0]
+    warnings = [f"the final fit's scores correlate NEGATIVELY with the human scores "
+                f"({', '.join(falling)}): " + wrong_scale_note(dmos_scale)] if falling else []
+    return CalibrationOutcome(weights, final, val_res, train_corr, path, warnings)
 
 
 def _provenance(data, variant, config, final, train, val, alpha, anchoring, train_corr,

@@ -88,8 +88,8 @@ def _measure(data: CalibrationData, q: np.ndarray, masks: dict[str, np.ndarray],
 
 
 def validate(data: CalibrationData, train_ratios: Sequence[float], seeds: Sequence[int],
-             config: FitConfig, *, val_ratio: float = 0.25, anchor: str = "logistic"
-             ) -> ValidationResult:
+             config: FitConfig, *, val_ratio: float = 0.25, anchor: str = "logistic",
+             dmos_scale: str = "quality") -> ValidationResult:
     """Repeated scene-disjoint splits for every train ratio; see the module docstring."""
     scenes = data.items["scene"].astype(str).tolist()
     dsets = data.items["dataset"].astype(str).tolist()
@@ -126,13 +126,24 @@ def validate(data: CalibrationData, train_ratios: Sequence[float], seeds: Sequen
     summary = summarise(per_split)
     notes = [SELECTION_NOTE[config.select], HONESTY_NOTE]
     notes += [n for c in split_sets if (n := c.note(len(seeds))) is not None]
-    signs = sign_notes(per_split, config.objective)
+    signs = sign_notes(per_split, config.objective, dmos_scale)
     for note in signs:
         log.warning(note)
     return ValidationResult(per_split, summary, notes + signs, split_sets)
 
 
-def sign_notes(per_split: pd.DataFrame, objective: str) -> list[str]:
+def wrong_scale_note(dmos_scale: str) -> str:
+    """What a negative correlation in most fits says about ``--dmos-scale``: the other one
+    is probably right (this toolkit's own DMOS is on the quality scale, larger = better)."""
+    if dmos_scale == "impairment":
+        return ("the DMOS is probably on a quality scale (larger = better, as this toolkit's "
+                "DMOS), not an impairment one: rerun with --dmos-scale quality (the default)")
+    return ("the DMOS is probably on an impairment scale (larger = worse); rerun with "
+            "--dmos-scale impairment")
+
+
+def sign_notes(per_split: pd.DataFrame, objective: str, dmos_scale: str = "quality"
+               ) -> list[str]:
     """Warnings when fitted scores fall as human quality rises (on the training videos)."""
     tr = per_split[(per_split["model"] == "fitted") & (per_split["subset"] == "train")]
     plcc = tr["plcc"].to_numpy(dtype=float)
@@ -141,8 +152,7 @@ def sign_notes(per_split: pd.DataFrame, objective: str) -> list[str]:
         return []
     if np.mean(plcc) < 0 and (plcc < 0).mean() > 0.5:
         return ["the fitted scores correlate NEGATIVELY with the human scores in most splits: "
-                "the DMOS is probably on an impairment scale (larger = worse); rerun with "
-                "--dmos-scale impairment"]
+                + wrong_scale_note(dmos_scale)]
     hint = (" (the |PLCC| objective is blind to the sign: --objective plcc-signed fits only "
             "the right direction)" if objective == "plcc" else "")
     return [f"in {(plcc < 0).sum()} of {plcc.size} splits the fitted scores correlate "

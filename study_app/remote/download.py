@@ -2,7 +2,8 @@
 
 :func:`study_plan` asks the server which version of the study this participant runs and
 which files it needs; :meth:`DownloadPlan.missing_bytes` is what remains to fetch (files
-already in the cache with the right sha256 are kept), so the app can show the size and check
+already in the cache with the right sha256 are kept: each is hashed once per run, so a file
+damaged since it was downloaded is fetched again), so the app can show the size and check
 free disk space (:func:`check_disk_space`) before anything is written. :func:`download_study`
 then fetches each missing file into ``<name>.part``; a download cut off mid-file resumes with
 an HTTP ``Range`` request from where it stopped. Every finished file is checked against the
@@ -18,7 +19,7 @@ import re
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Any
 from urllib.parse import quote
@@ -55,6 +56,8 @@ class DownloadPlan:
     files: tuple[RemoteFile, ...]
     folder: Path
     """``<cache>/<study_id>/<manifest sha256 prefix>``: the local study folder."""
+    _verified: dict[str, bool] = field(default_factory=dict, compare=False, repr=False)
+    """Per listed path: whether the local copy matched, hashed once per plan (one run)."""
 
     @property
     def total_bytes(self) -> int:
@@ -69,20 +72,21 @@ class DownloadPlan:
         return dest
 
     def cached(self, f: RemoteFile) -> bool:
-        """Present with the right size and sha256 (the hash is remembered beside the file)."""
-        p = self.local(f)
-        try:
-            if p.stat().st_size != f.size:
-                return False
-        except OSError:
-            return False
-        mark = p.with_name(p.name + ".sha256")
-        if mark.is_file() and mark.read_text(encoding="ascii").strip() == f.sha256:
-            return True
-        if _sha256(p) == f.sha256:
-            mark.write_text(f.sha256 + "\n", encoding="ascii")
-            return True
-        return False
+        """Present with the right size and sha256. Hashed, not taken from a mark written at
+        download time: damage that keeps the size (a disk error, a sync tool) was never seen,
+        and every later run failed its pre-flight with no way to fetch the file again."""
+        if f.path not in self._verified:
+            p = self.local(f)
+            try:
+                ok = p.stat().st_size == f.size and _sha256(p) == f.sha256
+            except OSError:
+                ok = False
+            self._verified[f.path] = ok
+        return self._verified[f.path]
+
+    def verified(self, f: RemoteFile) -> None:
+        """``f`` was just downloaded and checked."""
+        self._verified[f.path] = True
 
     def missing(self) -> list[RemoteFile]:
         return [f for f in self.files if not self.cached(f)]
@@ -229,7 +233,6 @@ def _fetch(client: ServerClient, participant: str, f: RemoteFile, dest: Path,
                          f"{f.sha256[:12]}...: refused (the download was corrupted or the "
                          "server's copy changed); start again, or tell the experimenter")
     part.replace(dest)
-    dest.with_name(dest.name + ".sha256").write_text(f.sha256 + "\n", encoding="ascii")
 
 
 RETRIES = 6
@@ -257,6 +260,7 @@ def download_study(client: ServerClient, participant: str, plan: DownloadPlan, *
             try:
                 _fetch(client, participant, f, dest, done - (f.size - before), total,
                        progress)
+                plan.verified(f)
                 break
             except ServerUnavailable as exc:
                 if attempt == RETRIES:

@@ -23,7 +23,7 @@ from session_store.errors import StudyError
 from session_store.invite import Invite
 
 from .download import check_disk_space, download_study, human_bytes, study_plan
-from .http import ServerClient, ServerUnavailable
+from .http import ServerClient, ServerRefused, ServerUnavailable
 from .uploader import Uploader
 
 log = logging.getLogger(__name__)
@@ -72,7 +72,17 @@ def fetch_study(invite: Invite, data_dir: str | Path | None = None, *,
             say(f"The study server cannot be reached ({exc}); continuing with the study "
                 "downloaded before. Your answers are sent once the server is back.")
             return found
-        raise
+        raise ServerUnavailable(f"{exc}: check this computer's internet connection and try "
+                                "again later; if it keeps failing, tell the experimenter",
+                                exc.retry_after) from None
+    except ServerRefused as exc:
+        if exc.status not in (401, 403):
+            raise
+        raise ServerRefused(f"{exc}: start the study with the invitation (or the command) the "
+                            "experimenter sent you, unchanged; if you did, tell the "
+                            "experimenter", exc.status, exc.detail) from None
+    if plan.folder.is_dir():
+        say(f"Study {plan.study_id}: checking the files already on this computer...")
     need, free = check_disk_space(plan)
     total = plan.total_bytes
     if need:

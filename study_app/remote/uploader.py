@@ -176,6 +176,9 @@ class UploadStatus:
     error: str | None = None
     last_success: float | None = None
     """time.monotonic() of the last successful pass."""
+    withdrawn: bool = False
+    """The server refused because the participant was withdrawn (410): nothing is to be sent
+    again, and nothing continued."""
 
     @property
     def all_arrived(self) -> bool:
@@ -186,6 +189,10 @@ class UploadStatus:
         if self.all_arrived:
             return "All your answers have arrived at the study server."
         missing = max(self.local_seq - self.acked_seq, 0)
+        if self.withdrawn:
+            return (f"The study server no longer accepts answers from you ({self.error}); "
+                    "there is nothing more to do or to send. If this is a mistake, contact the "
+                    "experimenter.")
         if self.state == "refused":
             return (f"The study server refused the upload ({self.error}). Please contact the "
                     "experimenter and send your session file with 'cgvq-study export'.")
@@ -294,7 +301,8 @@ class Uploader:
                     delay = 0.0
             except ServerRefused as exc:
                 log.warning("upload of %s refused: %s", self.path, exc)
-                self._set(state="refused", error=exc.detail or str(exc))
+                self._set(state="refused", error=exc.detail or str(exc),
+                          withdrawn=exc.status == 410)
                 break
             except (ServerUnavailable, sqlite3.Error) as exc:
                 failures += 1

@@ -93,10 +93,16 @@ def preflight_failed(failed: Sequence[Check], name_keys: NameKeys,
         status = (f"Your {saved[0]} of {saved[1]} answers so far are saved, and nothing was "
                   "changed.")
         again = "start the study again the same way to continue where you left off"
-    body = ("This computer cannot show the study's videos exactly as needed yet. " + status
-            + "\n\n" + items + f"\n\nPlease change the above and {again}. If it still does "
-            "not work, tell the experimenter what this screen says.")
-    return _spec("preflight-failed", "Your display needs a change", body, keys,
+    files_only = all(c.name == "checksums" for c in failed)
+    lead = ("Some of the study's video files on this computer are missing or not as the "
+            "experimenter prepared them. " if files_only else
+            "This computer cannot show the study's videos exactly as needed yet. ")
+    title = ("Some study files are missing or damaged" if files_only else
+             "Your display needs a change" if not any(c.name == "checksums" for c in failed)
+             else "This computer needs a change")
+    body = (lead + status + "\n\n" + items + f"\n\nPlease do what the list above says and "
+            f"{again}. If it still does not work, tell the experimenter what this screen says.")
+    return _spec("preflight-failed", title, body, keys,
                  [("close", "Close")], name_keys, close_action="close", primary="close")
 
 

@@ -138,3 +138,35 @@ def test_every_package_error_is_a_toolkit_error():
 
     for cls in (AnalysisError, CGVQMError, StimuliError, StudyError, TableError):
         assert issubclass(cls, ToolkitError)
+
+
+@pytest.mark.parametrize("code, says", [
+    (errno.ENOSPC, "the disk is full: free some space"),
+    (errno.EROFS, "read-only"),
+    (errno.EACCES, "check its permissions"),
+])
+def test_runner_says_what_to_do_about_os_errors_a_user_can_fix(capsys, code, says):
+    def fails():
+        raise OSError(code, "system text", "/data/P05.sqlite")
+
+    assert run_command("prog", fails) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "/data/P05.sqlite" in err and says in err
+
+
+def test_a_lock_that_cannot_be_written_names_its_file(tmp_path, monkeypatch):
+    """A full disk while the lock file is written: os.write's error carries no file name,
+    and the participant read "No space left on device" and nothing else."""
+    from stimuli_manifests import file_lock
+    from stimuli_manifests.file_lock import FileLock
+
+    def full(fd, data):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(file_lock.os, "write", full)
+    lock = FileLock(tmp_path / "P05.sqlite", "P05", busy=lambda holder: "busy")
+    with pytest.raises(OSError) as caught:
+        lock.acquire()
+    assert caught.value.errno == errno.ENOSPC
+    assert caught.value.filename == str(tmp_path / "P05.sqlite.lock")
+    lock.release()

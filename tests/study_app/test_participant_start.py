@@ -117,3 +117,25 @@ def test_the_frozen_app_opens_an_invitation_file_it_is_given(tmp_path, capsys):
     assert entry.command_line(["run", "--help"]) == ["run", "--help"]
     assert entry.run([]) == 0  # a double-click on the app: says what to do
     assert "open your invitation file" in capsys.readouterr().out
+
+
+def test_the_frozen_app_opened_with_a_file_waits_before_its_window_closes(tmp_path, capsys,
+                                                                          monkeypatch):
+    """Dragged onto the app, the invitation runs in a console the system closes with the
+    app: an error (here, the file is missing) vanished before anyone could read it."""
+    entry = _frozen_entry()
+
+    class Console:
+        def isatty(self) -> bool:
+            return True
+
+    prompts: list[str] = []
+    monkeypatch.setattr(entry.sys, "stdin", Console())
+    monkeypatch.setattr("builtins.input", lambda text="": prompts.append(text) or "")
+    file = str(tmp_path / "P07.cgvq-invite.json")  # not there
+    assert entry.run([file]) == 2
+    assert prompts == ["Press Enter to close this window."]
+    assert "P07.cgvq-invite.json" in capsys.readouterr().err
+    prompts.clear()
+    assert entry.run(["verify", str(tmp_path / "none.sqlite")]) == 2  # typed: no wait
+    assert prompts == []

@@ -139,3 +139,31 @@ def test_a_new_session_has_its_consent_from_the_first_transaction(tmp_path, monk
         events = reopened.events()
     assert [e["kind"] for e in events] == ["preflight", "consent", "created"]
     assert events[1]["asked"] is True
+
+
+@pytest.mark.parametrize("damage", ["broken-chain", "truncated", "empty"])
+def test_the_advice_for_a_damaged_file_is_one_that_works(tmp_path, damage, capsys):
+    """The refusal told everyone to export the file; ``export`` cannot read a file SQLite
+    cannot open, and wrote nothing."""
+    from cgvq_cli.study_cli import main
+
+    path = _session(tmp_path / "P01.sqlite")
+    if damage == "broken-chain":
+        _edit(path, "UPDATE ratings SET rating = rating + 1 WHERE seq = 1")
+    elif damage == "truncated":
+        path.write_bytes(path.read_bytes()[:3000])
+    else:
+        path.write_bytes(b"")
+    with pytest.raises(StudyError) as caught:
+        _check(path)
+    message = str(caught.value)
+    out = tmp_path / "out"
+    out.mkdir()
+    main(["export", str(path), "--out", str(out)])
+    capsys.readouterr()
+    exported = list(out.iterdir())
+    if "cgvq-study export" in message:
+        assert damage == "broken-chain" and len(exported) == 1  # the zip, damage and all
+    else:
+        assert damage != "broken-chain" and not exported
+        assert f"send the file {path} as it is" in message and "P01.sqlite" in message

@@ -235,6 +235,24 @@ def test_a_study_with_sessions_is_not_changed_under_them(tmp_path, capsys):
     assert init(capsys, renders, "--out", study, "--force")[0] == 0
 
 
+def test_a_served_study_is_not_changed_under_its_participants(tmp_path, capsys):
+    """Only STUDY/sessions was looked at; a served study's sessions are in the server's
+    state, and its participants download the files init would replace."""
+    renders, study = tmp_path / "renders", tmp_path / "study"
+    make_renders(renders, problems=False)
+    assert init(capsys, renders, "--out", study)[0] == 0
+    (study / "server").mkdir()
+    (study / "server" / "state.sqlite").write_bytes(b"x")
+    assert init(capsys, renders, "--out", study)[0] == 0  # the same stimuli: fine
+    before = tree(study)
+    write_video(renders / "city" / "fsr_L1.mkv", clip(77), FPS)
+    code, _, err = init(capsys, renders, "--out", study)
+    assert code == 2
+    assert len(error_lines(err)) == 1 and "is a served study" in err
+    assert tree(study) == before
+    assert init(capsys, renders, "--out", study, "--force")[0] == 0
+
+
 @pytest.mark.parametrize(("args", "says"), [
     (["--pattern", "{scene}/{quality}.{ext}"], "unknown placeholder {quality}"),
     (["--pattern", "{scene}/{method}.{ext}"], "needs a {level} placeholder"),

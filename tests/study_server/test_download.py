@@ -179,9 +179,9 @@ def test_fetch_study_shows_the_size_and_falls_back_to_the_downloaded_copy(
                           say=said.append, progress=False)
     assert offline.offline and offline.folder == first.folder
     assert "cannot be reached" in said[-1]
-    with pytest.raises(ServerUnavailable):  # nothing downloaded before: no way to start
+    with pytest.raises(ServerUnavailable, match="check this computer's internet connection"):
         fetch_study(inv.__class__(srv.url, "P01", inv.token), tmp_path / "other",
-                    say=said.append, progress=False)
+                    say=said.append, progress=False)  # nothing downloaded before: no start
 
 
 def test_a_rate_limited_download_waits_and_completes(tmp_path, invites, server_factory):
@@ -199,3 +199,39 @@ def test_a_rate_limited_download_waits_and_completes(tmp_path, invites, server_f
     folder = download_study(client, "P01", plan, sleep=sleep)
     assert waits and all(w >= 1 for w in waits)  # the server's Retry-After was honoured
     assert plan.missing() == [] and (folder / "videos" / "ref2_c2.mkv").is_file()
+
+
+def test_a_downloaded_file_damaged_since_is_fetched_again(served_study, tmp_path, invites,
+                                                          server_factory):
+    """A mark written at download time vouched for the file whenever its size matched, so a
+    byte changed later was never fetched again and every run failed its pre-flight."""
+    from study_app.remote.participant import fetch_study
+
+    [inv] = invites(1)
+    srv = server_factory(served_study)
+    said: list[str] = []
+    invite = inv.__class__(srv.url, "P01", inv.token)
+    first = fetch_study(invite, tmp_path / "data", say=said.append, progress=False)
+    video = sorted(first.folder.rglob("*.mkv"))[0]
+    good = video.read_bytes()
+    damaged = bytearray(good)
+    damaged[len(good) // 2] ^= 0xFF
+    video.write_bytes(bytes(damaged))  # same size, other content
+    said.clear()
+    again = fetch_study(invite, tmp_path / "data", say=said.append, progress=False)
+    assert again.folder == first.folder
+    assert "checking the files already on this computer" in said[0]
+    assert "to download" in said[1], said
+    assert hashlib.sha256(video.read_bytes()).digest() == hashlib.sha256(good).digest()
+
+
+def test_a_wrong_token_says_what_to_check(served_study, tmp_path, invites, server_factory):
+    from study_app.remote import ServerRefused
+    from study_app.remote.participant import fetch_study
+
+    [inv] = invites(1)
+    srv = server_factory(served_study)
+    with pytest.raises(ServerRefused, match=r"the invitation .* the experimenter sent you") as e:
+        fetch_study(inv.__class__(srv.url, "P01", "x" * 43), tmp_path / "data",
+                    say=lambda _: None, progress=False)
+    assert e.value.status == 403

@@ -152,6 +152,7 @@ def test_withdraw_while_serving(served_study, tmp_path, invites, server_factory)
                    "--csv", str(tmp_path / "r.csv"))
     assert "withdrawn (data deleted): P01" in proc.stdout
     assert f"deleted {tmp_path / 'p' / 'P01.sqlite'}" in proc.stdout
+    assert "tables written by earlier pulls (--csv, --answers) still hold" in proc.stdout
     assert not (tmp_path / "p" / "P01.sqlite-wal").exists()
     assert sorted(p.name for p in (tmp_path / "p").glob("*.sqlite")) == ["P02.sqlite"]
     assert len(read_session(tmp_path / "p" / "P02.sqlite").ratings) == 4

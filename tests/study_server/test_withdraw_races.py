@@ -39,3 +39,38 @@ def test_a_withdrawal_during_a_pull_leaves_no_copy_and_no_abort(
     with open(tmp_path / "r.csv", newline="") as f:
         assert {row["participant"] for row in csv.DictReader(f)} == {"P03"}
     assert {t[0] for t in db_dump(served_study)["tombstones"]} == {"P01", "P02"}
+
+
+def test_a_participant_withdrawn_during_the_session_is_told_it_ended(served_study, tmp_path,
+                                                                    invites, server_factory,
+                                                                    capsys):
+    """Their app kept going, and at the end they read both "run the same command again to
+    continue" and "send your session file": the two things the withdrawal rules out."""
+    from pathlib import Path
+
+    from cgvq_cli.study_commands.run import _report
+    from session_store import TrialResult, utc_now
+    from study_app.app import RunOutcome
+    from study_app.remote import ServerClient
+    from study_app.remote.uploader import Uploader
+
+    from .conftest import run_cli, write_session
+
+    [inv] = invites(1)
+    srv = server_factory(served_study)
+    path = tmp_path / "P01.sqlite"
+    store = write_session(served_study, path, "P01", ratings=2)
+    up = Uploader(path, ServerClient(srv.url, inv.token), "P01", idle_check_s=0.2).start()
+    assert up.flush(20).all_arrived
+    assert run_cli("withdraw", str(served_study), "P01").returncode == 0
+    nxt = store.next_trial()  # the participant rates on: that upload is refused
+    store.record(nxt.index, TrialResult(40.0, 4000.0, 1, 1000.0, 3000.0, utc_now()))
+    store.close()
+    up.notify()
+    status = up.flush(20)
+    up.stop()
+    assert status.state == "refused" and status.withdrawn
+    assert _report(RunOutcome("quit", Path(path), 3, 6), status) == 0
+    out = capsys.readouterr().out
+    assert "no longer accepts answers" in out and "nothing more to do" in out
+    assert "run the same command again" not in out and "export" not in out

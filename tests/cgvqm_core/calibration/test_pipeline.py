@@ -115,3 +115,23 @@ def test_selection_by_validation_scenes_holds_them_out_of_the_final_fit(synth131
     assert prov["final_fit"]["videos"] + n_val == len(synth131.items)
     per = res.validation.per_split
     assert set(per.query("model == 'fitted'")["subset"]) == {"train", "val", "test"}
+
+
+def test_a_falling_fit_names_the_other_scale_and_is_flagged_without_validation(synth131):
+    """A DMOS on the quality scale read as impairment: the warning told the user to add
+    the --dmos-scale impairment they had given, and without validation nothing warned."""
+    flipped = synth131.items.copy()
+    flipped["target"] = 100 - flipped["target"]
+    data = CalibrationData(flipped, synth131.M, synth131.counts)
+    said = calibrate(data, "cgvqm-2", UPSTREAM, train_ratios=[0.5], repeats=2,
+                     dmos_scale="impairment")
+    notes = [n for n in said.validation.notes if "NEGATIVELY" in n]
+    assert notes and "--dmos-scale quality" in notes[0]
+    assert "rerun with --dmos-scale impairment" not in " ".join(said.validation.notes)
+    quiet = calibrate(data, "cgvqm-2", UPSTREAM, validation=False, dmos_scale="impairment")
+    assert quiet.validation is None
+    assert quiet.train_correlations["synth"]["plcc"] < 0
+    assert len(quiet.warnings) == 1 and "--dmos-scale quality" in quiet.warnings[0]
+    good = calibrate(CalibrationData(synth131.items, synth131.M, synth131.counts), "cgvqm-2",
+                     CFG, validation=False)
+    assert good.warnings == []

@@ -63,6 +63,7 @@ from .preflight import (
     check_refresh,
     check_screen,
 )
+from .remote.uploader import WITHDRAWN
 from .resume_check import check_resumable
 from .reveal import reveal_in_file_manager
 from .screens import content
@@ -101,6 +102,9 @@ class RunOptions:
     upload_report: Callable[[], tuple[bool, str]] | None = None
     """With a study server: waits for the last uploads and says (everything arrived, the
     sentence for the end screen); the end screen then shows it."""
+    ended_by_server: Callable[[], str | None] | None = None
+    """With a study server: why it no longer accepts this session (the participant was
+    withdrawn), else None; asked before each trial, and the session then ends there."""
     files_from_server: bool = False
     """The study was downloaded from a study server: a damaged file is fetched again when
     the participant starts again, which is what a failed file check then advises."""
@@ -146,7 +150,8 @@ class RunOptions:
 
 @dataclass
 class RunOutcome:
-    """How a run ended: ``finished``, ``quit`` (resumable), ``withdrawn``, ``screened-out``
+    """How a run ended: ``finished``, ``quit`` (resumable), ``withdrawn``, ``ended`` (the study
+    server no longer accepts the session), ``screened-out``
     (a failed vision check with ``on_fail: end``; ``screened_by`` says which), ``declined``
     (no consent) or ``closed`` (the window closed before the session started)."""
 
@@ -167,6 +172,11 @@ class _WithdrawnError(Exception):
 
 class _ClosedError(Exception):
     """The window was closed before a session existed (nothing recorded)."""
+
+
+class _EndedByServerError(Exception):
+    """The study server no longer accepts this session (the participant was withdrawn); the
+    argument says so in the participant's words."""
 
 
 class _ScreenedOutError(Exception):
@@ -380,6 +390,8 @@ class App:
             if not resume and self.opts.practice > 0:
                 self._practice()
             return self._main_loop()
+        except _EndedByServerError as exc:
+            return self._ended_by_server(str(exc))
         except _WithdrawnError:
             self.store.withdraw()
             answered, total = self.store.progress()
@@ -608,6 +620,7 @@ class App:
         while (trial := store.next_trial()) is not None or self._next_block():
             if trial is None:
                 continue
+            self._check_server()
             if pair is None or pair.stimulus != trial.stimulus:
                 pair = self.prefetch.take(trial.index)
                 if pair is None or pair.stimulus != trial.stimulus:
@@ -648,6 +661,21 @@ class App:
         self._state("finishing", answered=answered)
         self._end_screen(total, withdrawn=False)
         return RunOutcome("finished", self.session_path, answered, total)
+
+    def _check_server(self) -> None:
+        """Raise :class:`_EndedByServerError` when the study server refused the session."""
+        why = self.opts.ended_by_server() if self.opts.ended_by_server else None
+        if why:
+            raise _EndedByServerError(why)
+
+    def _ended_by_server(self, why: str) -> RunOutcome:
+        """The server refused the session for good: say so, and stop asking for ratings
+        that nobody would keep (the session file stays as it is)."""
+        answered, total = self.store.progress()
+        self.store.log_event("ended_by_server", reason=why, answered=answered)
+        self._state("server-ended", answered=answered)
+        self._screen(content.ended_by_server(answered, why, self._name_keys))
+        return RunOutcome("ended", self.session_path, answered, total)
 
     # -- adaptive allocation: the blocks after the first -------------------------------
     def _later_blocks(self, done: int) -> int:
@@ -706,6 +734,9 @@ class App:
                     raise StudyError("the study server's block does not fit this study")
                 return answer
             except StudyError as exc:
+                if getattr(exc, "status", None) == 410:  # the server's "withdrawn"
+                    raise _EndedByServerError(WITHDRAWN) from None
+                self._check_server()
                 log.warning("block %d not received: %s", block, exc)
                 answered, _ = self.store.progress()
                 if self._screen(content.block_unavailable(answered, self._name_keys)) \

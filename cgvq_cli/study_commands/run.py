@@ -124,6 +124,7 @@ def _run_served(invite, args: argparse.Namespace, opts) -> int:
         start_uploader,
         upload_report,
     )
+    from study_app.remote.uploader import WITHDRAWN
 
     remote = fetch_study(invite, args.data_dir)
     study = load_study(remote.folder)
@@ -140,11 +141,13 @@ def _run_served(invite, args: argparse.Namespace, opts) -> int:
                 print(f"Your session is finished ({path}). {status.describe()}")
                 return 0 if status.all_arrived else 1
         opts.upload_report = lambda: upload_report(uploader)
+        opts.ended_by_server = lambda: WITHDRAWN if uploader.status.withdrawn else None
         client = ServerClient(invite.server, invite.token)
         opts.next_block = lambda sid, k, last: request_block(client, invite.participant,
                                                              uploader, sid, k, last)
         outcome = run_study(study, opts)
-        if path.exists() and not uploader.status.all_arrived:
+        if path.exists() and not uploader.status.all_arrived and \
+                uploader.status.state != "refused":
             print(f"Sending your last answers to the study server (at most "
                   f"{FLUSH_AT_END_S:.0f} s)...", flush=True)
         status = uploader.flush(FLUSH_AT_END_S if path.exists() else 0.0)
@@ -181,6 +184,10 @@ def _report(outcome, upload=None) -> int:
         check = {"acuity": "sharpness and contrast"}.get(outcome.screened_by, "colour-vision")
         print(f"The session ended after the {check} check (the study's on_fail: end); "
               f"send this file back: {outcome.session_path}")
+        return 0
+    if outcome.status == "ended":
+        print(f"The study server ended the session after {outcome.answered} trials; there is "
+              "nothing more to do or to send.")
         return 0
     if outcome.status == "withdrawn":
         print(f"The participant withdrew after {outcome.answered} of {outcome.total} trials; "

@@ -24,7 +24,7 @@ from session_store.invite import Invite
 
 from .download import check_disk_space, download_study, human_bytes, study_plan
 from .http import ServerClient, ServerRefused, ServerUnavailable
-from .uploader import Uploader
+from .uploader import WITHDRAWN, Uploader
 
 log = logging.getLogger(__name__)
 
@@ -165,6 +165,8 @@ def request_block(client: ServerClient, participant: str, uploader: Uploader,
     from session_store.protocol import PROTOCOL
 
     status = uploader.flush(BLOCK_FLUSH_S)
+    if status.withdrawn:
+        raise ServerRefused(WITHDRAWN, 410, WITHDRAWN)
     if not status.all_arrived:
         raise ServerUnavailable(f"the answers so far have not all reached the study server "
                                 f"({status.describe()})")

@@ -163,6 +163,9 @@ def sync_session(path: str | Path, client: ServerClient, participant: str, *,
         con.close()
 
 
+WITHDRAWN = "you were withdrawn from the study, and your answers on the server were deleted"
+"""What a 410 of the study server means, in the participant's words."""
+
 State = Literal["starting", "sending", "up to date", "offline", "refused", "stopped"]
 
 
@@ -190,7 +193,7 @@ class UploadStatus:
             return "All your answers have arrived at the study server."
         missing = max(self.local_seq - self.acked_seq, 0)
         if self.withdrawn:
-            return (f"The study server no longer accepts answers from you ({self.error}); "
+            return (f"The study server no longer accepts answers from you ({WITHDRAWN}); "
                     "there is nothing more to do or to send. If this is a mistake, contact the "
                     "experimenter.")
         if self.state == "refused":

@@ -216,6 +216,16 @@ def block_unavailable(answered: int, name_keys: NameKeys) -> ScreenSpec:
                  close_action="finish", primary="retry")
 
 
+def ended_by_server(answered: int, why: str, name_keys: NameKeys) -> ScreenSpec:
+    """The study server no longer accepts this participant (withdrawn by the experimenter)."""
+    body = (f"The study server no longer accepts answers from you ({_md_escape(why)}), so the "
+            f"study ends here, after {answered} answers. There is nothing more to do or to "
+            "send.\n\nThank you for your time. If this is a mistake, contact the experimenter.")
+    return _spec("ended-by-server", "The study has ended for you", body,
+                 keymap(close=["enter", "esc"]), [("close", "Close")], name_keys,
+                 close_action="close", primary="close")
+
+
 def acuity_check_intro(distance_cm: float, name_keys: NameKeys) -> ScreenSpec:
     cards = distance_cm / 8.56
     body = ("Next, a short check of how sharp and how faint a shape you can see on this screen."

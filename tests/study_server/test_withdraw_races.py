@@ -74,3 +74,25 @@ def test_a_participant_withdrawn_during_the_session_is_told_it_ended(served_stud
     out = capsys.readouterr().out
     assert "no longer accepts answers" in out and "nothing more to do" in out
     assert "run the same command again" not in out and "export" not in out
+
+
+def test_an_adaptive_block_is_not_asked_for_a_withdrawn_participant():
+    """The block request flushes the uploads first; a refused (withdrawn) uploader used to
+    read as "the server cannot be reached", and the app offered to try again."""
+    import pytest
+
+    from study_app.remote import ServerRefused
+    from study_app.remote.participant import request_block
+    from study_app.remote.uploader import WITHDRAWN, UploadStatus
+
+    class Refused:
+        def flush(self, timeout):
+            return UploadStatus("refused", 3, 4, error="gone", withdrawn=True)
+
+    class NoClient:
+        def json(self, *a, **k):
+            raise AssertionError("no block request for a withdrawn participant")
+
+    with pytest.raises(ServerRefused) as caught:
+        request_block(NoClient(), "P01", Refused(), "sid", 2, None)
+    assert caught.value.status == 410 and str(caught.value) == WITHDRAWN

@@ -111,15 +111,17 @@ class AppDriver:
             if "state:" in line or "error" in line.lower() or "Traceback" in line:
                 self.lines.append(line.strip())
 
-    def wait(self, state: str, timeout: float = 30.0, *, required: bool = True) -> str | None:
-        """Wait for the next ``state: <state>`` line; returns it (None when not
-        ``required`` and it did not come in time)."""
+    def wait(self, state: str, timeout: float = 30.0, *, required: bool = True,
+             or_else: tuple[str, ...] = ()) -> str | None:
+        """Wait for the next ``state: <state>`` line (or one of ``or_else``'s states);
+        returns it (None when not ``required`` and it did not come in time)."""
         deadline = time.monotonic() + timeout
+        wanted = "|".join(re.escape(s) for s in (state, *or_else))
         while time.monotonic() < deadline:
             while self._pos < len(self.lines):
                 line = self.lines[self._pos]
                 self._pos += 1
-                if re.search(rf"state: {re.escape(state)}(\s|$)", line):
+                if re.search(rf"state: ({wanted})(\s|$)", line):
                     return line
             if self.proc.poll() is not None and self._pos >= len(self.lines):
                 break

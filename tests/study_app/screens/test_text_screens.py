@@ -36,6 +36,9 @@ def _all_specs(tmp_path: Path):
         content.consent("I agree.", names),
         content.preflight_passed([ok], "about 1 minute (3 trials)", False, names),
         content.preflight_failed([fail], names),
+        content.preflight_failed([Check("checksums", False, "stimulus files are missing or "
+                                        "modified (x.mkv does not exist)")], names),
+        content.ended_by_server(3, "you were withdrawn from the study", names),
         content.practice_intro(2, VIEWING, RATING, 3.0, names),
         content.practice_done(names),
         content.welcome_back(3, 10, names),
@@ -122,3 +125,15 @@ def test_enter_never_stops_or_withdraws():
         assert spec.keys.action(13, 40) == "no"  # Enter
         assert spec.keys.action(ord("y"), 28) == "yes"
         assert spec.primary == "no"
+
+
+def test_the_failed_check_is_titled_by_what_failed():
+    """A missing file was announced as "Your display needs a change"."""
+    files = Check("checksums", False, "stimulus files are missing or modified (...)")
+    display = Check("refresh_rate", False, "turn on vertical sync in the driver settings")
+    assert content.preflight_failed([files], names).title == \
+        "Some study files are missing or damaged"
+    assert content.preflight_failed([display], names).title == "Your display needs a change"
+    assert content.preflight_failed([display, files], names).title == \
+        "This computer needs a change"
+    assert "display" not in content.preflight_failed([files], names).body.split("\n")[0]

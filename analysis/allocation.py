@@ -136,11 +136,15 @@ def forecast_halfwidth(fit: AllocationFit, counts: np.ndarray,
 
 
 def plan_block(fit: AllocationFit, size: int, *, pending: np.ndarray | None = None,
-               max_per_block: int = MAX_PER_BLOCK, power: float = POWER) -> np.ndarray:
+               max_per_block: int = MAX_PER_BLOCK, power: float = POWER,
+               last: int | None = None) -> np.ndarray:
     """How many times each stimulus appears in the next block of ``size`` trials.
 
     ``pending``: ratings per stimulus planned in blocks issued since the fit (they will
-    arrive; counting them keeps two participants from both getting the same stimuli)."""
+    arrive; counting them keeps two participants from both getting the same stimuli).
+    ``last``: the index of the stimulus shown just before the block. No stimulus gets more
+    than half the block (rounded up; ``last`` rounded down), so the block can be ordered
+    without a stimulus twice in a row."""
     e = len(fit.stimulus_ids)
     if size < 1:
         raise AnalysisError("a block needs at least one trial")
@@ -156,6 +160,9 @@ def plan_block(fit: AllocationFit, size: int, *, pending: np.ndarray | None = No
     def objective(own: np.ndarray, ref_n: np.ndarray) -> np.ndarray:
         return (forecast_halfwidth(fit, own, ref_n) / top) ** power
 
+    cap = np.full(e, min(max_per_block, (size + 1) // 2))
+    if last is not None:
+        cap[last] = min(max_per_block, size // 2)
     for _ in range(size):
         ref_now = counts[ref]
         now = objective(counts, ref_now)
@@ -163,7 +170,7 @@ def plan_block(fit: AllocationFit, size: int, *, pending: np.ndarray | None = No
         # a reference's extra rating narrows every condition that depends on it
         from_ref = np.where(cond, now - objective(counts, ref_now + 1.0), 0.0)
         gain = gain + np.bincount(ref[cond], weights=from_ref[cond], minlength=e)
-        gain[block >= max_per_block] = -np.inf
+        gain[block >= cap] = -np.inf
         pick = int(np.argmax(gain))
         block[pick] += 1
         counts[pick] += 1.0

@@ -222,7 +222,8 @@ def panel_sentence(panel: Panel, data: PanelAnswers, participants: list[str],
         ages = [a[AGE] for a in answers if isinstance(a.get(AGE), int | float)
                 and not isinstance(a.get(AGE), bool)]
         if ages:
-            parts[0] += f" aged {min(ages):g}-{max(ages):g}"
+            lo, hi = min(ages), max(ages)
+            parts[0] += f" aged {lo:g}" if lo == hi else f" aged {lo:g}-{hi:g}"
             if len(ages) < n:
                 parts[0] += f" ({n - len(ages)} did not give their age)"
     if GENDER in ids:
@@ -233,10 +234,16 @@ def panel_sentence(panel: Panel, data: PanelAnswers, participants: list[str],
             parts.append(gender)
     if VISION in ids:
         good = sum(a.get(VISION) in CORRECTED_VALUES for a in answers)
-        if good == n:
+        silent = sum(a.get(VISION) is None for a in answers)
+        said = n - silent
+        if said and good == said:
             parts.append("with normal or corrected-to-normal vision")
-        else:
-            parts.append(f"{good} of {n} with normal or corrected-to-normal vision")
+        elif said:
+            parts.append(f"{good} of {said} with normal or corrected-to-normal vision")
+        if silent and said:
+            parts[-1] += f" ({silent} did not say how they see)"
+        elif silent:
+            parts.append(f"{silent} did not say how they see")
     sentence = ", ".join(parts)
     after = panel.questionnaires_at("after")
     clauses = []

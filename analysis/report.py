@@ -67,7 +67,8 @@ def ratings_per_stimulus(a: Analysis) -> dict[str, float]:
             "max": int(counts.max())}
 
 
-_PLANNERS = {"server": "by the study server from the DMOS intervals",
+_PLANNERS = {"server": "by the study server (uniformly until {warmup}, then from the DMOS "
+                       "intervals)",
              "session": "uniformly by the app (no study server)"}
 
 
@@ -77,9 +78,13 @@ def _adaptive_words(settings: dict[str, Any] | None, planned_by: set[str]) -> st
     if not settings:
         return ""
     n = settings.get("block_trials")
-    size = f"of {n} trials" if n else "as long as block 1"
+    size = (f"of {n} trial{'' if n == 1 else 's'}" if n else "as long as block 1")
+    n_warm = settings.get("warmup_participants")
+    warmup = (f"{n_warm} sessions had finished block 1" if n_warm else
+              "its warm-up was done")
     if planned_by <= set(_PLANNERS) and planned_by:
-        who = " planned " + " and some ".join(_PLANNERS[p] for p in sorted(planned_by))
+        who = " planned " + " and some ".join(_PLANNERS[p].format(warmup=warmup)
+                                               for p in sorted(planned_by))
     else:
         who = " planned by the study server (or uniformly by an app without one)"
     return (f"{settings.get('blocks')} blocks per session; block 1 holds every stimulus once, "

@@ -121,14 +121,21 @@ def block_seed(session_seed: int, block: int) -> int:
     return int.from_bytes(digest[:4], "big")
 
 
-def uniform_counts(ids: Sequence[str], size: int, seed: int) -> dict[str, int]:
+def uniform_counts(ids: Sequence[str], size: int, seed: int, *,
+                   last: str | None = None) -> dict[str, int]:
     """``size`` trials spread evenly over ``ids``, the block an adaptive study uses before it
     can adapt. When ``size`` does not divide, the stimuli that get one more are drawn with the
     block's ``seed``: taking the first ones would give every participant's block the same
-    stimuli (the hidden references, listed last, never an extra rating)."""
+    stimuli (the hidden references, listed last, never an extra rating). ``last`` (the trial
+    before the block) gets no extra one where that would put it twice in a row: a block of
+    one trial after ``last`` is another stimulus."""
     base, extra = divmod(size, len(ids))
     rng = np.random.default_rng([seed, 0xB10C])
     lucky = set(rng.choice(len(ids), size=extra, replace=False).tolist()) if extra else set()
+    if last in ids and ids.index(last) in lucky and base + 1 > size // 2:
+        others = [k for k in range(len(ids)) if k not in lucky and ids[k] != last]
+        lucky.remove(ids.index(last))
+        lucky.add(others[int(rng.integers(len(others)))])
     return {s: base + (k in lucky) for k, s in enumerate(ids)}
 
 
@@ -156,6 +163,6 @@ def uniform_block(items: Sequence[ScheduleItem], size: int, session_seed: int, b
                   last: str | None) -> list[str]:
     """The stimuli of a uniform block (an adaptive study run without its study server)."""
     seed = block_seed(session_seed, block)
-    order = order_trials(items, uniform_counts([it.id for it in items], size, seed), seed,
-                         last=last)
+    order = order_trials(items, uniform_counts([it.id for it in items], size, seed, last=last),
+                         seed, last=last)
     return [t.stimulus for t in order]

@@ -254,7 +254,7 @@ def check_answer(question: Any, value: Any, *, taken_back: bool = False) -> Any:
     if isinstance(question, SingleChoice):
         values = [o.value for o in question.options]
         if not isinstance(value, str) or value not in values:
-            raise PanelError(f"{qid}: {_short(value)} is not one of {', '.join(values)}")
+            raise PanelError(f"{qid}: {_answer_value(value)} is not one of {', '.join(values)}")
         return value
     if isinstance(question, MultipleChoice):
         values = [o.value for o in question.options]
@@ -262,7 +262,8 @@ def check_answer(question: Any, value: Any, *, taken_back: bool = False) -> Any:
             raise PanelError(f"{qid}: expected a list of options")
         unknown = [v for v in value if v not in values]
         if unknown:
-            raise PanelError(f"{qid}: {_short(unknown[0])} is not one of {', '.join(values)}")
+            raise PanelError(f"{qid}: {_answer_value(unknown[0])} is not one of "
+                             f"{', '.join(values)}")
         if len(set(value)) != len(value):
             raise PanelError(f"{qid}: an option is chosen twice")
         top = len(values) if question.max_selected is None else question.max_selected
@@ -273,7 +274,7 @@ def check_answer(question: Any, value: Any, *, taken_back: bool = False) -> Any:
         if isinstance(value, bool) or not isinstance(value, int) or \
                 not 1 <= value <= len(question.points):
             raise PanelError(f"{qid}: expected a point 1..{len(question.points)}, got "
-                             f"{_short(value)}")
+                             f"{_answer_value(value)}")
         return value
     if isinstance(question, Number):
         return _number(question, value)
@@ -297,7 +298,7 @@ def check_answer(question: Any, value: Any, *, taken_back: bool = False) -> Any:
 
 def _number(question: Number, value: Any) -> float | int:
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise PanelError(f"{question.id}: expected a number, got {_short(value)}")
+        raise PanelError(f"{question.id}: expected a number, got {_answer_value(value)}")
     if not math.isfinite(value):
         raise PanelError(f"{question.id}: expected a finite number")
     if question.integer and value != int(value):
@@ -311,3 +312,17 @@ def _number(question: Number, value: Any) -> float | int:
 def _short(value: Any) -> str:
     text = repr(value)
     return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _answer_value(value: Any) -> str:
+    """A refused answer, described without its words: refusals go into the server's flags
+    and log and the report's problems table, where free text must never appear."""
+    if isinstance(value, str):
+        return f"a text of {len(value)} character{'' if len(value) == 1 else 's'}"
+    if isinstance(value, bool) or value is None:
+        return repr(value)
+    if isinstance(value, int | float):
+        return f"{value:g}"
+    if isinstance(value, list | tuple | dict):
+        return f"a {type(value).__name__} of {len(value)}"
+    return f"a {type(value).__name__}"

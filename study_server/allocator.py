@@ -272,12 +272,12 @@ class Allocator:
         """A block's stimuli in order, from a fit (None: uniform) and the logged inputs."""
         size = int(inputs["size"])
         if fit is None:
-            counts = uniform_counts(self.ids, size, int(inputs["seed"]))
+            counts = uniform_counts(self.ids, size, int(inputs["seed"]), last=inputs["last"])
         else:
             from .analysis_adapter import plan_counts
 
             counts = plan_counts(fit["fit"], size, inputs["pending"],
-                                 int(inputs["max_per_block"]))
+                                 int(inputs["max_per_block"]), last=inputs["last"])
         trials = order_trials(self.items, counts, int(inputs["seed"]), last=inputs["last"])
         return [t.stimulus for t in trials]
 

@@ -153,7 +153,7 @@ def allocation_fit_of(frame: pd.DataFrame, loaded: LoadedManifest, *, n_boot: in
 
 
 def plan_counts(fit: dict[str, Any], size: int, pending: dict[str, int],
-                max_per_block: int) -> dict[str, int]:
+                max_per_block: int, last: str | None = None) -> dict[str, int]:
     """How often each stimulus appears in the next block (:func:`analysis.allocation.plan_block`)
     from a logged fit and the ratings pending since it."""
     from analysis.allocation import AllocationFit, plan_block
@@ -165,7 +165,8 @@ def plan_counts(fit: dict[str, Any], size: int, pending: dict[str, int],
                        np.asarray(fit["hidden"], dtype=bool),
                        np.asarray(fit["ratings"], dtype=float))
     counts = plan_block(af, size, pending=np.array([pending.get(s, 0) for s in ids], dtype=float),
-                        max_per_block=max_per_block)
+                        max_per_block=max_per_block,
+                        last=ids.index(last) if last in ids else None)
     return {s: int(c) for s, c in zip(ids, counts, strict=True) if c}
 
 

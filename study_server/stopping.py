@@ -81,7 +81,8 @@ class StoppingStatus:
     projected_raters: dict[str, float] = field(default_factory=dict)
     """Per width target: the raters the fitted decay needs to meet it."""
     more_raters: int | None = None
-    """Participants still needed (the largest over the width targets), when projectable."""
+    """Participants still needed (the largest over the width targets and the ratings budget),
+    when projectable."""
     decay: dict[str, Decay] = field(default_factory=dict)
 
 
@@ -128,6 +129,11 @@ def evaluate(target: StoppingTarget, points: list[WidthPoint], n_ratings: int,
         more = max(1, math.ceil(max(unmet) - current.raters - 1e-9))
     elif current is not None and projected:
         more = 0
+    if current is not None and met.get("ratings") is False and n_ratings > 0:
+        # a ratings budget not met: the participants it takes at the ratings each gave so far
+        per_rater = n_ratings / max(current.raters, 1)
+        need = max(1, math.ceil((target.ratings - n_ratings) / per_rater - 1e-9))
+        more = need if more is None else max(more, need)
     if reached:
         more = 0
     return StoppingStatus(target, current, reached, met, projected, more, decays)

@@ -47,10 +47,11 @@ def grubbs_statistic(values: np.ndarray) -> tuple[float, int]:
 
 
 def rater_deviation(rater_means: np.ndarray) -> np.ndarray:
-    """Each rater's mean absolute deviation from the panel mean, over the stimuli they rated."""
-    panel = np.nanmean(rater_means, axis=1, keepdims=True)
+    """Each rater's mean absolute deviation from the panel mean, over the stimuli they rated
+    (a stimulus no rater here rated has no panel mean and counts for nobody)."""
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
+        warnings.simplefilter("ignore", RuntimeWarning)  # the all-NaN rows and columns
+        panel = np.nanmean(rater_means, axis=1, keepdims=True)
         return np.nanmean(np.abs(rater_means - panel), axis=0)
 
 

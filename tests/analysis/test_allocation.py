@@ -3,6 +3,8 @@ greedy written here; and the fit on simulated ratings whose noisiest scene is kn
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -121,3 +123,23 @@ def test_a_fit_on_ratings_puts_the_next_block_on_the_noisiest_scene():
     assert fit.halfwidth[noisy & cond].min() > fit.halfwidth[~noisy & cond].max()
     plan = plan_block(fit, 16, max_per_block=3)
     assert plan[noisy].sum() >= 10  # most of the block goes to the noisy scene
+
+
+@pytest.mark.parametrize("last", [None, 1])
+def test_no_stimulus_gets_so_many_trials_that_the_block_must_repeat_it(last):
+    """One much wider condition took 3 of a 4-trial block (the default cap), and no order of
+    such a block avoids showing it twice in a row."""
+    from session_store.schedule import ScheduleItem, order_trials
+
+    fit = _fit(half=(0.0, 30.0, 1.0, 0.0, 1.0, 1.0))
+    plan = plan_block(fit, 4, max_per_block=3, last=last)
+    assert plan.sum() == 4 and plan.max() <= 2
+    if last is not None:
+        assert plan[last] <= 4 // 2  # after it: at most half the block, rounded down
+    items = [ScheduleItem(s, "R", False) for s in fit.stimulus_ids]
+    for seed in range(30):
+        prev = None if last is None else fit.stimulus_ids[last]
+        order = order_trials(items, dict(zip(fit.stimulus_ids, plan.tolist(), strict=True)),
+                             seed, last=prev)
+        shown = [prev, *[t.stimulus for t in order]]
+        assert all(a != b for a, b in itertools.pairwise(shown)), shown

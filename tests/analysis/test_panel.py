@@ -55,6 +55,19 @@ def test_the_papers_sentence_from_known_answers():
     assert summary.answered == {"demographics": 3, "post_study": 2}
 
 
+def test_one_age_and_a_vision_question_left_unanswered():
+    """"aged 30-30" for one shared age; a rater who did not answer the vision question was
+    counted as one without normal vision ("1 of 2"), unlike a missing age."""
+    data = PanelAnswers(answers={"p1": {"age": 30, "gender": "male", "vision": "normal"},
+                                 "p2": {"age": 30, "gender": "female"}})
+    sentence = panel_sentence(_panel(), data, ["p1", "p2"])
+    assert sentence.startswith("2 participants aged 30, 1 male and 1 female, with normal or "
+                               "corrected-to-normal vision (1 did not say how they see)")
+    data.answers["p2"]["vision"] = "not_corrected"
+    assert "1 of 2 with normal or corrected-to-normal vision" in panel_sentence(
+        _panel(), data, ["p1", "p2"])
+
+
 def test_likert_shares_leave_out_prefer_not_to_say():
     panel = _panel()
     data = PanelAnswers(answers={f"p{i}": {"task_clear": v} for i, v in

@@ -112,3 +112,18 @@ def test_uniform_blocks_smaller_than_the_stimuli_spread_over_participants():
             for s, n in counts.items():
                 times[s] += n
     assert all(150 <= n <= 250 for n in times.values()), times
+
+
+def test_a_uniform_block_never_starts_with_the_trial_before_it():
+    """A 1-trial block repeated the previous stimulus in about a quarter of the seeds."""
+    from session_store.schedule import uniform_block, uniform_counts
+
+    its = items(3)
+    for seed in range(200):
+        for last in (it.id for it in its):
+            (only,) = uniform_block(its, 1, seed, 2, last)
+            assert only != last
+            block = uniform_block(its, 4, seed, 2, last)
+            assert block[0] != last and all(a != b for a, b in itertools.pairwise(block))
+    counts = uniform_counts([it.id for it in its], 7, 5, last=its[0].id)
+    assert sum(counts.values()) == 7 and max(counts.values()) - min(counts.values()) <= 1

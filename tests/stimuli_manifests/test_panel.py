@@ -120,7 +120,7 @@ def test_valid_answers_are_stored_normalised(q, value, stored):
 
 
 @pytest.mark.parametrize(("q", "value", "says"), [
-    (question("single", options=OPTIONS), "d", "'d' is not one of a, b, c"),
+    (question("single", options=OPTIONS), "d", "a text of 1 character is not one of a, b, c"),
     (question("single", options=OPTIONS), None, "an answer is required"),
     (question("single", options=OPTIONS), PREFER_NOT_TO_SAY, "not offered"),
     (question("multiple", options=OPTIONS, max_selected=2), ["a", "b", "c"],
@@ -148,3 +148,15 @@ def test_panel_lookups():
     assert [q.id for q in panel.questionnaires_at("after")] == ["post_study"]
     with pytest.raises(KeyError):
         panel.question("shoe_size")
+
+
+def test_a_refused_answer_never_repeats_its_words():
+    """Refusals go into the server's flags and log and the report's problems table; free text
+    sent as a choice or a number used to appear there (up to 37 characters of it)."""
+    secret = "I am 34 and live at 5 Elm Street"
+    for q in (question("single", options=OPTIONS), question("number", min=0, max=120),
+              question("likert", points=["1", "2", "3"])):
+        with pytest.raises(PanelError) as caught:
+            check_answer(q, secret)
+        assert "Elm" not in str(caught.value) and "34" not in str(caught.value)
+        assert f"a text of {len(secret)} characters" in str(caught.value)

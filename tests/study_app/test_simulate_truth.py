@@ -84,6 +84,12 @@ def test_a_locally_planned_adaptive_study_is_not_said_to_be_planned_by_a_server(
                                         n_splits=5, ci_draws=2), progress=False)
     sentence = allocation_sentence(a, ratings_per_stimulus(a))
     assert "planned uniformly by the app (no study server)" in sentence, sentence
-    settings = {"blocks": 3, "block_trials": None, "max_per_block": 3}
-    assert "by the study server from the DMOS" in _adaptive_words(settings, {"server"})
+    settings = {"blocks": 3, "block_trials": None, "max_per_block": 3,
+                "warmup_participants": 4}
+    # the server's blocks are uniform until its warm-up is done (the session files cannot
+    # tell which were which): the sentence says both
+    server = _adaptive_words(settings, {"server"})
+    assert "uniformly until 4 sessions had finished block 1, then from the DMOS" in server
+    assert "later blocks of 1 trial planned" in _adaptive_words({**settings, "block_trials": 1},
+                                                                {"server"})
     assert "or uniformly by an app" in _adaptive_words(settings, set())  # a CSV: unknown

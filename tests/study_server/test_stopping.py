@@ -113,3 +113,15 @@ def test_a_study_closes_to_new_participants_at_its_target(tmp_path, invites, ser
         "POST", f"/api/v1/participants/{inv[0].participant}/handshake",
         hello)
     assert answer["acked_seq"] > 0
+
+
+def test_a_ratings_budget_not_met_asks_for_the_participants_it_takes():
+    """Widths met but ratings not: the dashboard said "about 0 more participant(s)"."""
+    points = _law(40.0, 0.5, range(3, 9))
+    now = points[-1]  # 8 raters, 800 ratings: 100 each
+    st = evaluate(StoppingTarget(mean_ci_width=30.0, ratings=1050), points, 800, now)
+    assert st.met == {"mean CI width": True, "ratings": False} and not st.reached
+    assert st.more_raters == 3  # 250 more ratings at 100 per participant
+    st = evaluate(StoppingTarget(ratings=801), points, 800, now)
+    assert st.more_raters == 1
+    assert evaluate(StoppingTarget(ratings=800), points, 800, now).more_raters == 0

@@ -26,14 +26,6 @@ pytestmark = [pytest.mark.gui, pytest.mark.slow]
 ARTIFACTS = REPO / "test-artifacts" / "server" / "app-adaptive"
 
 
-def _rate(app, n: int) -> None:
-    for _ in range(n):
-        app.wait("viewing")
-        app.open_rating()
-        app.key("Right", "Return")
-        app.wait("recorded")
-
-
 def test_the_app_gets_its_blocks_from_the_server_and_rides_out_an_outage(
         tmp_path, xdisplay, invites, server_factory):
     study = make_study(tmp_path / "served", min_display=(640, 480))  # 3 stimuli
@@ -54,16 +46,16 @@ def test_the_app_gets_its_blocks_from_the_server_and_rides_out_an_outage(
     env = {**xdisplay, **{k: v for k, v in cli_env().items() if k == "CGVQ_ADMIN_TOKEN"}}
     app = AppDriver(env, args)
     app.through_consent(timeout=90)  # after the download
-    _rate(app, 3)  # block 1: every stimulus once
+    app.rate(3)  # block 1: every stimulus once
     app.wait("block number=2 trials=2 issued_by=server", timeout=60)
-    _rate(app, 1)
+    app.rate(1)
     srv.kill()  # the server goes away before block 3 is asked for
-    _rate(app, 1)
+    app.rate(1)
     app.wait("block-unavailable", timeout=90)
     srv.start()
     app.key("Return")  # try again
     app.wait("block number=3 trials=2 issued_by=server", timeout=90)
-    _rate(app, 2)
+    app.rate(2)
     app.wait("uploaded arrived=1", timeout=60)
     app.wait("end")
     app.key("Return")

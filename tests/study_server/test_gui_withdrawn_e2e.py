@@ -19,13 +19,6 @@ pytestmark = pytest.mark.gui
 ARTIFACTS = REPO / "test-artifacts" / "server" / "withdrawn-e2e"
 
 
-def _rate(app: AppDriver) -> None:
-    app.wait("viewing")
-    app.open_rating()
-    app.key("Right", "Return")
-    app.wait("recorded")
-
-
 def test_a_withdrawal_during_the_session_ends_it_on_the_participants_screen(
         tmp_path, xdisplay, invites, server_factory):
     study = make_study(tmp_path / "served", refs=2, min_display=(640, 480))  # 6 trials
@@ -38,7 +31,7 @@ def test_a_withdrawal_during_the_session_ends_it_on_the_participants_screen(
     env = {**xdisplay, **{k: v for k, v in cli_env().items() if k == "CGVQ_ADMIN_TOKEN"}}
     app = AppDriver(env, args)
     app.through_consent(timeout=90)
-    _rate(app)
+    app.rate()
     assert run_cli("withdraw", str(study), "P01").returncode == 0
     # the app learns of it with the next upload the server refuses (410), at the latest the
     # uploader's idle look (2 s) after the next rating; it then ends before the next trial

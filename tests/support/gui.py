@@ -184,6 +184,15 @@ class AppDriver:
                 return line
         return self.wait("rating", timeout=1.0)
 
+    def rate(self, trials: int = 1) -> None:
+        """Rate the next ``trials`` trials: wait for each, open its rating, one step right of
+        the middle, Enter, and wait until it is recorded."""
+        for _ in range(trials):
+            self.wait("viewing")
+            self.open_rating()
+            self.key("Right", "Return")
+            self.wait("recorded")
+
     def click(self, x: float, y: float) -> None:
         subprocess.run(["xdotool", "mousemove", str(round(x)), str(round(y)), "click", "1"],
                        env=self.env, check=True)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -147,15 +148,19 @@ def validate_manifest(
     verify_checksums: bool = True,
     probe_videos: bool = False,
     progress: bool = False,
+    known_sha256: Mapping[Path, str] | None = None,
 ) -> ValidationReport:
     """Check files against the manifest; never raises for problems it can report.
 
     Structure (schema, ids, path syntax) was checked at load time. Unless ``structure_only``,
     each referenced file must exist inside the root; with ``verify_checksums`` its sha256 must
     match the recorded one (files without a recorded checksum are listed as warnings); with
-    ``probe_videos`` each file must open as a video.
+    ``probe_videos`` each file must open as a video. ``known_sha256`` (resolved path to
+    sha256) holds files the caller hashed moments ago (a download checked in this run); they
+    are compared, not read again.
     """
     report = ValidationReport(structure_only=structure_only)
+    known = known_sha256 or {}
     manifest = loaded.manifest
     if structure_only:
         return report
@@ -165,7 +170,7 @@ def validate_manifest(
     if not loaded.root.is_dir():
         report.errors.append(f"root folder {loaded.root} does not exist")
         return report
-    _validate_texts(loaded, report, verify_checksums)
+    _validate_texts(loaded, report, verify_checksums, known)
     for stim_id, rel, expected in tqdm(
         entries, desc="checking stimuli", unit="file", disable=not progress, leave=False
     ):
@@ -183,7 +188,7 @@ def validate_manifest(
                 report.warnings.append(f"{stim_id}: no sha256 recorded in the manifest")
             else:
                 try:
-                    actual = sha256_path(path)
+                    actual = _sha256(path, known)
                 except StimuliError as exc:
                     report.errors.append(f"{stim_id}: {exc}")
                     continue
@@ -199,7 +204,14 @@ def validate_manifest(
     return report
 
 
-def _validate_texts(loaded: LoadedManifest, report: ValidationReport, verify: bool) -> None:
+def _sha256(path: Path, known: Mapping[Path, str]) -> str:
+    """The file's sha256: the caller's when it hashed the file in this run, else read."""
+    found = known.get(path.resolve()) if known else None
+    return found if found is not None else sha256_path(path)
+
+
+def _validate_texts(loaded: LoadedManifest, report: ValidationReport, verify: bool,
+                    known: Mapping[Path, str]) -> None:
     """The study texts beside the manifest: present when recorded, matching their sha256."""
     if loaded.source is None:
         return
@@ -217,7 +229,7 @@ def _validate_texts(loaded: LoadedManifest, report: ValidationReport, verify: bo
         if expected is None:
             report.warnings.append(f"{name}: no sha256 recorded in the manifest")
             continue
-        actual = sha256_path(path)
+        actual = _sha256(path, known)
         if actual != expected:
             report.mismatches.append(ChecksumMismatch(name, path, expected, actual))
 

@@ -23,8 +23,8 @@ import logging
 import math
 import os
 import sys
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -108,6 +108,9 @@ class RunOptions:
     files_from_server: bool = False
     """The study was downloaded from a study server: a damaged file is fetched again when
     the participant starts again, which is what a failed file check then advises."""
+    files_verified: Mapping[Path, str] = field(default_factory=dict)
+    """Study files the download hashed in this run (resolved path to sha256): the file
+    check compares them instead of reading them a second time."""
     next_block: Callable[[str, int, str | None], dict[str, Any]] | None = None
     """With a study server, in an adaptive study: asks for block ``k`` of session ``id``
     (after the last stimulus shown); the server's answer. Without one the app plans uniform
@@ -455,7 +458,8 @@ class App:
         files: Check | None = None
         if not self.opts.skip_preflight:  # first: a missing first video is its finding
             files = self._background(lambda: check_checksums(
-                self.study, from_server=self.opts.files_from_server),
+                self.study, from_server=self.opts.files_from_server,
+                known_sha256=self.opts.files_verified),
                 "Checking the study files...")
         pair: DecodedPair | None = None
         if first is not None and (files is None or files.ok):

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 from session_store.errors import StudyError
@@ -259,12 +260,16 @@ def check_decode_speed(seconds: float, limit_s: float = MAX_PAIR_DECODE_S) -> Ch
     return Check("decode_speed", ok, msg, {"seconds": round(seconds, 3)})
 
 
-def check_checksums(study: Any, *, from_server: bool = False) -> Check:
+def check_checksums(study: Any, *, from_server: bool = False,
+                    known_sha256: Mapping[Path, str] | None = None) -> Check:
     """All stimulus files present and matching the manifest's sha256. ``from_server``: the
     study was downloaded from a study server, which sends damaged files again at the next
-    start (a participant has no study folder to unpack)."""
+    start (a participant has no study folder to unpack). ``known_sha256``: files the
+    download hashed in this run (resolved path to sha256), compared without reading them
+    again."""
     t0 = time.perf_counter()
-    report = validate_manifest(study.loaded, verify_checksums=True, progress=False)
+    report = validate_manifest(study.loaded, verify_checksums=True, progress=False,
+                               known_sha256=known_sha256)
     problems = report.errors + [str(m) for m in report.mismatches]
     value = {"files": report.checked_files, "seconds": round(time.perf_counter() - t0, 3),
              "unverified": len(report.warnings)}

@@ -131,6 +131,7 @@ def _run_served(invite, args: argparse.Namespace, opts) -> int:
     if opts.sessions_dir is None:
         opts.sessions_dir = remote.sessions_dir
     opts.files_from_server = True
+    opts.files_verified = remote.verified_sha256
     path = study.session_path(opts.participant, opts.sessions_dir)
     uploader = start_uploader(invite, path)
     try:

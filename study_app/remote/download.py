@@ -88,6 +88,12 @@ class DownloadPlan:
         """``f`` was just downloaded and checked."""
         self._verified[f.path] = True
 
+    def verified_sha256(self) -> dict[Path, str]:
+        """Resolved path to sha256 of every file hashed (or downloaded and checked) in this
+        run and found right: the pre-flight compares these instead of reading them again."""
+        return {self.local(f).resolve(): f.sha256 for f in self.files
+                if self._verified.get(f.path)}
+
     def missing(self) -> list[RemoteFile]:
         return [f for f in self.files if not self.cached(f)]
 

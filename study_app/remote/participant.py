@@ -15,8 +15,8 @@ import json
 import logging
 import os
 import sys
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from session_store.errors import StudyError
@@ -52,6 +52,8 @@ class RemoteStudy:
     sessions_dir: Path
     """Where the participant's session file lives (shared by the study's versions)."""
     offline: bool = False
+    verified_sha256: Mapping[Path, str] = field(default_factory=dict)
+    """Files the download hashed in this run (see :meth:`DownloadPlan.verified_sha256`)."""
 
 
 def _last_path(data_dir: Path, invite: Invite) -> Path:
@@ -105,7 +107,7 @@ def fetch_study(invite: Invite, data_dir: str | Path | None = None, *,
     part.write_text(json.dumps({"server": invite.server, "folder": str(plan.folder),
                                 "sessions_dir": str(sessions)}) + "\n", encoding="utf-8")
     os.replace(part, last)
-    return RemoteStudy(plan.folder, sessions)
+    return RemoteStudy(plan.folder, sessions, verified_sha256=plan.verified_sha256())
 
 
 def _last_study(last: Path, server: str) -> RemoteStudy | None:

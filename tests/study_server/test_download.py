@@ -235,3 +235,51 @@ def test_a_wrong_token_says_what_to_check(served_study, tmp_path, invites, serve
         fetch_study(inv.__class__(srv.url, "P01", "x" * 43), tmp_path / "data",
                     say=lambda _: None, progress=False)
     assert e.value.status == 403
+
+
+def test_a_served_run_checks_its_files_once(served_study, tmp_path, invites, server_factory,
+                                            monkeypatch):
+    """The download hashed every file (or downloaded and checked it); the pre-flight then
+    read them all a second time. It now compares the download's sha256s, and a file the
+    download vouched for with another sha256 than the manifest's is still a finding."""
+    from types import SimpleNamespace
+
+    import stimuli_manifests.manifest_io as manifest_io
+    from cgvq_cli.study_cli import main as study
+    from session_store.study_folder import load_study
+    from study_app import app
+    from study_app.preflight import check_checksums
+    from study_app.remote.participant import fetch_study
+
+    [inv] = invites(1)
+    srv = server_factory(served_study)
+    invite = inv.__class__(srv.url, "P01", inv.token)
+    for attempt in ("downloaded", "cached"):
+        remote = fetch_study(invite, tmp_path / "data", say=lambda _: None, progress=False)
+        on_disk = {p.resolve() for p in remote.folder.rglob("*") if p.is_file()}
+        assert set(remote.verified_sha256) == on_disk, attempt
+        assert all(hashlib.sha256(p.read_bytes()).hexdigest() == h
+                   for p, h in remote.verified_sha256.items())
+    loaded = load_study(remote.folder)
+    read: list[Path] = []
+    real = manifest_io.sha256_path
+    monkeypatch.setattr(manifest_io, "sha256_path", lambda p: read.append(p) or real(p))
+    check = check_checksums(loaded, from_server=True, known_sha256=remote.verified_sha256)
+    assert check.ok and check.value["files"] == len(on_disk) - 1 and read == []  # manifest
+    video = sorted(remote.folder.rglob("*.mkv"))[0].resolve()
+    wrong = {**remote.verified_sha256, video: "0" * 64}
+    check = check_checksums(loaded, from_server=True, known_sha256=wrong)
+    assert not check.ok and "downloaded again" in check.message and read == []
+    plain = check_checksums(loaded, from_server=True)  # without them: every file read
+    assert plain.ok and len(read) == plain.value["files"] - plain.value["unverified"] > 0
+
+    seen: list = []
+
+    def fake_run(_study, opts):
+        seen.append(opts)
+        return SimpleNamespace(status="closed", answered=0, total=0, session_path=None)
+
+    monkeypatch.setattr(app, "run_study", fake_run)
+    code = study(["run", "--server", srv.url, "--participant", "P01", "--token", inv.token,
+                  "--data-dir", str(tmp_path / "data")])
+    assert code == 1 and set(seen[0].files_verified) == on_disk

@@ -60,14 +60,22 @@ class SessionPanel(PanelAnswers):
 
 def panel_from_sessions(sessions: list[Session], definition: Panel | None) -> SessionPanel:
     """Merge the answers of each participant's sessions (the later valid answer wins) and
-    their vision checks (the worst outcome of each check wins)."""
+    their vision checks (the worst outcome of each check wins). An answer taken back ("no
+    answer" stored) erases the answers of its own session only: a later session shows the
+    questionnaire afresh, so taking back what was typed there says nothing about what an
+    earlier session holds."""
     out = SessionPanel(definition=definition)
     for session in sorted(sessions, key=lambda s: s.order_key):
         who = session.info.participant
+        latest: dict[str, Any] = {}
         for row in session.answers:
             value = _checked_answer(definition, session.path, row, out.problems)
             if value is not _REFUSED:
-                out.answers.setdefault(who, {})[row["question"]] = value
+                latest[row["question"]] = value
+        merged = out.answers.setdefault(who, {})
+        for question, value in latest.items():
+            if value is not None or question not in merged:
+                merged[question] = value
         for row in session.screenings:
             tests = out.screenings.setdefault(who, {})
             tests[row["test"]] = worse_outcome(tests.get(row["test"]), row["outcome"])

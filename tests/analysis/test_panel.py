@@ -173,3 +173,33 @@ def test_excluding_failed_vision_needs_sessions_that_took_a_check(tmp_path, caps
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no participant took a vision check" in err, err
     assert not out.exists()
+
+
+def test_a_take_back_concerns_its_own_session_only():
+    """A survey answered in session 1 and answered-then-taken-back in session 2 was counted
+    as never answered; within one session a take-back erases, and a later valid answer
+    replaces an earlier one."""
+    from types import SimpleNamespace
+
+    from analysis.panel import panel_from_sessions
+
+    definition = Panel.model_validate(default_panel())
+
+    def session(key, rows):
+        return SimpleNamespace(
+            path=f"s{key}.sqlite", order_key=key, info=SimpleNamespace(participant="P1"),
+            answers=[{"questionnaire": q, "question": k, "value": v} for q, k, v in rows],
+            screenings=[])
+
+    first = session(1, [("demographics", "age", 30), ("post_study", "task_clear", 4),
+                        ("post_study", "comments", "fine"), ("post_study", "comments", None)])
+    second = session(2, [("demographics", "age", 31), ("post_study", "task_clear", 2),
+                         ("post_study", "task_clear", None), ("post_study", "comments", None)])
+    merged = panel_from_sessions([second, first], definition)
+    assert merged.problems == []  # every stored answer is one the rule accepts
+    answers = merged.answers["P1"]
+    assert answers["age"] == 31  # the later valid answer
+    assert answers["task_clear"] == 4  # session 2 took back only its own answer
+    assert answers["comments"] is None  # taken back in the session that held it
+    alone = panel_from_sessions([first], definition).answers["P1"]
+    assert alone["comments"] is None and alone["task_clear"] == 4

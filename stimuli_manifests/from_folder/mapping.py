@@ -114,26 +114,30 @@ def compile_pattern(pattern: str, *, required: tuple[str, ...],
     return re.compile(regex)
 
 
-def video_files(folder: Path, *, exclude: Path | None = None) -> list[PurePosixPath]:
-    """Video files under ``folder`` (by suffix, hidden files and ``exclude`` skipped), sorted;
-    symbolic links to folders are followed (renders often live on another disk)."""
-    return [rel for rel, target in _walk(folder, exclude) if target is None]
+@dataclass
+class FolderScan:
+    """What one walk of a renders folder found (hidden files and ``exclude`` skipped; linked
+    folders followed once each: renders often live on another disk)."""
+
+    videos: list[PurePosixPath] = field(default_factory=list)
+    """Video files by suffix, sorted."""
+    broken: list[Problem] = field(default_factory=list)
+    """Video-named symbolic links whose target does not exist: a render the researcher meant
+    to include, not a file to leave out without a word."""
+    frame_sequences: dict[PurePosixPath, int] = field(default_factory=dict)
+    """Folders (the scanned one included) with two or more single frames (PNG, EXR, ...):
+    image sequences, with their number of frames."""
 
 
-def broken_links(folder: Path, *, exclude: Path | None = None) -> list[Problem]:
-    """Video-named symbolic links under ``folder`` whose target does not exist: a render the
-    researcher meant to include, not a file to leave out without a word."""
-    return [Problem("broken link", rel.as_posix(), f"is a symbolic link to {target}, which "
-                    "does not exist") for rel, target in _walk(folder, exclude)
-            if target is not None]
-
-
-def frame_sequences(folder: Path, *, exclude: Path | None = None) -> dict[PurePosixPath, int]:
-    """Folders under ``folder`` (itself included) with two or more single frames (PNG, EXR,
-    ...): image sequences, with their number of frames."""
-    found: dict[PurePosixPath, int] = {}
-    _walk(folder, exclude, frames=found)
-    return {k: n for k, n in found.items() if n >= 2}
+def scan_folder(folder: Path, *, exclude: Path | None = None) -> FolderScan:
+    """Walk ``folder`` once (a renders folder on a network disk is slow to list)."""
+    frames: dict[PurePosixPath, int] = {}
+    found = _walk(folder, exclude, frames)
+    return FolderScan(
+        videos=[rel for rel, target in found if target is None],
+        broken=[Problem("broken link", rel.as_posix(), f"is a symbolic link to {target}, "
+                        "which does not exist") for rel, target in found if target is not None],
+        frame_sequences={k: n for k, n in frames.items() if n >= 2})
 
 
 def _walk(folder: Path, exclude: Path | None, frames: dict[PurePosixPath, int] | None = None
@@ -177,10 +181,10 @@ def map_by_pattern(folder: Path, *, test_pattern: str = DEFAULT_TEST_PATTERN,
     """Map every video file under ``folder`` with the two filename patterns."""
     test_re = compile_pattern(test_pattern, required=("scene", "method", "level"))
     ref_re = compile_pattern(reference_pattern, required=("scene",))
-    out = FolderMapping(problems=broken_links(folder, exclude=exclude),
-                        frame_sequences=frame_sequences(folder, exclude=exclude))
+    scan = scan_folder(folder, exclude=exclude)
+    out = FolderMapping(problems=scan.broken, frame_sequences=scan.frame_sequences)
     tests: list[PurePosixPath] = []
-    for rel in video_files(folder, exclude=exclude):
+    for rel in scan.videos:
         text = rel.as_posix()
         if m := ref_re.fullmatch(text):
             out.videos.append(MappedVideo(rel, m["scene"], "reference"))
@@ -255,7 +259,7 @@ def map_by_csv(folder: Path, csv_path: Path) -> FolderMapping:
     except (OSError, csv.Error) as exc:
         raise ValueError(f"cannot read {csv_path}: {exc}") from None
     listed = {v.path for v in out.videos}
-    out.unmatched = [p for p in video_files(folder) if p not in listed]
+    out.unmatched = [p for p in scan_folder(folder).videos if p not in listed]
     _check(out, f"It is not in {csv_path.name}: add it with role 'reference'")
     return out
 

@@ -18,20 +18,34 @@ from tqdm import tqdm
 from ..checksums import sha256_file
 from ..errors import StimuliError, UnshowableVideoError
 from ..video import VideoInfo, VideoSource
-from .timing import decoder_errors, uneven_timing, video_streams
+from .timing import decoder_errors, uneven_timing
 
 # FFmpeg's color_trc values of the HDR transfer functions
 _HDR_TRANSFERS = {16: "PQ transfer, SMPTE ST 2084", 18: "HLG transfer, ARIB STD-B67"}
 
 
-def hdr_transfer(path: Path) -> str | None:
-    """The HDR transfer function the first video stream is tagged with, if any."""
+def container_warnings(path: Path, fps: float) -> list[str]:
+    """What the container says that decoded frames do not (one open of the file): uneven
+    timestamps, further video streams, an HDR transfer function."""
+    warnings: list[str] = []
     try:
         with av.open(str(path)) as container:
-            trc = container.streams.video[0].codec_context.color_trc
-    except (av.error.FFmpegError, IndexError, AttributeError):
-        return None
-    return _HDR_TRANSFERS.get(int(trc or 0))
+            streams = container.streams.video
+            count = len(streams)
+            trc = streams[0].codec_context.color_trc if streams else None
+            gap = uneven_timing(container)
+    except (av.error.FFmpegError, AttributeError):
+        return warnings
+    if gap is not None:
+        warnings.append(f"{gap}; the player and the metrics show every frame for "
+                        f"1/{fps:g} s, so the file's own timing is not reproduced")
+    if count > 1:
+        warnings.append(f"{count} video streams; only the first is shown and scored")
+    if (hdr := _HDR_TRANSFERS.get(int(trc or 0))) is not None:
+        warnings.append(f"HDR video ({hdr}); the player and the metrics show its code values "
+                        "as SDR RGB without tone mapping, so it looks washed out: export SDR "
+                        "(BT.709) renders for the study")
+    return warnings
 
 
 @dataclass(frozen=True)
@@ -101,16 +115,7 @@ def decode_findings(path: Path) -> DecodeFindings:
             f"damaged: the decoder reported {errors[0]}"
             + (f" and {len(errors) - 1} more error(s)" if len(errors) > 1 else "")
             + "; frames may show wrong pixels: re-export or re-encode it"))
-    warnings: list[str] = []
-    if info.kind == "video" and (gap := uneven_timing(path)) is not None:
-        warnings.append(f"{gap}; the player and the metrics show every frame for "
-                        f"1/{info.fps:g} s, so the file's own timing is not reproduced")
-    if info.kind == "video" and (n := video_streams(path)) > 1:
-        warnings.append(f"{n} video streams; only the first is shown and scored")
-    if info.kind == "video" and (hdr := hdr_transfer(path)) is not None:
-        warnings.append(f"HDR video ({hdr}); the player and the metrics show its code values "
-                        "as SDR RGB without tone mapping, so it looks washed out: export SDR "
-                        "(BT.709) renders for the study")
+    warnings = container_warnings(path, info.fps) if info.kind == "video" else []
     return DecodeFindings(info, seconds, warnings=tuple(warnings))
 
 

@@ -13,7 +13,6 @@ import itertools
 import statistics
 from collections.abc import Iterator
 from contextlib import contextmanager
-from pathlib import Path
 
 import av
 import av.logging
@@ -47,14 +46,14 @@ def decoder_errors() -> Iterator[list[str]]:
         lines.append(" ".join(pending.split()))
 
 
-def uneven_timing(path: Path) -> str | None:
+def uneven_timing(container: av.container.InputContainer) -> str | None:
     """A line naming the largest uneven frame interval of the first video stream, or None
-    when the presentation timestamps are evenly spaced (or absent)."""
+    when the presentation timestamps are evenly spaced (or absent). Reads every packet of
+    that stream (no decoding)."""
     try:
-        with av.open(str(path)) as container:
-            stream = container.streams.video[0]
-            pts = sorted(p.pts for p in container.demux(stream) if p.pts is not None)
-            base = stream.time_base
+        stream = container.streams.video[0]
+        pts = sorted(p.pts for p in container.demux(stream) if p.pts is not None)
+        base = stream.time_base
     except (av.error.FFmpegError, IndexError):
         return None
     if base is None or len(pts) < 3:
@@ -70,13 +69,3 @@ def uneven_timing(path: Path) -> str | None:
     return (f"uneven timestamps: {steps[worst] * 1000:.0f} ms between frames {worst} and "
             f"{worst + 1}, where most are {typical * 1000:.0f} ms (variable frame rate or "
             "dropped frames)")
-
-
-def video_streams(path: Path) -> int:
-    """How many video streams the file holds (a second one, e.g. an alternate render or a
-    thumbnail track, is never shown: only the first is read)."""
-    try:
-        with av.open(str(path)) as container:
-            return len(container.streams.video)
-    except av.error.FFmpegError:
-        return 1

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import av
 import numpy as np
+from support.cli import study_init as init
 from support.encode import encode
 
-from cgvq_cli.study_cli import main
 from stimuli_manifests import load_manifest, write_video
 
 SIZE = (48, 64)
@@ -25,12 +25,6 @@ FRAMES = 30
 
 def clip(seed: int) -> np.ndarray:
     return np.random.default_rng(seed).integers(0, 256, (FRAMES, *SIZE, 3), dtype=np.uint8)
-
-
-def init(capsys, *args: object) -> tuple[int, str, str]:
-    code = main(["init", *map(str, args)])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def scene(folder: Path) -> Path:

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.cli import study_init as init
 from support.encode import encode
 
-from cgvq_cli.study_cli import main
 from stimuli_manifests import load_manifest, probe_video, write_video
 
 FPS = 30
@@ -22,12 +22,6 @@ FPS = 30
 
 def clip(seed: int, frames: int = 8, size: tuple[int, int] = (32, 48)) -> np.ndarray:
     return np.random.default_rng(seed).integers(0, 256, (frames, *size, 3), dtype=np.uint8)
-
-
-def init(capsys, *args: object) -> tuple[int, str, str]:
-    code = main(["init", *map(str, args)])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def warned(out: str, subject: str, detail: str) -> bool:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.cli import study_init as init
 from support.encode import encode
 
 from cgvq_cli.study_cli import main
@@ -54,12 +55,6 @@ def make_renders(folder: Path, *, problems: bool) -> dict[str, np.ndarray]:
 def tree(folder: Path) -> dict[str, bytes]:
     return {p.relative_to(folder).as_posix(): p.read_bytes()
             for p in sorted(folder.rglob("*")) if p.is_file()}
-
-
-def init(capsys, *args: str) -> tuple[int, str, str]:
-    code = main(["init", *map(str, args)])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def error_lines(err: str) -> list[str]:

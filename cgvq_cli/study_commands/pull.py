@@ -56,9 +56,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"  withdrawn (data deleted): {', '.join(result.withdrawn)}")
     for path in result.removed:
         print(f"  deleted {path}: an earlier pull's copy of a participant who has withdrawn")
-    if result.removed and (args.csv is None or args.answers is None):
-        print("  tables written by earlier pulls (--csv, --answers) still hold their rows: "
-              "write them again with this pull's options (or delete them)")
+    for path in result.rewritten:
+        print(f"  wrote {path} again: an earlier pull's table, without the participants who "
+              "have withdrawn")
     flagged = sum(1 for s in result.sessions if s.flags)
     print(f"{flagged} participant(s) flagged; server listing: {result.listing_path}")
     for sha, path in result.manifests.items():

@@ -44,6 +44,8 @@ from session_store.protocol import (
     admin_manifest_path,
 )
 from session_store.ratings_csv import write_ratings_csv
+from stimuli_manifests.errors import TableError
+from stimuli_manifests.tables import ANSWERS, RATINGS, SCREENINGS, read_table
 
 from .http import ServerClient, ServerRefused
 
@@ -51,6 +53,9 @@ log = logging.getLogger(__name__)
 
 PAGE = 1000
 LISTING_FILE = PULL_LISTING_FILE
+TABLES_NOTE = "pulled_tables.json"
+"""Beside the sessions: the tables (``--csv``, ``--answers``) pulls into this folder wrote,
+so that a later pull can take withdrawn participants out of them."""
 
 
 @dataclass
@@ -81,6 +86,9 @@ class PullResult:
     """Copies an earlier pull left of participants who have withdrawn since (deleted)."""
     manifests: dict[str, Path] = field(default_factory=dict)
     """sha256 -> ``manifest.<sha12>.json``: the manifest of each version the sessions ran."""
+    rewritten: list[Path] = field(default_factory=list)
+    """Tables an earlier pull wrote that held rows of participants who have withdrawn since,
+    written again from this pull's sessions."""
 
 
 def _remove_withdrawn(out: Path, withdrawn: list[str]) -> list[Path]:
@@ -170,7 +178,7 @@ def _check_outputs(out: Path, csv: str | Path | None, answers: str | Path | None
         if path.is_dir():
             raise StudyError(f"{opt} {named[opt]} is a folder; give a file name")
         inside = path.parent == out.resolve()
-        if inside and (path.suffix == ".sqlite" or path.name == LISTING_FILE
+        if inside and (path.suffix == ".sqlite" or path.name in (LISTING_FILE, TABLES_NOTE)
                        or _MANIFEST_NAME.fullmatch(path.name)):
             raise StudyError(f"{opt} {named[opt]} is a file pull writes into {out}; name "
                              "the table otherwise")
@@ -239,18 +247,76 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
                         listing_path, removed=_remove_withdrawn(out, withdrawn),
                         manifests=_save_manifests(client, out, sessions))
     if csv is not None:
-        rows = [row for r in kept for row in r.ratings]
-        write_ratings_csv(rows, csv)
-        Path(csv).chmod(0o600)
-        result.csv_path, result.n_csv_rows = Path(csv), len(rows)
+        result.csv_path, result.n_csv_rows = Path(csv), _write_ratings(kept, Path(csv))
     if answers is not None:
-        answers = Path(answers)
-        answer_table = [row for r in kept for row in answer_rows(r)]
-        result.answers_path = write_answers_csv(answer_table, answers)
-        Path(result.answers_path).chmod(0o600)
-        result.n_answer_rows = len(answer_table)
-        if screening_table := [row for r in kept for row in screening_rows(r)]:
-            result.screenings_path = write_screenings_csv(screening_table,
-                                                          screenings_name(answers))
-            Path(result.screenings_path).chmod(0o600)
+        result.answers_path = Path(answers)
+        result.n_answer_rows, result.screenings_path = _write_answers(kept, Path(answers))
+    result.rewritten = _rewrite_earlier_tables(out, kept, withdrawn, csv=csv, answers=answers)
     return result
+
+
+def _write_ratings(kept: list[SessionRecord], path: Path) -> int:
+    rows = [row for r in kept for row in r.ratings]
+    write_ratings_csv(rows, path)
+    path.chmod(0o600)
+    return len(rows)
+
+
+def _write_answers(kept: list[SessionRecord], path: Path) -> tuple[int, Path | None]:
+    """The answers table and, where any check was taken, the vision checks beside it."""
+    table = [row for r in kept for row in answer_rows(r)]
+    write_answers_csv(table, path)
+    path.chmod(0o600)
+    screenings = None
+    if screening_table := [row for r in kept for row in screening_rows(r)]:
+        screenings = write_screenings_csv(screening_table, screenings_name(path))
+        screenings.chmod(0o600)
+    return len(table), screenings
+
+
+def _rewrite_earlier_tables(out: Path, kept: list[SessionRecord], withdrawn: list[str], *,
+                            csv: str | Path | None, answers: str | Path | None) -> list[Path]:
+    """Write again the tables earlier pulls into ``out`` wrote and this one did not, where
+    they still hold rows of a participant who has withdrawn (their data is deleted on the
+    server; a table left as it was would keep it), and note this pull's tables."""
+    note = out / TABLES_NOTE
+    try:
+        earlier = json.loads(note.read_text(encoding="utf-8"))
+        earlier = {k: Path(v) for k, v in earlier.items() if k in ("csv", "answers")}
+    except (OSError, ValueError, AttributeError, TypeError):
+        earlier = {}
+    now = {k: Path(v).resolve() for k, v in (("csv", csv), ("answers", answers))
+           if v is not None}
+    rewritten: list[Path] = []
+    gone = set(withdrawn)
+    for kind, path in earlier.items():
+        if kind in now or not gone:
+            continue
+        tables = ([path] if kind == "csv" else [path, screenings_name(path)])
+        if not any(_holds_participant(t, kind, gone) for t in tables):
+            continue
+        if kind == "csv":
+            _write_ratings(kept, path)
+        else:
+            _, screenings = _write_answers(kept, path)
+            if screenings is None:  # nobody left took a check
+                screenings_name(path).unlink(missing_ok=True)
+        rewritten.append(path)
+    recorded = {**{k: str(v) for k, v in earlier.items()},
+                **{k: str(v) for k, v in now.items()}}
+    if recorded:
+        note.write_text(json.dumps(recorded, indent=2) + "\n", encoding="utf-8")
+        note.chmod(0o600)
+    return rewritten
+
+
+def _holds_participant(path: Path, kind: str, participants: set[str]) -> bool:
+    """Whether the table at ``path`` has a row of one of ``participants`` (False when it is
+    gone or is no longer a table this toolkit wrote: it is not ours to rewrite)."""
+    fmt = (RATINGS if kind == "csv" else
+           SCREENINGS if path.name.endswith("_screenings.csv") else ANSWERS)
+    try:
+        rows = read_table(path, fmt)
+    except (OSError, TableError):
+        return False
+    return any(row.get("participant") in participants for row in rows)

@@ -152,12 +152,50 @@ def test_withdraw_while_serving(served_study, tmp_path, invites, server_factory)
                    "--csv", str(tmp_path / "r.csv"))
     assert "withdrawn (data deleted): P01" in proc.stdout
     assert f"deleted {tmp_path / 'p' / 'P01.sqlite'}" in proc.stdout
-    assert "tables written by earlier pulls (--csv, --answers) still hold" in proc.stdout
+    assert "again" not in proc.stdout  # no earlier pull wrote a table here
     assert not (tmp_path / "p" / "P01.sqlite-wal").exists()
     assert sorted(p.name for p in (tmp_path / "p").glob("*.sqlite")) == ["P02.sqlite"]
     assert len(read_session(tmp_path / "p" / "P02.sqlite").ratings) == 4
     proc = run_cli("withdraw", str(served_study), "P01")
     assert proc.returncode == 2 and "withdrawn already" in proc.stderr
+
+
+def test_a_pull_after_a_withdrawal_writes_earlier_tables_again(served_study, tmp_path,
+                                                              invites, server_factory):
+    """Tables an earlier pull wrote kept a withdrawn participant's rows (the pull only said
+    so); a later pull into the same folder writes them again without them, even when it is
+    not asked for tables itself, and leaves tables that hold none of them alone."""
+    from session_store.answers import write_answers_csv
+    from stimuli_manifests.tables import ANSWERS, RATINGS, read_table
+
+    inv = invites(2)
+    srv = server_factory(served_study)
+    for i in inv:
+        path = tmp_path / f"{i.participant}.sqlite"
+        write_session(served_study, path, i.participant, ratings=4).close()
+        sync_session(path, ServerClient(srv.url, i.token), i.participant)
+    out, ratings, answers = tmp_path / "p", tmp_path / "r.csv", tmp_path / "a.csv"
+    proc = run_cli("pull", srv.url, "--admin-token", ADMIN, "--out", str(out),
+                   "--csv", str(ratings), "--answers", str(answers))
+    assert proc.returncode == 0, proc.stderr
+    assert {r["participant"] for r in read_table(ratings, RATINGS)} == {"P01", "P02"}
+    row = {"study": "s", "session": "x", "participant": "P01", "questionnaire": "q",
+           "question": "age", "value": "30", "page": 0, "ms": 1, "answered_at": "t"}
+    write_answers_csv([row], answers)  # as if P01 had answered a question
+    other = tmp_path / "other.csv"
+    other.write_bytes(ratings.read_bytes())  # a copy pull never wrote: not touched
+    assert run_cli("withdraw", str(served_study), "P01").returncode == 0
+    proc = run_cli("pull", srv.url, "--admin-token", ADMIN, "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert f"wrote {ratings.resolve()} again" in proc.stdout
+    assert f"wrote {answers.resolve()} again" in proc.stdout
+    kept = read_table(ratings, RATINGS)
+    assert {r["participant"] for r in kept} == {"P02"} and len(kept) == 4
+    assert read_table(answers, ANSWERS) == []
+    assert other.read_bytes() != ratings.read_bytes()
+    assert stat.S_IMODE(ratings.stat().st_mode) == 0o600
+    proc = run_cli("pull", srv.url, "--admin-token", ADMIN, "--out", str(out))
+    assert "again" not in proc.stdout  # nothing of P01 left to take out
 
 
 def test_pull_with_a_wrong_token_is_one_line(served_study, server_factory, tmp_path):

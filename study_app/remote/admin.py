@@ -276,38 +276,46 @@ def _write_answers(kept: list[SessionRecord], path: Path) -> tuple[int, Path | N
 
 def _rewrite_earlier_tables(out: Path, kept: list[SessionRecord], withdrawn: list[str], *,
                             csv: str | Path | None, answers: str | Path | None) -> list[Path]:
-    """Write again the tables earlier pulls into ``out`` wrote and this one did not, where
+    """Write again the tables earlier pulls into ``out`` wrote (this pull's aside), where
     they still hold rows of a participant who has withdrawn (their data is deleted on the
     server; a table left as it was would keep it), and note this pull's tables."""
     note = out / TABLES_NOTE
-    try:
-        earlier = json.loads(note.read_text(encoding="utf-8"))
-        earlier = {k: Path(v) for k, v in earlier.items() if k in ("csv", "answers")}
-    except (OSError, ValueError, AttributeError, TypeError):
-        earlier = {}
     now = {k: Path(v).resolve() for k, v in (("csv", csv), ("answers", answers))
            if v is not None}
+    tables = _noted_tables(note)
     rewritten: list[Path] = []
     gone = set(withdrawn)
-    for kind, path in earlier.items():
-        if kind in now or not gone:
-            continue
-        tables = ([path] if kind == "csv" else [path, screenings_name(path)])
-        if not any(_holds_participant(t, kind, gone) for t in tables):
-            continue
-        if kind == "csv":
-            _write_ratings(kept, path)
-        else:
-            _, screenings = _write_answers(kept, path)
-            if screenings is None:  # nobody left took a check
+    for kind, paths in tables.items():
+        for path in paths:
+            if not gone or path in now.values():
+                continue
+            files = [path] if kind == "csv" else [path, screenings_name(path)]
+            if not any(_holds_participant(f, kind, gone) for f in files):
+                continue
+            if kind == "csv":
+                _write_ratings(kept, path)
+            elif _write_answers(kept, path)[1] is None:  # nobody left took a check
                 screenings_name(path).unlink(missing_ok=True)
-        rewritten.append(path)
-    recorded = {**{k: str(v) for k, v in earlier.items()},
-                **{k: str(v) for k, v in now.items()}}
-    if recorded:
-        note.write_text(json.dumps(recorded, indent=2) + "\n", encoding="utf-8")
+            rewritten.append(path)
+    for kind, path in now.items():
+        tables.setdefault(kind, [])
+        if path not in tables[kind]:
+            tables[kind].append(path)
+    if any(tables.values()):
+        note.write_text(json.dumps({k: [str(p) for p in v] for k, v in tables.items()},
+                                   indent=2) + "\n", encoding="utf-8")
         note.chmod(0o600)
     return rewritten
+
+
+def _noted_tables(note: Path) -> dict[str, list[Path]]:
+    """The tables earlier pulls noted (kind -> paths); none when the note is unreadable."""
+    try:
+        data = json.loads(note.read_text(encoding="utf-8"))
+        return {k: [Path(p) for p in data[k] if isinstance(p, str)]
+                for k in ("csv", "answers") if isinstance(data.get(k), list)}
+    except (OSError, ValueError, AttributeError, TypeError):
+        return {}
 
 
 def _holds_participant(path: Path, kind: str, participants: set[str]) -> bool:

@@ -184,6 +184,9 @@ def test_a_pull_after_a_withdrawal_writes_earlier_tables_again(served_study, tmp
     write_answers_csv([row], answers)  # as if P01 had answered a question
     other = tmp_path / "other.csv"
     other.write_bytes(ratings.read_bytes())  # a copy pull never wrote: not touched
+    proc = run_cli("pull", srv.url, "--admin-token", ADMIN, "--out", str(out),
+                   "--csv", str(tmp_path / "r2.csv"))  # a later table elsewhere
+    assert proc.returncode == 0 and "again" not in proc.stdout
     assert run_cli("withdraw", str(served_study), "P01").returncode == 0
     proc = run_cli("pull", srv.url, "--admin-token", ADMIN, "--out", str(out))
     assert proc.returncode == 0, proc.stderr
@@ -192,6 +195,7 @@ def test_a_pull_after_a_withdrawal_writes_earlier_tables_again(served_study, tmp
     kept = read_table(ratings, RATINGS)
     assert {r["participant"] for r in kept} == {"P02"} and len(kept) == 4
     assert read_table(answers, ANSWERS) == []
+    assert {r["participant"] for r in read_table(tmp_path / "r2.csv", RATINGS)} == {"P02"}
     assert other.read_bytes() != ratings.read_bytes()
     assert stat.S_IMODE(ratings.stat().st_mode) == 0o600
     proc = run_cli("pull", srv.url, "--admin-token", ADMIN, "--out", str(out))

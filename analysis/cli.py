@@ -197,6 +197,7 @@ def _run(args: argparse.Namespace) -> int:
         _say([str(x) for x in kept.exclusions if x not in rs.exclusions], "excluded")
         _say([str(p) for p in kept.problems if p not in rs.problems], "input problem")
         res = fit_scores(kept, args.model, n_boot=config.n_boot, seed=config.seed)
+        _say([str(p) for p in res.problems if p not in kept.problems], "input problem")
         if res.fallback:
             print(f"warning: {res.fallback}", file=sys.stderr)
         if args.command == "dmos":
@@ -216,6 +217,8 @@ def _run(args: argparse.Namespace) -> int:
     _say([str(p) for p in analysis.screened.problems if p not in rs.problems], "input problem")
     _say([str(p) for p in panel_problems(rs.panel) if p not in rs.problems],
          "input problem")  # questionnaire answers their question refuses, left out
+    _say([str(p) for p in analysis.scores.problems
+          if p not in rs.problems and p not in analysis.screened.problems], "input problem")
     if analysis.scores.fallback:
         print(f"warning: {analysis.scores.fallback}", file=sys.stderr)
     print(summary_text(analysis))

@@ -88,10 +88,10 @@ def _simulated_among_real(facts: pd.DataFrame) -> list[InputProblem]:
 
 
 def _cell_text(value: object) -> str:
-    """A cell as plain text for a message: ``nan``, ``inf``, ``3.5``, ``'abc'`` (never a
-    numpy repr such as ``np.float64(nan)``)."""
+    """A cell as plain text for a message: ``nan``, ``inf``, ``3.5``, ``'abc'``, ``(empty)``
+    (never a numpy repr such as ``np.float64(nan)``)."""
     if isinstance(value, str):
-        return repr(value)
+        return repr(value) if value.strip() else "(empty)"
     try:
         return f"{float(value):g}"  # type: ignore[arg-type]
     except (TypeError, ValueError):
@@ -138,7 +138,8 @@ def ratings_from_frame(
 
     values = pd.to_numeric(frame["rating"], errors="coerce").to_numpy(dtype=float)
     stim = frame["stimulus"].astype(str).to_numpy()
-    part = frame["participant"].astype(str).to_numpy()
+    part = frame["participant"].astype(object).where(frame["participant"].notna(), "") \
+        .map(str).str.strip().to_numpy()
     no_part = np.isin(part, ["", "nan", "None", "<NA>"])
     not_num = ~np.isfinite(values)
     with np.errstate(invalid="ignore"):
@@ -198,6 +199,7 @@ def ratings_from_frame(
         raise AnalysisError("no valid ratings left after checking the input against the "
                             "manifest" + (f" (first problems: {first})" if first else ""))
 
+    _check_scale(loaded, good["_rating"].to_numpy(dtype=float))
     rated = set(good["stimulus"])
     order = [s for s in stimuli if s.id in rated]
     unrated = [s.id for s in stimuli if s.id not in rated
@@ -220,10 +222,20 @@ def ratings_from_frame(
     scores[e_idx, s_idx, slot] = ratings
 
     policy, settings = allocation_of(manifest)
+    # Without session files a plan is the manifest's: its stimuli that anybody rated (one
+    # nobody rated is a problem of its own, not a gap in every rater's session).
     n_planned_stimuli = len(manifest.stimuli(include_hidden_references=manifest.protocol
-                                             .hidden_reference))
-    info = _rater_info(good, raters, frame, facts,
-                       planned=n_planned_stimuli * manifest.protocol.repetitions,
+                                             .hidden_reference)) - len(unrated)
+    repetitions = manifest.protocol.repetitions
+    if facts is None and scores.shape[2] < repetitions:
+        problems.append(InputProblem(
+            source or "<ratings>", None,
+            f"no rater rated a stimulus more than {scores.shape[2]} time(s), but the "
+            f"manifest's protocol.repetitions is {repetitions} (3 when not given), so every "
+            f"rater's plan counts {repetitions} ratings per stimulus: if each stimulus was "
+            f"rated {scores.shape[2]} time(s), set protocol.repetitions to {scores.shape[2]}"))
+    info = _rater_info(good, raters, frame.loc[~no_part], facts,
+                       planned=n_planned_stimuli * repetitions,
                        stimuli=n_planned_stimuli if policy == "adaptive" else None)
     table = pd.DataFrame(
         {
@@ -241,6 +253,29 @@ def ratings_from_frame(
         source=source, problems=problems, exclusions=list(exclusions), rater_info=info,
         allocation=policy, allocation_settings=settings,
     )
+
+
+NARROW_SCALE_SHARE = 0.1
+"""Ratings spread over less of the manifest's scale than this look like another scale's."""
+
+
+def _check_scale(loaded: LoadedManifest, ratings: np.ndarray) -> None:
+    """Refuse ratings that are plainly on another scale than the manifest's default one
+    (ACR 1..5 read on 0..100 gives DMOS of 96 to 100 and no error): whole numbers spread
+    over a tenth of the scale at most and none above 10 (the small ACR, DCR and 0..10
+    scales), from a manifest that does not give its scale."""
+    manifest = loaded.manifest
+    scale = manifest.scale
+    if "scale" in manifest.model_fields_set or ratings.size < 2:
+        return
+    low, high = float(ratings.min()), float(ratings.max())
+    whole = bool(np.all(ratings == np.round(ratings)))
+    if whole and high <= 10 and high - low <= NARROW_SCALE_SHARE * (scale.max - scale.min):
+        raise AnalysisError(
+            f"every rating is a whole number from {low:g} to {high:g}, but the manifest "
+            f"{loaded.source or ''} gives no scale, so {scale.min:g}..{scale.max:g} is taken: add "
+            f'"scale": {{"min": ..., "max": ..., "labels": []}} with the scale the ratings '
+            "were given on")
 
 
 def allocation_of(manifest: Manifest) -> tuple[str, dict[str, Any] | None]:

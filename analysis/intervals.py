@@ -72,11 +72,18 @@ def quality_from_draws(num: np.ndarray, den: np.ndarray, draws: np.ndarray) -> n
 
 
 def dmos_from_quality_matrix(rs: RatingSet, q: np.ndarray) -> np.ndarray:
-    """DMOS rows from quality rows (E, B): the P.910 difference against the hidden reference."""
+    """DMOS rows from quality rows (E, B): the P.910 difference against the hidden reference.
+
+    A stimulus whose hidden reference was not rated has no DMOS (NaN) where others have one:
+    its quality score in the same column would sit 100 - Q(ref) points off the rest. Where
+    no hidden reference was rated at all (a design without them), every row keeps its
+    quality score (the table and the report say so)."""
     ref = rs.reference_index()
     has = ref >= 0
-    out = q.copy()
+    out = q.astype(float).copy()
     out[has] = q[has] - q[ref[has]] + rs.ref_score
+    if has.any():
+        out[~has] = np.nan
     return out
 
 

@@ -283,7 +283,9 @@ def drop_incomplete(rs: RatingSet, min_completeness: float) -> RatingSet:
     if len(keep) < 2:
         raise AnalysisError(
             f"only {len(keep)} rater(s) reach --min-completeness {min_completeness:g}; lower it "
-            "(e.g. --min-completeness 0) to analyse partial sessions")
+            "(e.g. --min-completeness 0) to analyse partial sessions (completeness is ratings "
+            "given / trials planned; from a ratings CSV the plan is the manifest's stimuli x "
+            "protocol.repetitions)")
     out = rs.with_raters(keep)
     out = replace(out, exclusions=exclusions, rater_info=info)
     return drop_unrated(out, "completeness",

@@ -25,7 +25,7 @@ import pandas as pd
 
 from .data import InputProblem, RatingSet
 from .errors import AnalysisError
-from .intervals import estimator_weights, rater_bootstrap
+from .intervals import dmos_from_quality_matrix, estimator_weights, rater_bootstrap
 from .subject_models import (
     bt500_rejection,
     implausible,
@@ -213,26 +213,30 @@ def unrated_after_rejection(rs: RatingSet, work: RatingSet,
 def dmos_from_quality(
     rs: RatingSet, quality: np.ndarray, halfwidth: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, list[InputProblem]]:
-    """DMOS = Q(v) - Q(ref(v)) + ref_score (and, for reference only, the half-widths in
-    quadrature, which ignores their covariance; the reported CIs come from
-    :mod:`analysis.intervals`). A hidden reference gets ref_score. Stimuli whose reference was
-    never rated as hidden reference keep their quality score (reported as a problem).
+    """DMOS = Q(v) - Q(ref(v)) + ref_score (:func:`~analysis.intervals.dmos_from_quality_matrix`;
+    and, for reference only, the half-widths in quadrature, which ignores their covariance;
+    the reported CIs come from :mod:`analysis.intervals`). A hidden reference gets ref_score.
+    Stimuli whose reference was never rated as hidden reference have no DMOS, unless none
+    was rated (reported as a problem either way).
     """
     ref = rs.reference_index()
     has = ref >= 0
-    dmos = quality.astype(float).copy()
+    dmos = dmos_from_quality_matrix(rs, quality[:, None])[:, 0]
     half = halfwidth.astype(float).copy()
-    dmos[has] = quality[has] - quality[ref[has]] + rs.ref_score
     hidden = rs.hidden_reference_mask
     cond = has & ~hidden
     half[cond] = np.sqrt(halfwidth[cond] ** 2 + halfwidth[ref[cond]] ** 2)
+    half[~has] = np.where(has.any(), np.nan, half[~has])
     problems = []
     if (~has).any():
         missing = sorted(set(rs.stimuli["reference"].to_numpy()[~has]))
-        problems.append(InputProblem(
-            rs.source or "<ratings>", None,
-            f"no hidden-reference ratings for {', '.join(map(str, missing))}: DMOS of their "
-            "stimuli is their raw quality score"))
+        what = (f"{', '.join(map(str, missing[:5]))}{' ...' if len(missing) > 5 else ''}: "
+                "their stimuli have no DMOS (their quality score and MOS are in the table; "
+                "they are left out of the metric statistics)" if has.any() else
+                "any stimulus: the dmos column holds quality scores (no difference to a "
+                "reference could be taken)")
+        problems.append(InputProblem(rs.source or "<ratings>", None,
+                                     f"no hidden-reference ratings for {what}"))
     return dmos, half, problems
 
 

@@ -67,6 +67,11 @@ class RatingScale(_Strict):
         if not self.max > self.min:
             raise ValueError(f"scale.max ({self.max}) must be greater than scale.min ({self.min})")
         positions = [label.position for label in self.labels]
+        if "labels" not in self.model_fields_set and (self.min, self.max) != (0.0, 100.0):
+            raise ValueError(
+                f"scale.labels must be given for a range other than 0..100 (the default "
+                f"labels sit at 0, 25, 50, 75 and 100; this scale is {self.min:g}..{self.max:g}); "
+                "[] will do for a manifest that is only analysed")
         for label in self.labels:
             if not self.min <= label.position <= self.max:
                 raise ValueError(

@@ -88,8 +88,8 @@ def test_nan_ratings_are_shown_as_plain_numbers(tmp_path: Path) -> None:
     with pytest.raises(AnalysisError, match="no valid ratings left") as err:
         load_ratings(manifest, ratings_csv=csv)
     text = str(err.value)
-    assert "np.float64" not in text and "rating nan is missing or not a number" in text
-    assert "rating inf is missing" in text
+    assert "np.float64" not in text and "rating (empty) is missing or not a number" in text
+    assert "rating 'inf' is missing" in text  # CSV cells are read as the text they hold
     words = tmp_path / "words.csv"
     st.ratings.head(1).assign(rating=["abc"]).to_csv(words, index=False)
     with pytest.raises(AnalysisError, match="rating 'abc' is missing or not a number"):

@@ -92,14 +92,29 @@ def test_dmos_order_follows_levels(study) -> None:
     assert np.allclose(refs["dmos"], 100.0)
 
 
-def test_missing_hidden_reference_falls_back(clean) -> None:
+def test_a_missing_hidden_reference_leaves_its_stimuli_without_dmos(clean) -> None:
+    """Their MOS used to stand in the dmos column beside real DMOS (on this 0..100 scale
+    about 100 - Q(ref) points off the rest); now they have none, and say why. A design
+    without any rated hidden reference keeps quality scores in the column, and says so."""
     st, _ = clean
     frame = st.ratings[st.ratings["stimulus"] != "SRC02"]
     rs = ratings_from_frame(frame, st.manifest)
     res = fit_scores(rs, "mos")
     table = dmos_table(rs, res).set_index("stimulus")
-    assert table.loc["SRC02_HRC01", "dmos"] == pytest.approx(table.loc["SRC02_HRC01", "mos"])
-    assert any("SRC02" in p.message for p in res.problems)
+    src02 = table[table["reference"] == "SRC02"]
+    assert len(src02) > 0 and src02["dmos"].isna().all() and src02["mos"].notna().all()
+    assert src02["ci95_low"].isna().all()
+    others = table[(table["reference"] != "SRC02") & ~table["is_hidden_reference"]]
+    ref_mos = table.loc[others["reference"], "mos"].to_numpy()
+    assert np.allclose(others["dmos"], others["mos"] - ref_mos + 100)  # MOS model: plain
+    assert any("SRC02: their stimuli have no DMOS" in p.message for p in res.problems)
+    no_refs = st.ratings[~st.ratings["stimulus"].str.fullmatch(r"SRC\d+")]
+    rs = ratings_from_frame(no_refs, st.manifest)
+    res = fit_scores(rs, "mos")
+    table = dmos_table(rs, res)
+    assert np.allclose(table["dmos"], table["mos"])
+    assert any("for any stimulus: the dmos column holds quality scores" in p.message
+               for p in res.problems)
 
 
 def test_diverging_mle_falls_back_to_p910() -> None:

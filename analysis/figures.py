@@ -92,6 +92,9 @@ def dmos_per_scene(a: Analysis, path: Path) -> Path:
         ax.set_ylabel("DMOS")
         ax.set_ylim(low - pad, high + pad)
         ax.axhline(a.screened.ref_score, color="0.7", lw=0.8)
+        if sd["dmos"].isna().all():  # its hidden reference was never rated
+            ax.text(0.5, 0.5, "no DMOS: its hidden reference\nwas not rated", ha="center",
+                    va="center", fontsize=8, color="0.3", transform=ax.transAxes)
     handles = [fig.axes[0].plot([], [], shapes[m], color=c)[0] for m, c in colors.items()]
     labels = list(colors)
     if preds:

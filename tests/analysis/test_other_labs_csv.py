@@ -171,3 +171,25 @@ def test_a_stimulus_nobody_rated_leaves_everyone_complete(study, tmp_path, capsy
     table = pd.read_csv(out)
     assert table.loc[table["reference"] == "SRC02", "dmos"].isna().all()
     assert table.loc[table["reference"] == "SRC01", "dmos"].notna().all()
+
+
+def test_the_dmos_figure_says_why_a_scene_has_no_dmos(study, tmp_path, monkeypatch):
+    """Saved to test-artifacts/analysis/ for a look: the scene without a rated hidden
+    reference is an empty panel that says why, not a panel of MOS values among DMOS."""
+    import analysis.figures as figures
+    from analysis.pipeline import AnalysisConfig, run_analysis
+
+    manifest, _, ratings, _ = study
+    path = tmp_path / "no_src02.csv"
+    ratings[ratings["stimulus"] != "SRC02"].to_csv(path, index=False)
+    rs = load_ratings(manifest, ratings_csv=path)
+    analysis = run_analysis(rs, AnalysisConfig(model="mos", n_boot=100, n_splits=50))
+    built = []
+    real = figures._save
+    monkeypatch.setattr(figures, "_save", lambda fig, p, **kw: built.append(fig) or
+                        real(fig, p, **kw))
+    out = Path(__file__).resolve().parents[2] / "test-artifacts" / "analysis"
+    assert figures.dmos_per_scene(analysis, out / "dmos_without_a_hidden_reference.png") \
+        .is_file()
+    panels = {ax.get_title(): [t.get_text() for t in ax.texts] for ax in built[0].axes}
+    assert panels == {"scene1": [], "scene2": ["no DMOS: its hidden reference\nwas not rated"]}

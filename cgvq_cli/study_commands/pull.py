@@ -54,6 +54,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"  not started: {', '.join(result.not_started)}")
     if result.withdrawn:
         print(f"  withdrawn (data deleted): {', '.join(result.withdrawn)}")
+    if result.withdrew_in_app and (args.csv or args.answers):
+        print(f"  withdrew in the app: {', '.join(result.withdrew_in_app)} (their session "
+              "files carry the withdrawal; their rows are in no table)")
     for path in result.removed:
         print(f"  deleted {path}: an earlier pull's copy of a participant who has withdrawn")
     for path in result.rewritten:

@@ -86,6 +86,8 @@ class PullResult:
     """Copies an earlier pull left of participants who have withdrawn since (deleted)."""
     manifests: dict[str, Path] = field(default_factory=dict)
     """sha256 -> ``manifest.<sha12>.json``: the manifest of each version the sessions ran."""
+    withdrew_in_app: list[str] = field(default_factory=list)
+    """Participants whose session says they withdrew in the app: in no table."""
     rewritten: list[Path] = field(default_factory=list)
     """Tables an earlier pull wrote that held rows of participants who have withdrawn since,
     written again from this pull's sessions."""
@@ -239,13 +241,18 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
         raise StudyError(f"the server lost the session of {', '.join(unexplained)} during "
                          "this pull without a withdrawal; pull again")
     sessions = [x for x in sessions if x.participant not in withdrawn]
-    kept = [records[x.participant] for x in sessions]
+    # A participant who withdrew in the app keeps their session file here (it carries the
+    # withdrawal, which the analysis honours), but no table would: their rows stay out.
+    kept = [records[x.participant] for x in sessions
+            if not records[x.participant].info.withdrawn]
     listing_path = out / LISTING_FILE
     listing_path.write_text(json.dumps(listing, indent=2) + "\n", encoding="utf-8")
     listing_path.chmod(0o600)
     result = PullResult(str(listing["study_id"]), sessions, not_started, withdrawn,
                         listing_path, removed=_remove_withdrawn(out, withdrawn),
-                        manifests=_save_manifests(client, out, sessions))
+                        manifests=_save_manifests(client, out, sessions),
+                        withdrew_in_app=[x.participant for x in sessions
+                                         if records[x.participant].info.withdrawn])
     if csv is not None:
         result.csv_path, result.n_csv_rows = Path(csv), _write_ratings(kept, Path(csv))
     if answers is not None:

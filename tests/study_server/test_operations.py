@@ -202,6 +202,30 @@ def test_a_pull_after_a_withdrawal_writes_earlier_tables_again(served_study, tmp
     assert "again" not in proc.stdout  # nothing of P01 left to take out
 
 
+def test_a_participant_who_withdrew_in_the_app_is_in_no_pulled_table(
+        served_study, tmp_path, invites, server_factory):
+    """Their ratings went into pull's ratings CSV, which carries no withdrawal, so an analysis
+    of the CSV used them (the session files, which carry it, are refused as documented)."""
+    from stimuli_manifests.tables import RATINGS, read_table
+
+    inv = invites(2)
+    srv = server_factory(served_study)
+    for i in inv:
+        path = tmp_path / f"{i.participant}.sqlite"
+        store = write_session(served_study, path, i.participant, ratings=4)
+        if i.participant == "P01":
+            store.withdraw("changed my mind")
+        store.close()
+        sync_session(path, ServerClient(srv.url, i.token), i.participant)
+    ratings = tmp_path / "r.csv"
+    proc = run_cli("pull", srv.url, "--admin-token", ADMIN, "--out", str(tmp_path / "p"),
+                   "--csv", str(ratings), "--answers", str(tmp_path / "a.csv"))
+    assert proc.returncode == 0, proc.stderr
+    assert "withdrew in the app: P01" in proc.stdout
+    assert {r["participant"] for r in read_table(ratings, RATINGS)} == {"P02"}
+    assert (tmp_path / "p" / "P01.sqlite").is_file()  # the file carries the withdrawal
+
+
 def test_pull_with_a_wrong_token_is_one_line(served_study, server_factory, tmp_path):
     srv = server_factory(served_study)
     proc = run_cli("pull", srv.url, "--admin-token", "wrong-token-000000", "--out",

@@ -36,10 +36,14 @@ class StudyFigures:
     """Ratings behind the statistics (of those raters)."""
     n_partial: int = 0
     """Raters left out for now: below half of their trials, as the report would leave them."""
+    partial: list[str] = field(default_factory=list)
+    """Their ids."""
     icc2k: float | None = None
     icc2k_ci: tuple[float, float] | None = None
     split_half_plcc: float | None = None
     split_half_sb: float | None = None
+    split_half_ci: tuple[float, float] | None = None
+    """The 95 % range of the split-half PLCC over the random splits."""
     removed: list[str] = field(default_factory=list)
     """Raters the screening would remove (with the reason)."""
     removed_reasons: dict[str, str] = field(default_factory=dict)
@@ -77,7 +81,8 @@ def analyse(frame: pd.DataFrame, loaded: LoadedManifest, *, seed: int = 0,
         out.problems.append(_live(str(exc), config.min_completeness))
         return out
     out.n_raters, out.n_ratings = a.screened.n_raters, a.screened.n_ratings
-    out.n_partial = sum(e.kind == "partial rater" for e in a.screened.exclusions)
+    out.partial = [e.who for e in a.screened.exclusions if e.kind == "partial rater"]
+    out.n_partial = len(out.partial)
     out.removed = list(a.outliers.removed_names)
     out.removed_reasons = {r.rater: r.reason for r in a.outliers.removed}
     if a.reliability is not None:
@@ -88,9 +93,12 @@ def analyse(frame: pd.DataFrame, loaded: LoadedManifest, *, seed: int = 0,
         s = a.ceiling.summary()
         out.split_half_plcc = float(s["plcc"]["median"])
         out.split_half_sb = float(s["plcc_spearman_brown"]["median"])
+        out.split_half_ci = (float(s["plcc"]["ci95_low"]), float(s["plcc"]["ci95_high"]))
     out.dmos = a.dmos()
     out.model = a.scores.model_name
-    out.problems += [str(p) for p in a.problems if "never rated" not in str(p)]
+    # A young study has unrated stimuli and no second repetition yet: not problems here.
+    out.problems += [str(p) for p in a.problems
+                     if "never rated" not in str(p) and "protocol.repetitions" not in str(p)]
     if figure:
         try:
             out.figures["dmos"] = _dmos_png(a)

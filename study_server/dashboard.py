@@ -26,6 +26,9 @@ if TYPE_CHECKING:
 
 TEMPLATES = Path(__file__).parent / "templates"
 REFRESH_S = 30
+STALLED_AFTER_S = 15 * 60
+"""A running participant not heard from for this long is marked: their app is closed or
+cannot reach the server, and a reminder may help."""
 
 
 def _ago(iso: str | None) -> str:
@@ -40,6 +43,11 @@ def _ago(iso: str | None) -> str:
     if s < 48 * 3600:
         return f"{s / 3600:.1f} h ago"
     return f"{s / 86400:.1f} days ago"
+
+
+def _older_than(iso: str | None, seconds: float) -> bool:
+    t = parse_time(iso)
+    return t is not None and (datetime.now(UTC) - t).total_seconds() > seconds
 
 
 def _fmt(x: Any, digits: int = 1) -> str:
@@ -97,7 +105,9 @@ class Pages:
                 planned = s["n_planned"] if s["finished_at"] else \
                     max(s["n_planned"], snap.planned_per_participant)
             rows.append({"p": p, "s": s, "ps": ps, "state": state, "planned": planned,
-                         "progress": (s["n_ratings"] / planned) if s and planned else 0.0})
+                         "progress": (s["n_ratings"] / planned) if s and planned else 0.0,
+                         "stalled": state == "running" and _older_than(p["last_seen"],
+                                                                       STALLED_AFTER_S)})
         per_stim = sorted(snap.per_stimulus.items(), key=lambda kv: kv[1])
         counts = [n for _, n in per_stim]
         scenes = None
@@ -108,7 +118,10 @@ class Pages:
         flags = [(p["participant"], f) for p in listing["participants"] for f in p["flags"]]
         flags.sort(key=lambda pf: pf[1]["last_at"], reverse=True)
         started = sum(1 for r in rows if r["s"] is not None)
-        arrived = sum(r["s"]["n_ratings"] for r in rows if r["s"] is not None)
+        left = [r for r in rows if r["state"] == "withdrew in app"]
+        arrived = sum(r["s"]["n_ratings"] for r in rows
+                      if r["s"] is not None and r not in left)
+        arrived_withdrawn = sum(r["s"]["n_ratings"] for r in left)
         current = {v["manifest_sha256"] for v in listing["versions"] if v["current"]}
         arrived_earlier = sum(r["s"]["n_ratings"] for r in rows
                               if r["s"] is not None and r["s"]["manifest_sha256"] not in current)
@@ -116,6 +129,8 @@ class Pages:
                      0 if r["s"]["finished_at"] else
                      max(r["planned"] - r["s"]["n_ratings"], 0)) for r in rows)
         finished = sum(1 for r in rows if r["state"] == "finished")
+        pending = sum(1 for r in rows if r["state"] in ("invited", "running"))
+        rate = self.stats.rate_per_hour()
         return {
             "study_id": self.study_id, "listing": listing, "rows": rows, "snap": snap,
             "age": snap.age_s(), "now": utc_now(), "refresh": REFRESH_S,
@@ -127,7 +142,10 @@ class Pages:
             "n_stimuli": len(counts), "scenes": scenes, "flags": flags,
             "n_invited": len(rows), "n_started": started, "n_finished": finished,
             "n_arrived": arrived, "n_arrived_earlier": arrived_earlier, "n_to_go": to_go,
-            "n_withdrawn": len(listing["withdrawn"]),
+            "n_arrived_withdrawn": arrived_withdrawn, "n_pending": pending,
+            "n_withdrew_in_app": len(left),
+            "n_withdrawn": len(listing["withdrawn"]) + len(left),
+            "rate_per_hour": rate, "eta_hours": to_go / rate if rate > 0 else None,
             "versions": {v["manifest_sha256"]: v["version"] for v in listing["versions"]},
         }
 

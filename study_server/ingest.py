@@ -21,6 +21,7 @@ from __future__ import annotations
 import collections
 import json
 import logging
+import re
 import sqlite3
 import threading
 from collections.abc import Callable
@@ -49,6 +50,14 @@ from .content import StudyDesign, content_problem, parse_time
 from .storage import ServerStore, SessionRow, StoredEntry
 
 log = logging.getLogger(__name__)
+
+_HOME = re.compile(r"(?:/home|/Users)/[^/\\\s]+|[A-Za-z]:\\Users\\[^\\/]+", re.IGNORECASE)
+
+
+def without_home(text: str) -> str:
+    """Client text with home folders as ``~``: the genuine app sends none, an altered or
+    older one may, and a home folder names the participant's account."""
+    return _HOME.sub("~", text)
 
 Hex64 = Annotated[StrictStr, Field(pattern=r"^[0-9a-f]{64}$")]
 SessionId = Annotated[StrictStr, Field(pattern=r"^[0-9A-Za-z_-]{1,64}$")]
@@ -217,7 +226,8 @@ class Ingest:
                           f"the participant's clock is {abs(offset_ms) / 60000:.0f} min "
                           f"{'behind' if offset_ms > 0 else 'ahead of'} the server's")
             for problem in msg.local_problems:
-                self.flag(pid, sid, "local_edit", f"the participant's own file: {problem}")
+                self.flag(pid, sid, "local_edit",
+                          f"the participant's own file: {without_home(problem)}")
             if sess is None:
                 return self._answer(0, received, offset_ms)
             if msg.session_id is not None and msg.session_id != sess.session_id:

@@ -70,9 +70,6 @@ class StatsSnapshot:
     per_stimulus: dict[str, int] = field(default_factory=dict)
     target_per_stimulus: int = 0
     planned_per_participant: int = 0
-    rate_per_hour: float = 0.0
-    remaining: int = 0
-    eta_hours: float | None = None
     study: StudyFigures | None = None
     figures: dict[str, bytes] = field(default_factory=dict)
     error: str | None = None
@@ -231,7 +228,11 @@ class StatsWorker:
         self.config = config
         self.store = store
         self.current = current
-        self._snapshot = StatsSnapshot()
+        self.plan = study_plan(current)
+        # What the manifest says is known before any statistics: a restarted server's page
+        # never shows "0 / 0" trials while its first computation waits.
+        self._snapshot = self.plan.apply(StatsSnapshot())
+        self._snapshot.target_per_stimulus = self._target_per_stimulus()
         self._lock = threading.Lock()
         self._worker = ThrottledWorker("dashboard-stats", config.stats_every_s, self.refresh,
                                        on_error=self._failed)
@@ -274,27 +275,10 @@ class StatsWorker:
         snap.other_versions = len({r[0] for r in rows if r[1] != current.manifest_sha256})
         frame = ratings_frame(this_version, current.study_id)
         snap.n_ratings = len(frame)
-        manifest = json.loads(current.manifest_bytes)
-        from stimuli_manifests import parse_manifest
-
-        m = parse_manifest(manifest, source="manifest")
-        stimuli = [s.id for s in m.stimuli()]
-        snap.has_panel = m.panel is not None
-        snap.allocation = m.protocol.allocation
-        adaptive = m.protocol.adaptive_settings()
-        snap.adaptive = None if adaptive is None else adaptive.model_dump()
-        reps = m.protocol.repetitions
-        snap.planned_per_participant = len(stimuli) * reps
-        if adaptive is not None:  # block 1 (every stimulus once) and the later blocks
-            snap.planned_per_participant = len(stimuli) + (adaptive.blocks - 1) * \
-                adaptive.trials_per_block(len(stimuli))
-            reps = snap.planned_per_participant / max(len(stimuli), 1)
-        invited = store.participants()
-        target_raters = self.config.target_raters or max(len(invited), 1)
-        snap.target_per_stimulus = round(target_raters * reps)
+        self.plan.apply(snap)
+        snap.target_per_stimulus = self._target_per_stimulus()
         counts = frame.groupby("stimulus").size().to_dict() if len(frame) else {}
-        snap.per_stimulus = {s: int(counts.get(s, 0)) for s in stimuli}
-        self._progress(snap, rows, invited)
+        snap.per_stimulus = {s: int(counts.get(s, 0)) for s in self.plan.stimuli}
         from .analysis_adapter import analyse, loaded_manifest, panel_correlation
 
         loaded = loaded_manifest(current.manifest_bytes, current.manifest_sha256)
@@ -334,25 +318,61 @@ class StatsWorker:
                                  point.max_width, utc_now())
         return point
 
-    def _progress(self, snap: StatsSnapshot, rows: list[tuple[str, str, str, str]],
-                  invited: list[Any]) -> None:
-        sessions = {s.participant: s for s in self.store.sessions()}
-        remaining = 0
-        for p in invited:
-            s = sessions.get(p.participant)
-            if s is None:
-                remaining += snap.planned_per_participant
-            elif s.finished_at is None:
-                remaining += max(max(s.n_planned, snap.planned_per_participant) - s.n_ratings, 0)
-        snap.remaining = remaining
+    def _target_per_stimulus(self) -> int:
+        """Ratings each stimulus gets when everyone expected has rated. Everyone invited is
+        expected, but a participant who withdrew in the app never will rate again (their
+        ratings are left out of everything)."""
+        withdrew = {x.participant for x in self.store.sessions() if x.closed_as == "withdrawn"}
+        expected = [p for p in self.store.participants() if p.participant not in withdrew]
+        raters = self.config.target_raters or max(len(expected), 1)
+        return round(raters * self.plan.planned_per_participant
+                     / max(len(self.plan.stimuli), 1))
+
+    def rate_per_hour(self) -> float:
+        """Ratings received per hour over the last hour (or since the first session, when
+        the study is younger), asked per request: a rate kept in the snapshot froze when
+        uploads stopped, and promised a completion that was not coming."""
         recent = self.store.ratings_received_since(
             (datetime.now(UTC) - RATE_WINDOW).isoformat(timespec="milliseconds")
             .replace("+00:00", "Z"))
-        first = min((s.first_received for s in sessions.values()), default=None)
+        if not recent:
+            return 0.0
+        first = min((s.first_received for s in self.store.sessions()), default=None)
         window_h = RATE_WINDOW.total_seconds() / 3600
         t_first = parse_time(first)
         if t_first is not None:
             window_h = min(window_h, max((datetime.now(UTC) - t_first).total_seconds() / 3600,
                                          1 / 60))
-        snap.rate_per_hour = recent / window_h if recent else 0.0
-        snap.eta_hours = remaining / snap.rate_per_hour if snap.rate_per_hour > 0 else None
+        return recent / window_h
+
+
+@dataclass(frozen=True)
+class StudyPlan:
+    """What the served manifest says about the study, read once when the server starts."""
+
+    stimuli: tuple[str, ...]
+    has_panel: bool
+    allocation: str
+    adaptive: dict[str, Any] | None
+    planned_per_participant: int
+
+    def apply(self, snap: StatsSnapshot) -> StatsSnapshot:
+        snap.has_panel = self.has_panel
+        snap.allocation = self.allocation
+        snap.adaptive = self.adaptive
+        snap.planned_per_participant = self.planned_per_participant
+        snap.per_stimulus = snap.per_stimulus or {s: 0 for s in self.stimuli}
+        return snap
+
+
+def study_plan(current: StudyVersion) -> StudyPlan:
+    from stimuli_manifests import parse_manifest
+
+    m = parse_manifest(json.loads(current.manifest_bytes), source="manifest")
+    stimuli = tuple(s.id for s in m.stimuli())
+    adaptive = m.protocol.adaptive_settings()
+    planned = len(stimuli) * m.protocol.repetitions
+    if adaptive is not None:  # block 1 (every stimulus once) and the later blocks
+        planned = len(stimuli) + (adaptive.blocks - 1) * adaptive.trials_per_block(len(stimuli))
+    return StudyPlan(stimuli, m.panel is not None, m.protocol.allocation,
+                     None if adaptive is None else adaptive.model_dump(), planned)

@@ -4,6 +4,7 @@ renders the HTML."""
 
 from __future__ import annotations
 
+import math
 from urllib.parse import parse_qs
 
 from starlette.concurrency import run_in_threadpool
@@ -22,8 +23,10 @@ async def dashboard(request: Request) -> Response:
     """The dashboard for the admin; the login form (401/403) for anyone else."""
     pages = server_of(request).pages
     ok = admin_status(request)
-    if ok is None:
-        return HTMLResponse(pages.login(), status_code=401, headers=HTML_HEADERS)
+    if ok is None:  # a cookie that no longer opens the page has expired (or was edited)
+        expired = auth.COOKIE in request.cookies
+        return HTMLResponse(pages.login("Your login has expired; log in again." if expired
+                                        else None), status_code=401, headers=HTML_HEADERS)
     if not ok:
         return HTMLResponse(pages.login("That is not the admin token."), status_code=403,
                             headers=HTML_HEADERS)
@@ -47,8 +50,9 @@ async def login(request: Request) -> Response:
     per client address before the body is read; the body is read bounded (4 KiB)."""
     st = server_of(request)
     key = _login_key(request)
-    if st.login_limiter.wait_time(key) > 0:
-        return _login_page(request, "Too many attempts; wait a minute.", 429)
+    if (wait := st.login_limiter.wait_time(key)) > 0:
+        return _login_page(request, f"Too many wrong tokens from this address; try again in "
+                           f"{math.ceil(wait)} s.", 429)
     try:
         body = await read_body(request, MAX_LOGIN_BYTES)
     except Refused as exc:
@@ -67,7 +71,8 @@ async def login(request: Request) -> Response:
 
 async def logout(request: Request) -> Response:
     resp = RedirectResponse("/dashboard", status_code=303, headers=SECURITY_HEADERS)
-    resp.delete_cookie(auth.COOKIE, path="/")
+    resp.delete_cookie(auth.COOKIE, path="/", httponly=True, samesite="strict",
+                       secure=server_of(request).config.secure_cookies)
     return resp
 
 

@@ -1,10 +1,34 @@
-// Times in the browser's local time (relative ones get it as a tooltip); reload every
-// data-refresh seconds.
+// Times in the browser's local time (relative ones get it as a tooltip, with the zone);
+// reload every data-refresh seconds, but only once the server answers: after an outage or a
+// restart the page stays, says since when the server is unreachable, and keeps trying.
 document.querySelectorAll("time[datetime]").forEach(function (t) {
   var d = new Date(t.getAttribute("datetime"));
   if (isNaN(d)) { return; }
-  t.title = d.toLocaleString();
-  if (!t.classList.contains("rel")) { t.textContent = d.toLocaleString(); }
+  var text = d.toLocaleString(undefined, { timeZoneName: "short" });
+  t.title = text;
+  if (!t.classList.contains("rel")) { t.textContent = text; }
 });
 var every = Number(document.body.dataset.refresh || 0);
-if (every > 0) { setTimeout(function () { location.reload(); }, every * 1000); }
+var since = null;
+function check() {
+  fetch(location.href, { cache: "no-store", credentials: "same-origin" })
+    .then(function (r) {
+      if (r.ok || r.status === 401 || r.status === 403) { location.reload(); return; }
+      throw new Error("HTTP " + r.status);
+    })
+    .catch(function () {
+      if (since === null) { since = new Date(); }
+      var banner = document.getElementById("unreachable");
+      if (!banner) {
+        banner = document.createElement("div");
+        banner.id = "unreachable";
+        banner.className = "banner";
+        document.body.insertBefore(banner, document.body.firstChild);
+      }
+      banner.textContent = "The study server cannot be reached since " +
+        since.toLocaleTimeString() + "; this page shows what it said before, and tries " +
+        "again every " + every + " s.";
+      setTimeout(check, every * 1000);
+    });
+}
+if (every > 0) { setTimeout(check, every * 1000); }

@@ -54,7 +54,7 @@ def test_the_dashboard_shows_design_target_widths_and_projection(browser, tmp_pa
     mean_now = float(re.search(r"mean DMOS 95% CI width ([\d.]+)", widths).group(1))
     assert 0 < mean_now < 100
     projected = browser.find_element(By.ID, "projected").text
-    more = int(re.search(r"About (\d+) more participant", projected).group(1))
+    more = int(re.search(r"About (\d+) more rater", projected).group(1))
     history = _history(study)  # one point per number of raters, the last with all six
     assert history[-1][0] == 6 and len(history) >= 2 and more >= 0
     ARTIFACTS.mkdir(exist_ok=True)

@@ -59,3 +59,14 @@ def test_the_session_files_folders_are_not_sent(tmp_path, monkeypatch):
     text = without_paths(f"{session} and {Path('P01.sqlite').absolute()} and {home}/x",
                          Path("P01.sqlite"))
     assert "jane.doe" not in text and text.count("P01.sqlite") == 2 and "~/x" in text
+
+
+def test_home_folders_an_altered_client_sends_are_not_kept():
+    """The genuine app sends none; the server shows client text as sent, so it leaves out
+    home folders itself (they name the participant's account)."""
+    from study_server.ingest import without_home
+
+    text = ("cannot read /home/jane.doe/.local/x.sqlite, C:\\Users\\Jane Doe\\AppData\\x "
+            "and /Users/jdoe/Library; /srv/data stays")
+    assert without_home(text) == ("cannot read ~/.local/x.sqlite, ~\\AppData\\x and "
+                                  "~/Library; /srv/data stays")

@@ -8,6 +8,7 @@ import asyncio
 import gc
 import json
 import os
+import re
 import stat
 import tracemalloc
 from collections.abc import Iterator
@@ -84,6 +85,8 @@ class Asgi:
 
     def __init__(self, app) -> None:
         self.app = app
+        self.body = b""
+        """The last response's body."""
 
     def request(self, method: str, path: str, headers: list[tuple[bytes, bytes]],
                 chunks: Iterator[bytes]) -> tuple[int, int]:
@@ -98,10 +101,14 @@ class Asgi:
             consumed += len(chunk)
             return {"type": "http.request", "body": chunk, "more_body": True}
 
+        self.body = b""
+
         async def send(message: dict) -> None:
             nonlocal status
             if message["type"] == "http.response.start":
                 status = message["status"]
+            elif message["type"] == "http.response.body":
+                self.body += message.get("body", b"")
 
         scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1",
                  "method": method, "scheme": "http", "path": path, "raw_path": path.encode(),
@@ -152,6 +159,8 @@ def test_participant_routes_stop_reading_past_the_body_limit(state, what):
 def test_wrong_logins_are_limited_per_address(state):
     app = create_app(state.config, state)
 
+    pages: list[bytes] = []
+
     def login(token: str, client: str) -> int:
         body = f"token={token}".encode()
         status = 0
@@ -163,6 +172,8 @@ def test_wrong_logins_are_limited_per_address(state):
             nonlocal status
             if message["type"] == "http.response.start":
                 status = message["status"]
+            elif message["type"] == "http.response.body":
+                pages.append(message.get("body", b""))
 
         scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1",
                  "method": "POST", "scheme": "http", "path": "/dashboard/login",
@@ -176,6 +187,9 @@ def test_wrong_logins_are_limited_per_address(state):
     assert answers[0] == 403 and answers[-1] == 429
     assert login(ADMIN, "10.0.0.1") == 303  # the experimenter, from elsewhere
     assert login(ADMIN, "10.0.0.9") == 429  # the guesser's address waits
+    # and is told how long (the limit allows one more try every few seconds, not a minute)
+    wait = re.search(rb"try again in (\d+) s\.", pages[-1])
+    assert wait is not None and 1 <= int(wait.group(1)) <= 10
 
 
 # -- finding 9: malformed input is a 4xx, never a 500 -----------------------------------
@@ -186,6 +200,10 @@ def test_odd_admin_cookies_are_unauthenticated_not_errors(state, cookie):
     for path in ("/dashboard", "/api/v1/admin/sessions"):
         status, _ = app.request("GET", path, headers, iter(()))
         assert status == 401
+        if path == "/dashboard":  # a cookie that no longer opens the page: says why
+            assert b"Your login has expired; log in again." in app.body
+    app.request("GET", "/dashboard", [], iter(()))
+    assert b"expired" not in app.body  # no cookie: the plain login form
 
 
 @pytest.mark.parametrize("client_time", ["9999-12-31T23:59:59-23:59",

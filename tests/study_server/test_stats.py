@@ -148,14 +148,23 @@ def test_live_statistics_leave_out_withdrawals_and_count_the_raters_behind_them(
             _upload_file(st, f, f.stem)
         snap = st.stats.refresh()
         widths = st.store.width_history()
+        page = st.pages.context()
+        html = st.pages.dashboard()
     finally:
         st.stop()
+    # The page's counts agree: P06's ratings are shown apart, P06 counts as withdrawn, and
+    # the target per stimulus expects the six who may still rate, not seven.
+    assert page["n_arrived"] == 5 * 18 + 4 and page["n_arrived_withdrawn"] == 12
+    assert page["n_withdrawn"] == page["n_withdrew_in_app"] == 1
+    assert snap.target_per_stimulus == 6 * 2
     finished = sorted(local.glob("P0[1-5].sqlite"))
     rs = load_ratings(study / "manifest.json", sessions=finished)
     assert rs.n_ratings == 5 * 18
     assert snap.n_ratings == 5 * 18 + 4  # P07's ratings arrived; P06's are withdrawn
     assert snap.study.n_raters == 5 and snap.study.n_ratings == 5 * 18
     assert snap.study.n_partial == 1  # P07, below half of their trials
+    row = html.split('data-participant="P07"', 1)[1].split("</tr>", 1)[0]
+    assert "partial: not used yet" in row and "keep" not in row
     assert [w[:2] for w in widths] == [(5, 5 * 18)]
 
 

@@ -1,0 +1,83 @@
+"""What the dashboard says between statistics runs: the manifest's plan from the first
+request on, a pace that follows the clock (not the last computation), and an empty study
+that is not 'done'."""
+
+from __future__ import annotations
+
+import re
+from datetime import timedelta
+
+import study_server.dashboard as dashboard
+import study_server.stats as stats
+from study_app.remote import ServerClient, sync_session
+from study_server.config import ServerConfig
+from study_server.state import ServerState
+
+from .conftest import ADMIN, write_session
+
+
+def _text(html: str) -> str:
+    return " ".join(re.sub(r"<[^>]+>", " ", html).split())
+
+
+def test_the_plan_is_shown_before_the_first_statistics(served_study, invites, monkeypatch):
+    """A restarted server showed '0 / 0' trials, no 'to go' and no questionnaire columns for
+    up to --stats-every seconds, until its first computation."""
+    monkeypatch.setenv("CGVQ_ADMIN_TOKEN", ADMIN)
+    invites(2)
+    st = ServerState.open(ServerConfig(served_study, stats_in_background=False))
+    try:
+        page = st.pages.context()
+        html = _text(st.pages.dashboard())
+    finally:
+        st.stop()
+    planned = page["snap"].planned_per_participant
+    assert page["snap"].computed_at is None and planned > 0
+    assert page["n_to_go"] == 2 * planned
+    assert f"0 / {planned}" in html and "0 / 0" not in html
+    assert page["snap"].target_per_stimulus > 0 and "0 below target" not in html
+
+
+def test_the_pace_follows_the_clock_and_a_pause_says_stalled(served_study, tmp_path, invites,
+                                                             server_factory, monkeypatch):
+    """The rate and the time to completion were computed with the statistics, which run
+    only when the data changes: hours after the last upload they still promised minutes."""
+    monkeypatch.setenv("CGVQ_ADMIN_TOKEN", ADMIN)
+    [inv] = invites(1)
+    path = tmp_path / "P01.sqlite"
+    write_session(served_study, path, "P01", ratings=4).close()
+    srv = server_factory(served_study)
+    sync_session(path, ServerClient(srv.url, inv.token), "P01")
+    srv.stop()
+    st = ServerState.open(ServerConfig(served_study, stats_in_background=False))
+    try:
+        st.stats.refresh()
+        now = _text(st.pages.dashboard())
+        assert st.stats.rate_per_hour() > 0 and "estimated time to completion" in now
+
+        class Later(stats.datetime):
+            @classmethod
+            def now(cls, tz=None):
+                return super().now(tz) + timedelta(hours=2)
+
+        monkeypatch.setattr(stats, "datetime", Later)  # two hours without an upload
+        monkeypatch.setattr(dashboard, "datetime", Later)
+        later = st.pages.context()
+        html = _text(st.pages.dashboard())
+    finally:
+        st.stop()
+    assert later["rate_per_hour"] == 0 and later["eta_hours"] is None
+    assert f"stalled no ratings in the last hour, {later['n_to_go']} to go" in html
+    assert "running, no contact for 2.0 h" in html  # the participant a reminder may help
+
+
+def test_an_empty_study_is_not_done(served_study, monkeypatch):
+    monkeypatch.setenv("CGVQ_ADMIN_TOKEN", ADMIN)
+    st = ServerState.open(ServerConfig(served_study, stats_in_background=False))
+    try:
+        st.stats.refresh()
+        html = _text(st.pages.dashboard())
+    finally:
+        st.stop()
+    assert "done" not in html
+    assert "no participants invited yet ( cgvq-study invite )" in html

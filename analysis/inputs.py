@@ -199,7 +199,6 @@ def ratings_from_frame(
         raise AnalysisError("no valid ratings left after checking the input against the "
                             "manifest" + (f" (first problems: {first})" if first else ""))
 
-    _check_scale(loaded, good["_rating"].to_numpy(dtype=float))
     rated = set(good["stimulus"])
     order = [s for s in stimuli if s.id in rated]
     unrated = [s.id for s in stimuli if s.id not in rated
@@ -259,13 +258,15 @@ NARROW_SCALE_SHARE = 0.1
 """Ratings spread over less of the manifest's scale than this look like another scale's."""
 
 
-def _check_scale(loaded: LoadedManifest, ratings: np.ndarray) -> None:
-    """Refuse ratings that are plainly on another scale than the manifest's default one
-    (ACR 1..5 read on 0..100 gives DMOS of 96 to 100 and no error): whole numbers spread
-    over a tenth of the scale at most and none above 10 (the small ACR, DCR and 0..10
-    scales), from a manifest that does not give its scale."""
+def _check_scale(loaded: LoadedManifest, rs: RatingSet) -> None:
+    """Refuse a ratings CSV plainly on another scale than the manifest's default one (ACR
+    1..5 read on 0..100 gives DMOS of 96 to 100 and no error): whole numbers spread over a
+    tenth of the scale at most and none above 10 (the small ACR, DCR and 0..10 scales), from
+    a manifest that does not give its scale. Session files need no such check: the player's
+    slider wrote them on the manifest's scale."""
     manifest = loaded.manifest
     scale = manifest.scale
+    ratings = rs.scores[np.isfinite(rs.scores)]
     if "scale" in manifest.model_fields_set or ratings.size < 2:
         return
     low, high = float(ratings.min()), float(ratings.max())
@@ -344,6 +345,8 @@ def load_ratings(
         source = ", ".join(str(p) for p in sessions or [])
     rs = ratings_from_frame(frame, loaded, problems=problems, source=source,
                             exclusions=exclusions, facts=facts)
+    if ratings_csv is not None:
+        _check_scale(loaded, rs)
     rs.panel = panel
     for prob in rs.problems:
         log.warning("input problem: %s", prob)

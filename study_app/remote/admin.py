@@ -258,7 +258,8 @@ def pull(server: str, admin_token: str, out: str | Path, *, csv: str | Path | No
     if answers is not None:
         result.answers_path = Path(answers)
         result.n_answer_rows, result.screenings_path = _write_answers(kept, Path(answers))
-    result.rewritten = _rewrite_earlier_tables(out, kept, withdrawn, csv=csv, answers=answers)
+    result.rewritten = _rewrite_earlier_tables(out, kept, withdrawn + result.withdrew_in_app,
+                                               csv=csv, answers=answers)
     return result
 
 
@@ -284,8 +285,9 @@ def _write_answers(kept: list[SessionRecord], path: Path) -> tuple[int, Path | N
 def _rewrite_earlier_tables(out: Path, kept: list[SessionRecord], withdrawn: list[str], *,
                             csv: str | Path | None, answers: str | Path | None) -> list[Path]:
     """Write again the tables earlier pulls into ``out`` wrote (this pull's aside), where
-    they still hold rows of a participant who has withdrawn (their data is deleted on the
-    server; a table left as it was would keep it), and note this pull's tables."""
+    they still hold rows of a participant who has withdrawn, on the server (their data is
+    deleted there) or in the app (no table holds them): a table left as it was would keep
+    them. Note this pull's tables."""
     note = out / TABLES_NOTE
     now = {k: Path(v).resolve() for k, v in (("csv", csv), ("answers", answers))
            if v is not None}

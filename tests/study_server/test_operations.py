@@ -224,6 +224,15 @@ def test_a_participant_who_withdrew_in_the_app_is_in_no_pulled_table(
     assert "withdrew in the app: P01" in proc.stdout
     assert {r["participant"] for r in read_table(ratings, RATINGS)} == {"P02"}
     assert (tmp_path / "p" / "P01.sqlite").is_file()  # the file carries the withdrawal
+    # a table an older pull wrote with P01's rows is written again without them
+    from session_store import read_session
+    from session_store.ratings_csv import write_ratings_csv
+
+    write_ratings_csv(read_session(tmp_path / "p" / "P01.sqlite").ratings, ratings)
+    assert {r["participant"] for r in read_table(ratings, RATINGS)} == {"P01"}
+    proc = run_cli("pull", srv.url, "--admin-token", ADMIN, "--out", str(tmp_path / "p"))
+    assert f"wrote {ratings.resolve()} again" in proc.stdout
+    assert {r["participant"] for r in read_table(ratings, RATINGS)} == {"P02"}
 
 
 def test_pull_with_a_wrong_token_is_one_line(served_study, server_factory, tmp_path):

@@ -7,6 +7,8 @@ reference). Input problems found while building it travel with it so the report 
 
 from __future__ import annotations
 
+import re
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -22,6 +24,18 @@ ALLOCATIONS = ("full", "adaptive", "unbalanced")
 of times), ``adaptive`` (the manifest's ``protocol.allocation``: block 1 holds every stimulus
 once, later blocks give some stimuli more ratings), ``unbalanced`` (no such policy declared,
 but the raters who finished gave some stimuli more ratings than others)."""
+
+
+def rater_order(ids: Iterable[Any]) -> list[str]:
+    """Participant ids as text, in the order a reader expects: numbers inside an id compare
+    as numbers (P2 before P10, 9 before 10), so tables, figures and the rater axis of the
+    rating array follow it; ties (P1, P01) fall back to the text."""
+
+    def key(rater: str) -> tuple[tuple[tuple[int, int | str], ...], str]:
+        parts = re.split(r"(\d+)", rater.casefold())
+        return tuple((0, int(p)) if p.isdigit() else (1, p) for p in parts if p), rater
+
+    return sorted({str(i) for i in ids}, key=key)
 
 
 @dataclass(frozen=True)
@@ -54,7 +68,8 @@ class PanelAnswers:
 
     def failed_vision(self) -> list[str]:
         """Participants with at least one failed vision check, sorted."""
-        return sorted(p for p, tests in self.screenings.items() if "failed" in tests.values())
+        return rater_order(p for p, tests in self.screenings.items()
+                           if "failed" in tests.values())
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from tqdm.auto import tqdm
 from stimuli_manifests import LoadedManifest, Manifest, StimuliError, load_manifest
 
 from .csv_inputs import frame_from_csvs
-from .data import Exclusion, InputProblem, PanelAnswers, RatingSet
+from .data import Exclusion, InputProblem, PanelAnswers, RatingSet, rater_order
 from .errors import AnalysisError
 from .panel import panel_from_sessions
 from .quality import facts_from_rows, facts_from_sessions
@@ -207,7 +207,7 @@ def ratings_from_frame(
         problems.append(InputProblem(source or "<ratings>", None,
                                      f"{len(unrated)} manifest stimulus/stimuli never rated "
                                      f"(e.g. {', '.join(unrated[:5])})"))
-    raters = sorted(set(good["participant"]))
+    raters = rater_order(good["participant"])
     # Repetition slot: rank of the repetition value within (rater, stimulus).
     good = good.sort_values(["participant", "stimulus", "_rep"])
     slot = good.groupby(["participant", "stimulus"]).cumcount().to_numpy()

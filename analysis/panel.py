@@ -28,7 +28,7 @@ from stimuli_manifests.panel import (
     Text,
 )
 
-from .data import Exclusion, InputProblem, PanelAnswers, RatingSet, drop_unrated
+from .data import Exclusion, InputProblem, PanelAnswers, RatingSet, drop_unrated, rater_order
 from .errors import AnalysisError
 from .sessions import Session
 
@@ -290,7 +290,7 @@ def _screening_clauses(panel: Panel, data: PanelAnswers, participants: list[str]
         failed = sum(_failed(data, p) for p in screened)
         clauses.append(f"{len(screened)} took the remote vision screening and {failed} "
                        f"failed it")
-    others = sorted({p for p in everyone if p not in participants and _failed(data, p)})
+    others = rater_order(p for p in everyone if p not in participants and _failed(data, p))
     if others:
         k = len(others)
         ended = panel.vision_screening is not None and panel.vision_screening.on_fail == "end"

@@ -12,7 +12,7 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from .ceiling import CiCurve, SplitHalf, ci_width_curve, split_half
-from .data import Exclusion, InputProblem, RatingSet, drop_unrated
+from .data import Exclusion, InputProblem, RatingSet, drop_unrated, rater_order
 from .errors import AnalysisError, check_resamples
 from .metrics import MetricScores, MetricValidation, validate_metrics
 from .panel import (
@@ -170,7 +170,7 @@ def run_analysis(rs: RatingSet, config: AnalysisConfig | None = None,
     if rs.panel is not None and rs.panel.definition is not None:
         problems += panel_problems(rs.panel)
         # everyone read, and those a vision check stopped before their first rating
-        everyone = list(rs.raters) + sorted(set(rs.panel.screenings) - set(rs.raters))
+        everyone = list(rs.raters) + rater_order(set(rs.panel.screenings) - set(rs.raters))
         panel = summarise_panel(rs.panel.definition, rs.panel, list(screened.raters),
                                 everyone)
     done("quality")

@@ -19,7 +19,7 @@ import pandas as pd
 
 from session_store.mutations import BLOCK_EVENT
 
-from .data import Exclusion, RatingSet, balanced_subset, drop_unrated
+from .data import Exclusion, RatingSet, balanced_subset, drop_unrated, rater_order
 from .errors import AnalysisError
 from .reliability import repetition_correlation
 
@@ -100,7 +100,7 @@ def facts_from_rows(frame: pd.DataFrame) -> pd.DataFrame:
     """One row per participant from tidy rating rows (the columns a CSV has)."""
     if frame.empty:
         return pd.DataFrame()
-    out = pd.DataFrame(index=pd.Index(sorted(frame["participant"].astype(str).unique()),
+    out = pd.DataFrame(index=pd.Index(rater_order(frame["participant"]),
                                       name="rater"))
     g = frame.assign(participant=frame["participant"].astype(str)).groupby("participant")
     out["presentations"] = g.size()

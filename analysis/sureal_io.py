@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .data import InputProblem, RatingSet
+from .data import InputProblem, RatingSet, rater_order
 from .errors import AnalysisError
 
 _BINOPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul,
@@ -254,8 +254,8 @@ def ratings_from_sureal(data: dict[str, Any], *, source: str = "<dataset>") -> R
     dis = data["dis_videos"]
     first_os = dis[0].get("os") if isinstance(dis[0], dict) else None
     if isinstance(first_os, dict):
-        raters = sorted({str(k) for d in dis if isinstance(d, dict)
-                         and isinstance(d.get("os"), dict) for k in d["os"]})
+        raters = rater_order(k for d in dis if isinstance(d, dict)
+                             and isinstance(d.get("os"), dict) for k in d["os"])
     elif isinstance(first_os, (list, tuple)):
         raters = [str(i) for i in range(len(first_os))]
     else:

@@ -12,8 +12,10 @@ import pandas as pd
 import pytest
 
 from analysis.cli import main as analyze
+from analysis.data import rater_order
 from analysis.errors import AnalysisError
 from analysis.inputs import load_ratings
+from analysis.quality import facts_from_rows
 from analysis.synthetic import synthetic_study
 from stimuli_manifests import save_manifest
 
@@ -193,3 +195,23 @@ def test_the_dmos_figure_says_why_a_scene_has_no_dmos(study, tmp_path, monkeypat
         .is_file()
     panels = {ax.get_title(): [t.get_text() for t in ax.texts] for ax in built[0].axes}
     assert panels == {"scene1": [], "scene2": ["no DMOS: its hidden reference\nwas not rated"]}
+
+
+def test_rater_ids_with_numbers_sort_as_numbers():
+    ids = ["P10", "P2", "p1", "P01", "a", "10", "9", 3]
+    assert rater_order(ids) == ["3", "9", "10", "a", "P01", "p1", "P2", "P10"]
+
+
+def test_numbered_raters_keep_their_ratings_in_numeric_order(study, tmp_path):
+    """Raters 1..10 were ordered 1, 10, 2 in every table and on the rater axis."""
+    manifest, _, ratings, baseline = study
+    names = dict(zip(baseline.raters, ["2", "10", "1", "9"], strict=True))
+    path = tmp_path / "numbered.csv"
+    ratings.assign(participant=ratings["participant"].map(names)).to_csv(path, index=False)
+    rs = load_ratings(manifest, ratings_csv=path)
+    assert rs.raters == ["1", "2", "9", "10"]
+    for old, new in names.items():
+        assert np.array_equal(rs.scores[:, rs.raters.index(new)],
+                              baseline.scores[:, baseline.raters.index(old)], equal_nan=True)
+    facts = facts_from_rows(ratings.assign(participant=ratings["participant"].map(names)))
+    assert list(facts.index) == ["1", "2", "9", "10"]

@@ -2,8 +2,10 @@
 
 The admin token comes from ``$CGVQ_ADMIN_TOKEN`` or is generated once and kept in
 ``<study>/server/admin_token`` (mode 0600). The dashboard asks for it once and then keeps a
-session cookie: an expiry time signed with an HMAC keyed by the admin token, so it needs no
-server-side state, survives a restart and dies when the token changes.
+session cookie: its issue time (ms) signed with an HMAC keyed by the admin token, so it
+survives a restart, dies when the token changes or after :data:`COOKIE_LIFETIME_S`, and dies
+when anyone logs out: the server keeps the time of the last logout, and a cookie issued before
+it opens nothing (a copied cookie included).
 """
 
 from __future__ import annotations
@@ -78,19 +80,31 @@ def bearer(header: str | None) -> str | None:
     return value.strip()
 
 
-def make_cookie(admin: str, now: float | None = None) -> str:
-    expiry = int((now or time.time()) + COOKIE_LIFETIME_S)
-    sig = hmac.new(admin.encode(), f"dashboard:{expiry}".encode(), hashlib.sha256).hexdigest()
-    return f"{expiry}.{sig}"
+def _signature(admin: str, issued_ms: str) -> str:
+    return hmac.new(admin.encode(), f"dashboard:{issued_ms}".encode(),
+                    hashlib.sha256).hexdigest()
 
 
-def cookie_valid(admin: str, value: str | None, now: float | None = None) -> bool:
+def make_cookie(admin: str, now: float | None = None, logged_out_ms: int = 0) -> str:
+    """A cookie issued now, and after the last logout even within its millisecond."""
+    now_ms = int((time.time() if now is None else now) * 1000)
+    issued_ms = str(max(now_ms, logged_out_ms + 1))
+    return f"{issued_ms}.{_signature(admin, issued_ms)}"
+
+
+def cookie_valid(admin: str, value: str | None, now: float | None = None,
+                 logged_out_ms: int = 0) -> bool:
+    """A cookie this server signed, younger than its lifetime and issued after the last
+    logout (``logged_out_ms``, epoch ms)."""
     if not value:
         return False
-    expiry, _, sig = value.partition(".")
+    issued, _, sig = value.partition(".")
     # ASCII digits only: str.isdigit() accepts '²', which int() refuses (a 500 before)
-    if not re.fullmatch(r"[0-9]{1,12}", expiry) or int(expiry) < (now or time.time()):
+    if not re.fullmatch(r"[0-9]{1,15}", issued):
         return False
-    want = hmac.new(admin.encode(), f"dashboard:{expiry}".encode(), hashlib.sha256).hexdigest()
+    now_ms = (time.time() if now is None else now) * 1000
+    if int(issued) <= logged_out_ms or int(issued) + COOKIE_LIFETIME_S * 1000 < now_ms:
+        return False
     # as bytes: compare_digest raises on non-ASCII str (a cookie is client-chosen)
-    return hmac.compare_digest(want.encode(), sig.encode("utf-8", "replace"))
+    return hmac.compare_digest(_signature(admin, issued).encode(),
+                               sig.encode("utf-8", "replace"))

@@ -67,6 +67,7 @@ class ServerState:
         self.limiter = RateLimiter(self.config.rate_per_s, self.config.burst)
         self.failed_auth = RateLimiter(5.0, 50.0)
         self.login_limiter = RateLimiter(0.2, 10.0)
+        self.dashboard_logout_ms = self.store.dashboard_logout_ms()
         self._old_versions: dict[str, StudyVersion] = {}
         self._versions_lock = threading.Lock()
         self.stats = StatsWorker(self.config, self.store, self.current)

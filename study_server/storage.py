@@ -7,7 +7,8 @@ Tables (schema version :data:`SCHEMA_VERSION`, reached by the migrations in
 :data:`MIGRATIONS`, applied in order inside one transaction each; a fresh database runs them
 all, so every migration is exercised by every test):
 
-``meta``: ``schema`` (the version number) and ``format``.
+``meta``: ``schema`` (the version number), ``format`` and ``dashboard_logout_ms`` (when the
+    dashboard was last logged out of: cookies issued before it open nothing).
 ``versions``: each manifest the server has served (sha256, study id, the manifest's bytes so a
     participant pinned to an older version can still be served it, registration time, current).
 ``participants``: id, sha256 of the token (never the token), invitation time, last seen, the
@@ -654,6 +655,18 @@ class ServerStore:
         except sqlite3.Error:
             return False
         return busy == 0
+
+    def dashboard_logout_ms(self) -> int:
+        """When the dashboard was last logged out of (epoch ms; 0: never)."""
+        with self._read() as con:
+            row = con.execute("SELECT value FROM meta WHERE key='dashboard_logout_ms'"
+                              ).fetchone()
+        return int(row[0]) if row is not None else 0
+
+    def record_dashboard_logout(self, at_ms: int) -> None:
+        with self._write() as con:
+            con.execute("INSERT INTO meta VALUES ('dashboard_logout_ms', ?) ON CONFLICT(key) "
+                        "DO UPDATE SET value=excluded.value", (str(at_ms),))
 
     def change_marker(self) -> tuple[int, ...]:
         """Changes when entries, flags, tombstones or invitations change (cheap; for the

@@ -19,11 +19,12 @@ MAX_ENTRIES_PER_PAGE = 5000
 
 def admin_status(request: Request) -> bool | None:
     """True: the admin; False: wrong credentials; None: none given."""
-    admin_token = server_of(request).admin_token
+    st = server_of(request)
     token = auth.bearer(request.headers.get("authorization"))
     if token is not None:
-        return auth.token_matches(token, auth.token_sha256(admin_token))
-    if auth.cookie_valid(admin_token, request.cookies.get(auth.COOKIE)):
+        return auth.token_matches(token, auth.token_sha256(st.admin_token))
+    if auth.cookie_valid(st.admin_token, request.cookies.get(auth.COOKIE),
+                         logged_out_ms=st.dashboard_logout_ms):
         return True
     return None
 

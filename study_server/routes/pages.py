@@ -5,6 +5,7 @@ renders the HTML."""
 from __future__ import annotations
 
 import math
+import time
 from urllib.parse import parse_qs
 
 from starlette.concurrency import run_in_threadpool
@@ -63,16 +64,25 @@ async def login(request: Request) -> Response:
         st.login_limiter.acquire(key)
         return _login_page(request, "That is not the admin token.", 403)
     resp = RedirectResponse("/dashboard", status_code=303, headers=SECURITY_HEADERS)
-    resp.set_cookie(auth.COOKIE, auth.make_cookie(st.admin_token),
+    cookie = auth.make_cookie(st.admin_token, logged_out_ms=st.dashboard_logout_ms)
+    resp.set_cookie(auth.COOKIE, cookie,
                     max_age=auth.COOKIE_LIFETIME_S, httponly=True, samesite="strict",
                     secure=st.config.secure_cookies, path="/")
     return resp
 
 
 async def logout(request: Request) -> Response:
+    """Ends every dashboard login made so far, on the server too: a copy of the cookie (a
+    shared machine, a backup of the browser profile) opens nothing afterwards. A request
+    without a valid cookie only clears its own cookie."""
+    st = server_of(request)
+    if admin_status(request):
+        at_ms = int(time.time() * 1000)
+        await run_in_threadpool(st.store.record_dashboard_logout, at_ms)
+        st.dashboard_logout_ms = at_ms
     resp = RedirectResponse("/dashboard", status_code=303, headers=SECURITY_HEADERS)
     resp.delete_cookie(auth.COOKIE, path="/", httponly=True, samesite="strict",
-                       secure=server_of(request).config.secure_cookies)
+                       secure=st.config.secure_cookies)
     return resp
 
 

@@ -10,6 +10,7 @@ import json
 import os
 import re
 import stat
+import time
 import tracemalloc
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,6 +21,7 @@ from support.sessions import session_entries
 from session_store import utc_now
 from session_store.outbox import OutboxEntry, entry_hash, outbox_genesis
 from session_store.protocol import PROTOCOL
+from study_server import auth
 from study_server.app import create_app
 from study_server.config import ServerConfig
 from study_server.ingest import Refused
@@ -403,3 +405,28 @@ def test_pulled_sessions_are_owner_only(open_umask, served_study, invites, serve
     assert _mode(out) == 0o700
     assert [_mode(s.path) for s in result.sessions] == [0o600]
     assert _mode(result.listing_path) == 0o600 and _mode(out / "ratings.csv") == 0o600
+
+
+def test_a_logout_outlives_a_restart_and_cookies_expire(state):
+    """The last logout is kept in the server's database: after a restart a cookie from
+    before it still opens nothing; any cookie stops after its lifetime."""
+    before = auth.make_cookie(ADMIN)
+    app = Asgi(create_app(state.config, state))
+    cookie = [(b"cookie", f"{auth.COOKIE}={before}".encode())]
+    assert app.request("GET", "/dashboard", cookie, iter(()))[0] == 200
+    assert app.request("POST", "/dashboard/logout", cookie, iter(()))[0] == 303
+    after = auth.make_cookie(ADMIN, logged_out_ms=state.dashboard_logout_ms)
+    state.stop()
+    reopened = ServerState.open(state.config)
+    try:
+        app = Asgi(create_app(reopened.config, reopened))
+        assert app.request("GET", "/dashboard", cookie, iter(()))[0] == 401
+        assert b"Your login has expired" in app.body
+        fresh = [(b"cookie", f"{auth.COOKIE}={after}".encode())]
+        assert app.request("GET", "/dashboard", fresh, iter(()))[0] == 200
+    finally:
+        reopened.stop()
+    day_old = auth.make_cookie(ADMIN, now=time.time() - auth.COOKIE_LIFETIME_S - 1)
+    assert not auth.cookie_valid(ADMIN, day_old)
+    assert auth.cookie_valid(ADMIN, auth.make_cookie(ADMIN, now=time.time() - 60))
+    assert not auth.cookie_valid("another admin token", auth.make_cookie(ADMIN))

@@ -182,3 +182,18 @@ def test_admin_api_and_dashboard_need_the_admin_token(running):
     assert "default-src 'self'" in headers["content-security-policy"]
     forged = cookie.split("=")[0] + "=99999999999.deadbeef"
     assert raw_request(srv.url, "GET", "/dashboard", headers={"Cookie": forged})[0] == 401
+    # Logging out ends the login on the server: a copy of the cookie (a shared machine, a
+    # synced browser profile) opens nothing afterwards, and a new login works at once.
+    form = {"Content-Type": "application/x-www-form-urlencoded"}
+    assert raw_request(srv.url, "POST", "/dashboard/logout", b"", {"Cookie": cookie})[0] == 303
+    assert raw_request(srv.url, "GET", "/dashboard", headers={"Cookie": cookie})[0] == 401
+    assert raw_request(srv.url, "GET", "/api/v1/admin/sessions",
+                       headers={"Cookie": cookie})[0] == 401
+    status, headers, _ = raw_request(srv.url, "POST", "/dashboard/login",
+                                     f"token={ADMIN}".encode(), form)
+    again = headers["set-cookie"].split(";")[0]
+    assert raw_request(srv.url, "GET", "/dashboard", headers={"Cookie": again})[0] == 200
+    # a logout without a valid cookie (a stranger's POST) logs nobody out
+    assert raw_request(srv.url, "POST", "/dashboard/logout", b"", {"Cookie": forged})[0] == 303
+    assert raw_request(srv.url, "POST", "/dashboard/logout", b"")[0] == 303
+    assert raw_request(srv.url, "GET", "/dashboard", headers={"Cookie": again})[0] == 200

@@ -26,6 +26,8 @@ if TYPE_CHECKING:
 
 TEMPLATES = Path(__file__).parent / "templates"
 REFRESH_S = 30
+PANEL_R_LOW = 0.5
+"""A correlation with the rest of the panel below this is marked red on the dashboard."""
 STALLED_AFTER_S = 15 * 60
 """A running participant not heard from for this long is marked: their app is closed or
 cannot reach the server, and a reminder may help."""
@@ -67,6 +69,41 @@ def _duration(hours: float | None) -> str:
     if hours < 48:
         return f"{hours:.1f} h"
     return f"{hours / 24:.1f} days"
+
+
+def attention(row: dict[str, Any], partial: bool) -> list[str]:
+    """Why one participant's row needs a look, in words: the cells the table marks, plus
+    their flags. Empty for a participant who withdrew in the app (nothing of theirs is used)."""
+    if row["state"] == "withdrew in app":
+        return []
+    ps, out = row["ps"], []
+    if row["stalled"]:
+        out.append(f"no contact for {_ago(row['p']['last_seen']).replace(' ago', '')}")
+    if ps is not None:
+        if ps.removed_by_screening:
+            out.append("screening would remove")
+        elif partial:
+            out.append("partial: not used yet")
+        failed = [t for t, o in sorted(ps.vision.items()) if o == "failed"]
+        if failed:
+            out.append(f"failed the {', '.join(failed)} check")
+        if ps.panel_r is not None and ps.panel_r < PANEL_R_LOW:
+            out.append(f"r panel {ps.panel_r:.2f}")
+        if ps.timing and ps.timing not in ("vsync", "simulated"):
+            out.append(f"timing {ps.timing}")
+        if ps.dropped_frames:
+            out.append(f"{ps.dropped_frames} dropped frame(s)")
+        if ps.requeued:
+            out.append(f"{ps.requeued} re-queued trial(s)")
+        if ps.preflight_skipped and not ps.simulated:  # a simulated rater has no display
+            out.append("pre-flight skipped")
+        if ps.preflight_failed:
+            out.append(f"pre-flight: {', '.join(ps.preflight_failed)} failed")
+        if ps.unreadable:
+            out.append(f"{ps.unreadable} unreadable entr{'y' if ps.unreadable == 1 else 'ies'}")
+    for f in row["p"]["flags"]:
+        out.append(f["kind"] + (f" ×{f['count']}" if f["count"] > 1 else ""))
+    return out
 
 
 class Pages:
@@ -128,6 +165,9 @@ class Pages:
         to_go = sum((snap.planned_per_participant if r["s"] is None else
                      0 if r["s"]["finished_at"] else
                      max(r["planned"] - r["s"]["n_ratings"], 0)) for r in rows)
+        partial = set(snap.study.partial) if snap.study is not None else set()
+        for r in rows:
+            r["attention"] = attention(r, r["p"]["participant"] in partial)
         finished = sum(1 for r in rows if r["state"] == "finished")
         pending = sum(1 for r in rows if r["state"] in ("invited", "running"))
         rate = self.stats.rate_per_hour()
@@ -140,6 +180,7 @@ class Pages:
             "per_stim_max": max(counts, default=0),
             "below_target": sum(1 for n in counts if n < snap.target_per_stimulus),
             "n_stimuli": len(counts), "scenes": scenes, "flags": flags,
+            "attention": [r for r in rows if r["attention"]], "panel_r_low": PANEL_R_LOW,
             "n_invited": len(rows), "n_started": started, "n_finished": finished,
             "n_arrived": arrived, "n_arrived_earlier": arrived_earlier, "n_to_go": to_go,
             "n_arrived_withdrawn": arrived_withdrawn, "n_pending": pending,

@@ -115,6 +115,14 @@ def test_dashboard_in_a_real_browser(browser, tmp_path, invites, server_factory)
     assert "7 min behind the server's" in flags and "edited outside the app" in flags
     outlier = next(p for p, t in text.items() if "remove" in t)
     assert outlier.startswith("P")
+    # the list above the table names who needs a look and why; a name jumps to the row
+    look = browser.find_element(By.ID, "attention").text
+    assert f"{outlier}: screening would remove; r panel -" in look
+    assert "P08: clock_skew; local_edit" in look
+    assert "participants to look at" in look
+    marked = {r.get_attribute("data-participant") for r in
+              browser.find_elements(By.CSS_SELECTOR, "#participants tr.look")}
+    assert {outlier, "P08"} <= marked and "P01" not in marked
     assert browser.find_element(By.ID, "n-ratings").text == str(7 * 32)
     icc = float(browser.find_element(By.ID, "icc").text)
     assert 0.5 < icc <= 1.0

@@ -69,6 +69,7 @@ def test_the_pace_follows_the_clock_and_a_pause_says_stalled(served_study, tmp_p
     assert later["rate_per_hour"] == 0 and later["eta_hours"] is None
     assert f"stalled no ratings in the last hour, {later['n_to_go']} to go" in html
     assert "running, no contact for 2.0 h" in html  # the participant a reminder may help
+    assert "1 participant to look at" in html and "P01 : no contact for 2.0 h" in html
 
 
 def test_an_empty_study_is_not_done(served_study, monkeypatch):
@@ -81,3 +82,24 @@ def test_an_empty_study_is_not_done(served_study, monkeypatch):
         st.stop()
     assert "done" not in html
     assert "no participants invited yet ( cgvq-study invite )" in html
+
+
+def test_the_list_to_look_at_says_why_in_words():
+    """Each marked cell and flag of a row, as a reason; nothing for a clean row or for a
+    participant who withdrew in the app (none of their data is used)."""
+    ps = stats.ParticipantStats("P03", timing="paced-60", dropped_frames=4, requeued=1,
+                                preflight_skipped=True, panel_r=0.31,
+                                vision={"ishihara": "failed", "acuity": "passed"},
+                                unreadable=1)
+    flag = {"kind": "clock_skew", "count": 2, "message": "..."}
+    row = {"p": {"participant": "P03", "last_seen": None, "flags": [flag]}, "ps": ps,
+           "state": "running", "stalled": False}
+    assert dashboard.attention(row, partial=True) == [
+        "partial: not used yet", "failed the ishihara check", "r panel 0.31",
+        "timing paced-60", "4 dropped frame(s)", "1 re-queued trial(s)",
+        "pre-flight skipped", "1 unreadable entry", "clock_skew ×2"]
+    clean = stats.ParticipantStats("P04", timing="vsync", panel_r=0.9,
+                                   vision={"ishihara": "passed"}, preflight_skipped=False)
+    assert dashboard.attention({**row, "ps": clean, "p": {**row["p"], "flags": []}},
+                               partial=False) == []
+    assert dashboard.attention({**row, "state": "withdrew in app"}, partial=True) == []

@@ -94,7 +94,8 @@ def test_edits_after_upload_are_flagged_and_the_server_copy_is_unchanged(
         assert "complete" in block.splitlines()[0], (name, block)
         assert "FLAG " in block, (name, block)
         assert session_tables(tmp_path / "pulled" / f"{pid}.sqlite") == tables, name
-        row = re.search(rf'<tr data-participant="{pid}">.*?</tr>', html, re.S).group(0)
+        row = re.search(rf'<tr [^>]*data-participant="{pid}"[^>]*>.*?</tr>', html,
+                        re.S).group(0)
         assert 'class="flag"' in row, name
     assert f"{len(EDITS)} participant(s) flagged" in out
     kinds = re.findall(r"FLAG (\w+)", out)

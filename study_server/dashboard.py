@@ -22,12 +22,10 @@ from .ingest import parse_time
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from .stats import StatsWorker
+    from .stats import CellLimits, StatsWorker
 
 TEMPLATES = Path(__file__).parent / "templates"
 REFRESH_S = 30
-PANEL_R_LOW = 0.5
-"""A correlation with the rest of the panel below this is marked red on the dashboard."""
 STALLED_AFTER_S = 15 * 60
 """A running participant not heard from for this long is marked: their app is closed or
 cannot reach the server, and a reminder may help."""
@@ -71,9 +69,10 @@ def _duration(hours: float | None) -> str:
     return f"{hours / 24:.1f} days"
 
 
-def attention(row: dict[str, Any], partial: bool) -> list[str]:
-    """Why one participant's row needs a look, in words: the cells the table marks, plus
-    their flags. Empty for a participant who withdrew in the app (nothing of theirs is used)."""
+def attention(row: dict[str, Any], partial: bool, limits: CellLimits) -> list[str]:
+    """Why one participant's row needs a look, in words: the cells the table marks (with the
+    report's thresholds, ``limits``), plus their flags. Empty for a participant who withdrew
+    in the app (nothing of theirs is used)."""
     if row["state"] == "withdrew in app":
         return []
     ps, out = row["ps"], []
@@ -87,8 +86,10 @@ def attention(row: dict[str, Any], partial: bool) -> list[str]:
         failed = [t for t, o in sorted(ps.vision.items()) if o == "failed"]
         if failed:
             out.append(f"failed the {', '.join(failed)} check")
-        if ps.panel_r is not None and ps.panel_r < PANEL_R_LOW:
+        if ps.panel_r is not None and ps.panel_r < limits.panel_r:
             out.append(f"r panel {ps.panel_r:.2f}")
+        if limits.hidden_reference_low(ps.hidden_reference_mean):
+            out.append(f"hidden references rated {ps.hidden_reference_mean:.1f} on average")
         if ps.timing and ps.timing not in ("vsync", "simulated"):
             out.append(f"timing {ps.timing}")
         if ps.dropped_frames:
@@ -167,7 +168,7 @@ class Pages:
                      max(r["planned"] - r["s"]["n_ratings"], 0)) for r in rows)
         partial = set(snap.study.partial) if snap.study is not None else set()
         for r in rows:
-            r["attention"] = attention(r, r["p"]["participant"] in partial)
+            r["attention"] = attention(r, r["p"]["participant"] in partial, snap.limits)
         finished = sum(1 for r in rows if r["state"] == "finished")
         pending = sum(1 for r in rows if r["state"] in ("invited", "running"))
         rate = self.stats.rate_per_hour()
@@ -180,7 +181,7 @@ class Pages:
             "per_stim_max": max(counts, default=0),
             "below_target": sum(1 for n in counts if n < snap.target_per_stimulus),
             "n_stimuli": len(counts), "scenes": scenes, "flags": flags,
-            "attention": [r for r in rows if r["attention"]], "panel_r_low": PANEL_R_LOW,
+            "attention": [r for r in rows if r["attention"]], "limits": snap.limits,
             "n_invited": len(rows), "n_started": started, "n_finished": finished,
             "n_arrived": arrived, "n_arrived_earlier": arrived_earlier, "n_to_go": to_go,
             "n_arrived_withdrawn": arrived_withdrawn, "n_pending": pending,

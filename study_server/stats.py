@@ -75,6 +75,7 @@ class StatsSnapshot:
     error: str | None = None
     has_panel: bool = False
     """The manifest asks questionnaires or screens vision."""
+    limits: CellLimits = field(default_factory=lambda: CellLimits())
     panel_answered: int = 0
     """Participants who answered at least one questionnaire question."""
     panel_screened: int = 0
@@ -347,6 +348,25 @@ class StatsWorker:
 
 
 @dataclass(frozen=True)
+class CellLimits:
+    """Where the dashboard marks a participant's cell: the report's data-quality thresholds
+    (:data:`analysis.quality.THRESHOLDS`), with the hidden-reference share turned into a
+    rating on this study's scale, so that the page and the report flag the same raters."""
+
+    panel_r: float = 0.75
+    hidden_reference: float = 50.0
+    """The mean hidden-reference rating that is marked below it (above it on a scale where
+    lower is better)."""
+    higher_is_better: bool = True
+
+    def hidden_reference_low(self, mean: float | None) -> bool:
+        if mean is None:
+            return False
+        return mean < self.hidden_reference if self.higher_is_better \
+            else mean > self.hidden_reference
+
+
+@dataclass(frozen=True)
 class StudyPlan:
     """What the served manifest says about the study, read once when the server starts."""
 
@@ -355,8 +375,10 @@ class StudyPlan:
     allocation: str
     adaptive: dict[str, Any] | None
     planned_per_participant: int
+    limits: CellLimits = CellLimits()
 
     def apply(self, snap: StatsSnapshot) -> StatsSnapshot:
+        snap.limits = self.limits
         snap.has_panel = self.has_panel
         snap.allocation = self.allocation
         snap.adaptive = self.adaptive
@@ -374,5 +396,11 @@ def study_plan(current: StudyVersion) -> StudyPlan:
     planned = len(stimuli) * m.protocol.repetitions
     if adaptive is not None:  # block 1 (every stimulus once) and the later blocks
         planned = len(stimuli) + (adaptive.blocks - 1) * adaptive.trials_per_block(len(stimuli))
+    from analysis.quality import THRESHOLDS
+
+    share, scale = THRESHOLDS["hidden_reference"], m.scale
+    higher = scale.direction == "higher_is_better"
+    limits = CellLimits(THRESHOLDS["loo_r"], scale.min + share * (scale.max - scale.min)
+                        if higher else scale.max - share * (scale.max - scale.min), higher)
     return StudyPlan(stimuli, m.panel is not None, m.protocol.allocation,
-                     None if adaptive is None else adaptive.model_dump(), planned)
+                     None if adaptive is None else adaptive.model_dump(), planned, limits)

@@ -4,6 +4,7 @@ that is not 'done'."""
 
 from __future__ import annotations
 
+import json
 import re
 from datetime import timedelta
 
@@ -94,12 +95,34 @@ def test_the_list_to_look_at_says_why_in_words():
     flag = {"kind": "clock_skew", "count": 2, "message": "..."}
     row = {"p": {"participant": "P03", "last_seen": None, "flags": [flag]}, "ps": ps,
            "state": "running", "stalled": False}
-    assert dashboard.attention(row, partial=True) == [
+    limits = stats.CellLimits(panel_r=0.75, hidden_reference=50.0)
+    ps.hidden_reference_mean = 42.0
+    assert dashboard.attention(row, partial=True, limits=limits) == [
         "partial: not used yet", "failed the ishihara check", "r panel 0.31",
+        "hidden references rated 42.0 on average",
         "timing paced-60", "4 dropped frame(s)", "1 re-queued trial(s)",
         "pre-flight skipped", "1 unreadable entry", "clock_skew ×2"]
-    clean = stats.ParticipantStats("P04", timing="vsync", panel_r=0.9,
+    clean = stats.ParticipantStats("P04", timing="vsync", panel_r=0.8, hidden_reference_mean=51,
                                    vision={"ishihara": "passed"}, preflight_skipped=False)
     assert dashboard.attention({**row, "ps": clean, "p": {**row["p"], "flags": []}},
-                               partial=False) == []
-    assert dashboard.attention({**row, "state": "withdrew in app"}, partial=True) == []
+                               partial=False, limits=limits) == []
+    assert dashboard.attention({**row, "state": "withdrew in app"}, partial=True,
+                               limits=limits) == []
+    # on a lower-is-better scale a hidden reference rated high is the one to look at
+    flipped = stats.CellLimits(hidden_reference=3.0, higher_is_better=False)
+    assert flipped.hidden_reference_low(4.2) and not flipped.hidden_reference_low(1.5)
+
+
+def test_the_marks_use_the_report_thresholds_on_the_study_scale(served_study):
+    """The page marked r panel below 0.5 while the report flags below 0.75, and never marked
+    a low hidden-reference mean: both now mark what the report flags."""
+    from types import SimpleNamespace
+
+    from analysis.quality import THRESHOLDS
+
+    manifest = json.loads((served_study / "manifest.json").read_text())
+    plan = stats.study_plan(SimpleNamespace(manifest_bytes=json.dumps(manifest).encode()))
+    assert plan.limits == stats.CellLimits(THRESHOLDS["loo_r"], 50.0, True)
+    manifest["scale"] = {"min": 1, "max": 5, "direction": "lower_is_better", "labels": []}
+    plan = stats.study_plan(SimpleNamespace(manifest_bytes=json.dumps(manifest).encode()))
+    assert plan.limits.hidden_reference == 3.0 and not plan.limits.higher_is_better

@@ -168,3 +168,33 @@ def test_the_dashboard_after_a_new_version_counts_only_its_sessions(
                 browser.find_elements(By.CSS_SELECTOR, "#participants tr[data-participant]")]
     assert sorted(versions) == ["v1", "v1", "v2", "v2"]
     _full_page_screenshot(browser, "dashboard_new_version.png")
+
+
+def test_the_page_survives_a_server_outage_and_recovers(browser, tmp_path, invites,
+                                                         server_factory):
+    """While the server is down the page keeps what it showed under a banner saying since
+    when; once the server is back (same port) it reloads by itself. The page polls every
+    30 s; the test makes its script poll every second."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    study = dashboard_study(tmp_path)
+    invites(2, study=study)
+    srv = server_factory(study, "--stats-every", "1")
+    browser.get(srv.url + "/dashboard")
+    browser.find_element(By.ID, "token").send_keys(ADMIN)
+    browser.find_element(By.ID, "login").click()
+    WebDriverWait(browser, 30).until(lambda b: b.find_elements(By.ID, "participants"))
+    port, url = srv.port, srv.url
+    srv.stop()
+    browser.execute_script("every = 1; check();")
+    banner = WebDriverWait(browser, 30).until(lambda b: b.find_elements(By.ID, "unreachable"))
+    assert banner[0].text.startswith("The study server cannot be reached since ")
+    assert "tries again every 1 s" in banner[0].text
+    assert len(browser.find_elements(By.CSS_SELECTOR, "#participants tr[data-participant]")) == 2
+    _full_page_screenshot(browser, "dashboard_server_unreachable.png")
+    again = server_factory(study, "--stats-every", "1", port=port)
+    assert again.url == url
+    # the reload is a fresh page: no banner, the table again (the cookie survived the restart)
+    WebDriverWait(browser, 60).until(lambda b: not b.find_elements(By.ID, "unreachable")
+                                     and b.find_elements(By.ID, "participants"))

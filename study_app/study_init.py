@@ -43,6 +43,7 @@ from stimuli_manifests.from_folder.mapping import (
     map_by_pattern,
 )
 from stimuli_manifests.from_folder.probe import ProbedVideo, probe_files
+from stimuli_manifests.from_folder.suggest import suggest_patterns
 from stimuli_manifests.lossless import LosslessCodec
 from stimuli_manifests.manifest_io import manifest_to_json
 from stimuli_manifests.model import is_valid_id
@@ -108,11 +109,13 @@ def init_study(opts: InitOptions) -> InitResult:
     if not result.mapping.videos and not result.mapping.problems:
         how = f"listed in {opts.mapping_csv}" if opts.mapping_csv else (
             f"matching {opts.reference_pattern!r} or {opts.test_pattern!r}")
-        raise StudyError(f"no videos {how} in {opts.folder}")
+        raise StudyError(f"no videos {how} in {opts.folder}"
+                         + _what_would_map(opts, folder, out, result.mapping))
     result.problems += result.mapping.problems
     if not any(v.role == "test" for v in result.mapping.videos):
         how = (f"list them with role 'test' in {opts.mapping_csv}" if opts.mapping_csv else
-               f"name them to match --pattern {opts.test_pattern!r}")
+               f"name them to match --pattern {opts.test_pattern!r}"
+               + _what_would_map(opts, folder, out, result.mapping))
         result.problems.append(Problem(
             "no test videos", str(opts.folder),
             f"only references were found; a study needs at least one test video: {how}"))
@@ -200,6 +203,23 @@ def _map(opts: InitOptions, folder: Path, out: Path) -> FolderMapping:
                               reference_pattern=opts.reference_pattern, exclude=out)
     except ValueError as exc:
         raise StudyError(str(exc)) from None
+
+
+def _what_would_map(opts: InitOptions, folder: Path, out: Path, mapping: FolderMapping
+                    ) -> str:
+    """For a folder the patterns left (nearly) empty: how many videos it holds and the
+    patterns, read off their names, that map every one of them (checked), or where to go."""
+    if opts.mapping_csv is not None or not mapping.unmatched:
+        return ""
+    videos = sorted([*mapping.unmatched, *(v.path for v in mapping.videos)])
+    found = f" ({len(videos)} video file(s) found, e.g. {mapping.unmatched[0]})"
+    hint = suggest_patterns(folder, videos, exclude=out)
+    if hint is None:
+        return (f"{found}; give --reference-pattern and --pattern that match their names, "
+                "or list the files in a --mapping CSV (docs: Bring your own videos)")
+    return (f"{found}; these patterns map all {hint.videos} ({hint.scenes} scene(s)): "
+            f"{hint.flags()}. Check the list init prints: level 1 must be the strongest "
+            "distortion, or use a --mapping CSV")
 
 
 def _default_study_id(out: Path) -> str:

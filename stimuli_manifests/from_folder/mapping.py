@@ -308,7 +308,7 @@ def _csv_row(folder: Path, row: dict[str, str], where: str, out: FolderMapping) 
                                   row.get("setting") or None))
 
 
-_REFERENCE_WORDS = ("reference", "ref", "gt", "groundtruth", "ground_truth", "ground-truth",
+REFERENCE_WORDS = ("reference", "ref", "gt", "groundtruth", "ground_truth", "ground-truth",
                     "original", "orig", "source", "src", "pristine", "clean", "master")
 
 
@@ -320,8 +320,8 @@ def _reference_candidates(out: FolderMapping, scene: str) -> list[PurePosixPath]
     for rel in out.unmatched:
         words = re.split(r"[^a-z0-9]+", rel.stem.lower())
         spaced = rel.stem.lower().replace(scene.lower(), " ")
-        if rel.parent in folders and (any(w in _REFERENCE_WORDS for w in words) or
-                                      spaced.strip(" _-.") in _REFERENCE_WORDS):
+        if rel.parent in folders and (any(w in REFERENCE_WORDS for w in words) or
+                                      spaced.strip(" _-.") in REFERENCE_WORDS):
             found.append(rel)
     return found
 

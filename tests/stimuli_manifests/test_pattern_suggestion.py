@@ -1,0 +1,100 @@
+"""A renders folder named the lab's way: init reads patterns off the names and suggests
+them only when they map every file, each to the scene, method and level it was written as."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support.cli import study_init as init
+
+from stimuli_manifests import load_manifest, write_video
+from stimuli_manifests.from_folder.mapping import map_by_pattern, scan_folder
+from stimuli_manifests.from_folder.suggest import suggest_patterns
+
+
+def touch(folder: Path, names: list[str]) -> None:
+    for name in names:
+        (folder / name).parent.mkdir(parents=True, exist_ok=True)
+        (folder / name).write_bytes(b"")
+
+
+def truth(mapping) -> set[tuple[str, str, str, str | None, int | None]]:
+    return {(v.path.as_posix(), v.scene, v.role, v.method, v.level) for v in mapping.videos}
+
+
+CASES = {
+    "flat, underscores": (
+        {"sponza_ref.mp4": ("sponza", None, None), "sponza_TAA_q1.mp4": ("sponza", "TAA", 1),
+         "sponza_FSR_q2.mp4": ("sponza", "FSR", 2), "bistro_ref.mp4": ("bistro", None, None),
+         "bistro_TAA_q1.mp4": ("bistro", "TAA", 1)},
+        "{scene}_ref.{ext}", "{scene}_{method}_q{level}.{ext}"),
+    "scene folders, GT": (
+        {"scene01/GT.mov": ("scene01", None, None),
+         "scene01/dlss_perf-1.mov": ("scene01", "dlss_perf", 1),
+         "scene01/dlss_perf-2.mov": ("scene01", "dlss_perf", 2),
+         "scene02/GT.mov": ("scene02", None, None), "scene02/fsr-1.mov": ("scene02", "fsr", 1)},
+        "{scene}/GT.{ext}", "{scene}/{method}-{level}.{ext}"),
+    "a scene name holding the separator": (
+        {"sponza_atrium-ground_truth.mkv": ("sponza_atrium", None, None),
+         "sponza_atrium-DLSS_crf23.mkv": ("sponza_atrium", "DLSS", 23),
+         "bistro-ground_truth.mkv": ("bistro", None, None),
+         "bistro-DLSS_crf30.mkv": ("bistro", "DLSS", 30)},
+        "{scene}-ground_truth.{ext}", "{scene}-{method}_crf{level}.{ext}"),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_a_suggestion_maps_every_file_as_it_was_written(tmp_path, case):
+    files, reference_pattern, test_pattern = CASES[case]
+    touch(tmp_path, list(files))
+    hint = suggest_patterns(tmp_path, scan_folder(tmp_path).videos)
+    assert hint is not None
+    assert (hint.reference_pattern, hint.test_pattern) == (reference_pattern, test_pattern)
+    mapped = map_by_pattern(tmp_path, test_pattern=hint.test_pattern,
+                            reference_pattern=hint.reference_pattern)
+    assert truth(mapped) == {(p, s, "test" if m else "reference", m, lv)
+                             for p, (s, m, lv) in files.items()}
+    assert hint.videos == len(files) and hint.scenes == len({s for s, _, _ in files.values()})
+
+
+@pytest.mark.parametrize("names", [
+    ["a/reference.mp4", "a/dlss_perf.mp4", "a/dlss_quality.mp4"],  # no level in the names
+    ["sponza_ref.mp4", "sponza_TAA_q1.mp4", "sponza_notes_final.mp4"],  # one file fits no rule
+    ["sponza_TAA_q1.mp4", "sponza_TAA_q2.mp4"],  # no reference
+])
+def test_no_suggestion_unless_every_file_maps(tmp_path, names):
+    touch(tmp_path, names)
+    assert suggest_patterns(tmp_path, scan_folder(tmp_path).videos) is None
+
+
+def test_init_suggests_the_flags_and_they_build_the_study(tmp_path, capsys):
+    renders = tmp_path / "renders"
+    rng = np.random.default_rng(0)
+    for scene in ("sponza", "bistro"):
+        write_video(renders / f"{scene}-REF.mkv", rng.integers(0, 256, (6, 32, 32, 3),
+                                                               dtype=np.uint8), 30)
+        for level in (1, 2):
+            write_video(renders / f"{scene}-taa_L{level}.mkv",
+                        rng.integers(0, 256, (6, 32, 32, 3), dtype=np.uint8), 30)
+    code, _, err = init(capsys, renders, "--out", tmp_path / "study")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert "(6 video file(s) found, e.g. " in err and "map all 6 (2 scene(s))" in err
+    flags = "--reference-pattern '{scene}-REF.{ext}' --pattern '{scene}-{method}_L{level}.{ext}'"
+    assert flags in err
+    code, _, err = init(capsys, renders, "--out", tmp_path / "study",
+                        "--reference-pattern", "{scene}-REF.{ext}",
+                        "--pattern", "{scene}-{method}_L{level}.{ext}")
+    assert code == 0, err
+    ids = {s.id for s in load_manifest(tmp_path / "study" / "manifest.json").manifest.stimuli()}
+    assert {"sponza", "bistro", "sponza_taa_L1", "bistro_taa_L2"} <= ids
+
+
+def test_without_a_suggestion_init_says_where_to_go(tmp_path, capsys):
+    renders = tmp_path / "renders"
+    touch(renders, ["take1.mp4", "take2.mp4"])
+    code, _, err = init(capsys, renders, "--out", tmp_path / "study")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "(2 video file(s) found, e.g. take1.mp4); give --reference-pattern and --pattern" \
+        in err and "--mapping CSV" in err

@@ -49,6 +49,7 @@ from stimuli_manifests.manifest_io import manifest_to_json
 from stimuli_manifests.model import is_valid_id
 from stimuli_manifests.pairs import pair_mismatches
 
+from .init_choices import InitChoices, write_choices
 from .preflight import MAX_PAIR_DECODE_S
 from .study_check import label_room_problem, playback_findings
 
@@ -167,6 +168,12 @@ def init_study(opts: InitOptions) -> InitResult:
         tmp.write_text(text, encoding="utf-8")
         tmp.replace(path)
         result.manifest_written = True
+    by_name = opts.mapping_csv is None
+    write_choices(out, InitChoices(
+        opts.test_pattern if by_name and opts.test_pattern != DEFAULT_TEST_PATTERN else None,
+        opts.reference_pattern if by_name and opts.reference_pattern !=
+        DEFAULT_REFERENCE_PATTERN else None,
+        None if by_name else str(opts.mapping_csv.resolve()), opts.transcode))
     return result
 
 

@@ -14,7 +14,9 @@ Files are mapped by two patterns over paths relative to FOLDER (placeholders {sc
 {method}, {level}, {setting}, {ext}); level 1 is the strongest distortion, higher levels are
 milder. Or list the files in a CSV with the columns path,scene,role,method,level,setting
 (role: reference or test). Re-running on a changed folder updates the study and reports what
-changed; settings edited in STUDY/manifest.json are kept. Exit 0 written (or unchanged),
+changed; settings edited in STUDY/manifest.json are kept, and so are the options of the
+last init (patterns or --mapping, --transcode; kept in STUDY/init.json) that are not given
+again. Exit 0 written (or unchanged),
 2 problems found (nothing written) or bad input."""
 
 
@@ -44,6 +46,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="write lossless player-ready copies instead of exact copies "
                              f"(default codec {PLAYER_CODEC}, the fastest to decode; "
                              f"{', '.join(LOSSLESS_CODECS)})")
+    parser.add_argument("--no-transcode", action="store_true",
+                        help="exact copies, even though the last init into STUDY transcoded")
     parser.add_argument("--min-display", metavar="WxH",
                         help="the participants' minimum screen size in pixels (default: the "
                              "manifest's, else 1920x1080)")
@@ -73,6 +77,43 @@ def _display(args: argparse.Namespace) -> tuple[tuple[int, int] | None, float | 
     return size, hz
 
 
+def _with_last_choices(args: argparse.Namespace, patterns_given: bool
+                       ) -> tuple[Path | None, str | None, str | None, str | None]:
+    """(mapping CSV, test pattern, reference pattern, transcode codec): what is given, and
+    for the rest what the last init into STUDY used (said on stdout), so that a re-run with
+    no options maps and copies the renders as before."""
+    from session_store.errors import StudyError
+    from stimuli_manifests.lossless import LOSSLESS_CODECS
+    from study_app.init_choices import INIT_FILE, InitChoices, read_choices
+
+    mapping, pattern, ref_pattern, transcode = (args.mapping, args.pattern,
+                                                args.reference_pattern, args.transcode)
+    last = read_choices(args.out) if args.out.is_dir() else None
+    if last is None:
+        return mapping, pattern, ref_pattern, transcode
+    kept = InitChoices()
+    if mapping is None and not patterns_given and last.mapping_csv is not None:
+        mapping = Path(last.mapping_csv)
+        kept = InitChoices(mapping_csv=last.mapping_csv)
+    elif mapping is None and last.mapping_csv is None:
+        kept = InitChoices(None if pattern else last.test_pattern,
+                           None if ref_pattern else last.reference_pattern)
+        pattern = pattern or last.test_pattern
+        ref_pattern = ref_pattern or last.reference_pattern
+    if transcode is None and not args.no_transcode and last.transcode is not None:
+        if last.transcode not in LOSSLESS_CODECS:
+            raise StudyError(f"{args.out / INIT_FILE}: transcode {last.transcode!r} is not one "
+                             f"of {', '.join(LOSSLESS_CODECS)}; give --transcode or "
+                             "--no-transcode")
+        transcode = last.transcode
+        kept = InitChoices(kept.test_pattern, kept.reference_pattern, kept.mapping_csv,
+                           transcode)
+    if kept.options():
+        print(f"as the last init into {args.out}: {' '.join(kept.options())} (from "
+              f"{args.out / INIT_FILE}; give options to change them)", flush=True)
+    return mapping, pattern, ref_pattern, transcode
+
+
 def run(args: argparse.Namespace) -> int:
     from session_store.errors import StudyError
     from stimuli_manifests.from_folder.mapping import (
@@ -88,11 +129,14 @@ def run(args: argparse.Namespace) -> int:
     if args.mapping is not None and given:
         raise StudyError(f"{given[0]} maps files by their names; --mapping lists them in a CSV "
                          "instead: give one or the other")
+    if args.transcode is not None and args.no_transcode:
+        raise StudyError("--transcode and --no-transcode: give one or the other")
     min_display, min_refresh_hz = _display(args)
-    opts = InitOptions(folder=args.folder, out=args.out, mapping_csv=args.mapping,
-                       test_pattern=args.pattern or DEFAULT_TEST_PATTERN,
-                       reference_pattern=args.reference_pattern or DEFAULT_REFERENCE_PATTERN,
-                       study_id=args.study_id, transcode=args.transcode,
+    mapping, pattern, reference_pattern, transcode = _with_last_choices(args, bool(given))
+    opts = InitOptions(folder=args.folder, out=args.out, mapping_csv=mapping,
+                       test_pattern=pattern or DEFAULT_TEST_PATTERN,
+                       reference_pattern=reference_pattern or DEFAULT_REFERENCE_PATTERN,
+                       study_id=args.study_id, transcode=transcode,
                        min_display=min_display, min_refresh_hz=min_refresh_hz,
                        force=args.force,
                        progress=sys.stderr.isatty())  # no bar in the one-line error of a pipe

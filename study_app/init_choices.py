@@ -1,0 +1,66 @@
+"""What a run of ``cgvq-study init`` was told about the renders (their patterns or mapping
+CSV, and whether to transcode), kept beside the manifest as ``init.json`` so that a re-run
+with no options maps and copies the folder the same way. Without it a re-run fell back to
+the default patterns, and a study transcoded once was silently re-copied lossy."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+from session_store.errors import StudyError
+
+INIT_FILE = "init.json"
+FORMAT = "cgvq-init/1"
+
+
+@dataclass(frozen=True)
+class InitChoices:
+    """None: not given (the default patterns, no CSV, exact copies)."""
+
+    test_pattern: str | None = None
+    reference_pattern: str | None = None
+    mapping_csv: str | None = None
+    """Absolute path of the CSV, as it was when init read it."""
+    transcode: str | None = None
+
+    def options(self) -> list[str]:
+        """The command-line options these choices stand for, for a message."""
+        out = []
+        for flag, value in (("--mapping", self.mapping_csv), ("--pattern", self.test_pattern),
+                            ("--reference-pattern", self.reference_pattern),
+                            ("--transcode", self.transcode)):
+            if value is not None:
+                out.append(f"{flag} '{value}'" if "{" in value or " " in value
+                           else f"{flag} {value}")
+        return out
+
+
+def read_choices(study: Path) -> InitChoices | None:
+    """The choices of the last init into ``study``; None for a study without the file."""
+    path = study / INIT_FILE
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if data.get("format") != FORMAT:
+            raise ValueError(f"format is {data.get('format')!r}, not {FORMAT!r}")
+        known = {f.name for f in fields(InitChoices)}
+        values = {k: v for k, v in data.items() if k in known}
+        if any(v is not None and not isinstance(v, str) for v in values.values()):
+            raise ValueError("a value is not text")
+        return InitChoices(**values)
+    except (OSError, ValueError, AttributeError) as exc:
+        raise StudyError(f"{path} cannot be read ({exc}); delete it and give init its "
+                         "options again") from None
+
+
+def write_choices(study: Path, choices: InitChoices) -> None:
+    path = study / INIT_FILE
+    text = json.dumps({"format": FORMAT, **asdict(choices)}, indent=2) + "\n"
+    if path.is_file() and path.read_text(encoding="utf-8") == text:
+        return
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(path)

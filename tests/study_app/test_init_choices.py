@@ -1,0 +1,94 @@
+"""A re-run of ``cgvq-study init`` with no options maps and copies the renders as the last
+run did (kept in STUDY/init.json): a re-run used to fall back to the default patterns, and a
+study transcoded once was silently re-copied from the lossy sources."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from support.cli import study_init as init
+from support.encode import encode
+
+from stimuli_manifests import load_manifest, read_video, sha256_file, write_video
+from study_app.init_choices import INIT_FILE
+
+FPS = 30
+
+
+def clip(seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 256, (8, 32, 48, 3), dtype=np.uint8)
+
+
+def paths(study) -> dict[str, str]:
+    m = load_manifest(study / "manifest.json").manifest
+    return {e.id: e.path for e in [*m.references, *m.conditions]}
+
+
+def test_a_rerun_keeps_the_transcode_and_no_transcode_undoes_it(tmp_path, capsys):
+    renders, study = tmp_path / "renders", tmp_path / "study"
+    encode(renders / "bistro" / "reference.mp4", clip(1), codec="libx264", pix_fmt="yuv420p",
+           rate=FPS)
+    write_video(renders / "bistro" / "blur_L1.mkv", clip(2), FPS)
+    assert init(capsys, renders, "--out", study, "--transcode")[0] == 0
+    transcoded = paths(study)
+    assert transcoded["bistro"].endswith(".avi")
+    code, out, _ = init(capsys, renders, "--out", study)
+    assert code == 0 and "no changes" in out
+    assert f"as the last init into {study}: --transcode utvideo" in out
+    assert paths(study) == transcoded
+    code, out, _ = init(capsys, renders, "--out", study, "--no-transcode")
+    assert code == 0 and "as the last init" not in out
+    exact = paths(study)
+    assert exact["bistro"].endswith(".mp4")
+    assert sha256_file(study / exact["bistro"]) == sha256_file(renders / "bistro" /
+                                                               "reference.mp4")
+    assert json.loads((study / INIT_FILE).read_text())["transcode"] is None
+    assert init(capsys, renders, "--out", study, "--transcode", "--no-transcode")[0] == 2
+
+
+def test_a_rerun_keeps_the_patterns_and_takes_a_new_scene(tmp_path, capsys):
+    renders, study = tmp_path / "renders", tmp_path / "study"
+    for seed, scene in enumerate(("sponza", "bistro")):
+        write_video(renders / f"{scene}_GT.mkv", clip(seed), FPS)
+        write_video(renders / f"{scene}_taa_q1.mkv", clip(seed + 10), FPS)
+    patterns = ("--reference-pattern", "{scene}_GT.{ext}", "--pattern",
+                "{scene}_{method}_q{level}.{ext}")
+    assert init(capsys, renders, "--out", study, *patterns)[0] == 0
+    write_video(renders / "gallery_GT.mkv", clip(7), FPS)
+    write_video(renders / "gallery_taa_q1.mkv", clip(8), FPS)
+    code, out, err = init(capsys, renders, "--out", study)
+    assert code == 0, err
+    assert "--pattern '{scene}_{method}_q{level}.{ext}' --reference-pattern " \
+           "'{scene}_GT.{ext}'" in out
+    assert {"gallery", "gallery_taa_L1"} <= set(paths(study))
+    assert np.array_equal(read_video(study / paths(study)["gallery_taa_L1"]), clip(8))
+    # one pattern given: the other is still the last run's
+    code, out, err = init(capsys, renders, "--out", study, "--pattern",
+                          "{scene}_{method}_q{level}.{ext}")
+    assert code == 0 and "no changes" in out and "--reference-pattern '{scene}_GT" in out
+
+
+def test_a_rerun_keeps_the_mapping_csv(tmp_path, capsys):
+    renders, study = tmp_path / "renders", tmp_path / "study"
+    write_video(renders / "take_a.mkv", clip(1), FPS)
+    write_video(renders / "take_b.mkv", clip(2), FPS)
+    table = tmp_path / "map.csv"
+    table.write_text("path,scene,role,method,level,setting\ntake_a.mkv,hall,reference,,,\n"
+                     "take_b.mkv,hall,test,blur,1,\n")
+    assert init(capsys, renders, "--out", study, "--mapping", table)[0] == 0
+    code, out, err = init(capsys, renders, "--out", study)
+    assert code == 0 and "no changes" in out, err
+    assert f"--mapping {table.resolve()}" in out
+
+
+def test_an_unreadable_record_is_one_line(tmp_path, capsys):
+    renders, study = tmp_path / "renders", tmp_path / "study"
+    write_video(renders / "hall" / "reference.mkv", clip(1), FPS)
+    write_video(renders / "hall" / "blur_L1.mkv", clip(2), FPS)
+    assert init(capsys, renders, "--out", study)[0] == 0
+    assert json.loads((study / INIT_FILE).read_text())["test_pattern"] is None  # defaults
+    (study / INIT_FILE).write_text('{"format": "cgvq-init/1", "transcode": 5}')
+    code, _, err = init(capsys, renders, "--out", study)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "init.json cannot be read" in err and "Traceback" not in err

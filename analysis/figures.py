@@ -356,11 +356,11 @@ def rater_agreement(a: Analysis, path: Path) -> Path | None:
                                "0.6"))
     ax.bar(x - 0.2, q["loo_r"].to_numpy(dtype=float), 0.4, color=colors,
            label="r with the others (blue used, red removed, grey dropped)")
-    if "repeat_r" in q.columns and q["repeat_r"].notna().any():
+    ax.axhline(THRESHOLDS["loo_r"], color="tab:blue", ls="--", lw=0.8)
+    if "repeat_r" in q.columns and q["repeat_r"].notna().any():  # its threshold only with it
         ax.bar(x + 0.2, q["repeat_r"].to_numpy(dtype=float), 0.4, color="tab:green",
                alpha=0.6, label="r between own repetitions")
-    ax.axhline(THRESHOLDS["loo_r"], color="tab:blue", ls="--", lw=0.8)
-    ax.axhline(THRESHOLDS["repeat_r"], color="tab:green", ls=":", lw=0.8)
+        ax.axhline(THRESHOLDS["repeat_r"], color="tab:green", ls=":", lw=0.8)
     ax.axhline(0, color="0.5", lw=0.6)
     ax.set_xticks(x, q.index, rotation=90, fontsize=6)
     ax.set_ylim(min(-0.5, float(np.nanmin(q["loo_r"].to_numpy(float))) - 0.05), 1.0)
@@ -441,13 +441,13 @@ FIGURES = {
     "metric_per_method": (metric_per_method, "SRCC of each metric within each distortion "
                           "method"),
     "rater_agreement": (rater_agreement, "each rater's correlation with the leave-one-out "
-                        "panel and between their own repetitions, with the flag thresholds"),
+                        "panel{repeats}, with the flag thresholds"),
     "ratings_per_stimulus": (ratings_per_stimulus, "ratings per stimulus after screening, "
                              "grouped by scene (hatched: hidden references); in an adaptive "
                              "design block 1 gives every stimulus one rating per rater and "
                              "later blocks go to the stimuli with the widest DMOS intervals"),
-    "dmos_per_scene": (dmos_per_scene, "DMOS per scene with 95% CIs by method and level "
-                       "(metric predictions after the logistic mapping as black markers)"),
+    "dmos_per_scene": (dmos_per_scene, "DMOS per scene with 95% CIs by method and level"
+                       "{metrics}"),
     "metric_scatter": (metric_scatter, "each metric against DMOS with its fitted mapping"),
     "metric_comparison": (metric_comparison, "metric comparison: PLCC and SRCC with 95% "
                           "bootstrap CIs{ceiling}"),
@@ -475,6 +475,10 @@ SPLIT_NOTE = ("; the score model identifies only inconsistency\u00b2 + ambiguity
               "at that boundary and has no CI")
 """``{split}`` in a caption, where the model has both rater inconsistency and content
 ambiguity (SUREAL's full MLE)."""
+METRICS_NOTE = " (metric predictions after the logistic mapping as black markers)"
+"""``{metrics}`` in a caption, where metric scores were given and are drawn."""
+REPEATS_NOTE = " and between their own repetitions"
+"""``{repeats}`` in a caption, where raters rated stimuli more than once (bars drawn)."""
 
 
 def literal_text() -> contextlib.AbstractContextManager:
@@ -494,5 +498,10 @@ def draw_all(a: Analysis, folder: Path) -> dict[str, tuple[Path, str]]:
             if path is not None:  # captions say only what is drawn
                 note = CEILING_NOTES.get(name, "") if a.ceiling is not None else ""
                 split = SPLIT_NOTE if a.scores.content_ambiguity is not None else ""
-                out[name] = (path, caption.replace("{ceiling}", note).replace("{split}", split))
+                drawn = METRICS_NOTE if a.metrics is not None and a.metrics.data else ""
+                q = a.quality
+                repeats = REPEATS_NOTE if q is not None and "repeat_r" in q.columns and \
+                    q["repeat_r"].notna().any() else ""
+                out[name] = (path, caption.replace("{ceiling}", note).replace("{split}", split)
+                             .replace("{metrics}", drawn).replace("{repeats}", repeats))
     return out

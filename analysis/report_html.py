@@ -102,8 +102,9 @@ def quality_display(q: pd.DataFrame) -> pd.DataFrame:
         if np.isfinite(num(r.get("n_ratings"))) and np.isfinite(num(r.get("n_planned"))):
             answered = (f"{int(num(r['n_ratings']))}/{int(num(r['n_planned']))} "
                         f"({num(r.get('completeness')):.0%})")
+        mode = r.get("timing_mode")
         timing = ", ".join(x for x in (
-            str(r.get("timing_mode") or ""),
+            "" if mode is None or pd.isna(mode) else str(mode),
             {True: "vsync on", False: "vsync off"}.get(
                 None if pd.isna(r.get("vsync")) else bool(r.get("vsync")), "")) if x)
         frames = ""
@@ -127,8 +128,30 @@ def quality_display(q: pd.DataFrame) -> pd.DataFrame:
             "flags": r.get("flags", ""),
         })
     out = pd.DataFrame(rows).set_index("rater")
-    return out.loc[:, [c for c in out.columns
-                       if not (out[c].astype(str).isin(["", "nan"]).all())]]
+    # a column nobody has a value in (no session files: no timing, viewing or frames) is
+    # left out, and so is its line in the legend (QUALITY_COLUMNS)
+    return out.loc[:, [c for c in out.columns if not out[c].replace("", np.nan).isna().all()]]
+
+
+QUALITY_COLUMNS = {
+    "answered": "answered = rated / planned trials (completeness)",
+    "timing": "timing = the session's timing mode (vsync; paced-pilot when the experimenter "
+              "allowed no vsync; simulated for simulated raters, who have no pre-flight) and "
+              "whether vsync was on",
+    "frames": "frames = dropped frames in presentations with drops / all presentations",
+    "view s": "view s = median viewing time per trial",
+    "toggles": "toggles = median switches between test and reference per trial",
+    "hidden ref": "hidden ref = mean hidden-reference rating as a share of the scale",
+    "r others": "r others = Pearson r with the mean of all other raters",
+    "repeat r": "repeat r = mean r between the rater's repetitions",
+}
+"""The legend of each column of the data-quality table, said only for the columns shown."""
+
+
+def quality_legend(table: pd.DataFrame | None) -> str:
+    if table is None:
+        return ""
+    return "; ".join(text for col, text in QUALITY_COLUMNS.items() if col in table.columns)
 
 
 #: What each score model is, in the words of a methods section.
@@ -274,7 +297,9 @@ def write_html(a: Analysis, out: Path, figures: dict[str, tuple[Path, str]],
         "thresholds": ", ".join(f"{k} {v:g}" for k, v in THRESHOLDS.items()),
         "metric_table": _metric_table(a),
         "dmos_table": a.dmos()[DMOS_COLUMNS],
-        "quality_table": quality_display(a.quality) if a.quality is not None else None,
+        "quality_table": (quality := quality_display(a.quality)
+                          if a.quality is not None else None),
+        "quality_legend": quality_legend(quality),
         "removed_table": pd.DataFrame([r.__dict__ for r in a.outliers.removed]),
         "screening_columns": SCREENING_COLUMNS_TEXT.get(a.outliers.method, ""),
         "problems_table": pd.DataFrame([p.__dict__ for p in a.problems]),

@@ -185,7 +185,7 @@ def _removal_reason(st: dict, r1_min: float, r2_min: float, z_max: float,
            f"{st['inconsistency_z']:.1f} > {z_max})") if use_z else \
         f"too few raters ({st['n_raters']}) for the inconsistency check: correlation decides"
     return (f"ratings do not follow the others ({r1}, {r2} against the leave-one-out panel "
-            f"of {st['n_raters'] - 1}); {inc}")
+            f"of {st['n_raters'] - 1} other raters); {inc}")
 
 
 def _kept_reason(st: dict, r1_min: float, r2_min: float, z_max: float) -> str:

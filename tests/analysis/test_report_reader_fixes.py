@@ -213,3 +213,24 @@ def test_the_screening_section_describes_its_own_rule(study_files, tmp_path, mon
         html = write_report(a, tmp_path / rule).read_text()
         section = html[html.index("id='screening'"):html.index("id='screening'") + 1500]
         assert says in section and ("r1: with" in section) == (rule == "p913")
+
+
+def test_captions_and_legends_say_only_what_is_shown(study_files, tmp_path):
+    """A report of a ratings CSV has no viewing times, toggles or frames: those columns are
+    left out, and so is their legend; the DMOS caption names metric markers only when a
+    metric was given."""
+    out = tmp_path / "report"
+    assert _report(study_files, out, "--metric", str(study_files["scores"])) == 0
+    html = (out / "report.html").read_text()
+    assert "(metric predictions after the logistic mapping as black markers)" in html
+    assert _report(study_files, out) == 0
+    html = (out / "report.html").read_text()
+    assert "black markers" not in html and "{metrics}" not in html
+    # one rating per stimulus: no repetition bars, so the caption does not mention them
+    assert "with the leave-one-out panel, with the flag thresholds" in html
+    quality = html.split("id='quality'", 1)[1].split("<h2", 1)[0]
+    assert "r others = Pearson r" in quality and "hidden ref = mean" in quality
+    for column in ("view s", "toggles", "frames", "timing"):
+        assert f"<th>{column}</th>" not in quality and f"{column} = " not in quality, column
+    csv = pd.read_csv(out / "tables" / "data_quality.csv")
+    assert csv["median_viewing_s"].isna().all()  # nothing to show: the CSV has no such data

@@ -54,6 +54,8 @@ __all__ = ["Mapping", "MetricScores", "MetricValidation", "fit_mapping", "load_m
            "logistic5", "validate_metrics"]
 
 STATS = ("plcc", "srcc", "krcc", "rmse")
+CEILING_ROW = "human ceiling (split-half)"
+"""The metric table's last row when the ceiling was computed: the humans as a 'metric'."""
 _FIX_DIRECTION = ("add a column 'direction' holding higher-better or lower-better for each "
                   "row (e.g. psnr,higher-better; flip,lower-better), or rewrite the file with "
                   "'cgvqm batch', which writes it")
@@ -508,7 +510,7 @@ def validate_metrics(
         raise AnalysisError(_nothing_compared(skipped, scores.not_applicable))
     table = pd.DataFrame(rows)
     if ceiling:
-        human = {"metric": "human ceiling (split-half)", "direction": "", "n": len(target),
+        human = {"metric": CEILING_ROW, "direction": "", "n": len(target),
                  "fit": "none", "d": 0, "flag": ""}
         for key in STATS:
             c = ceiling.get(key, {})

@@ -19,6 +19,7 @@ import pandas as pd
 
 from .exports import write_dmos_csv, write_rating_matrix
 from .figures import FIGURES, draw_all
+from .methods_text import methods_paragraphs
 from .panel import panel_json
 from .pipeline import Analysis
 from .quality import THRESHOLDS
@@ -365,6 +366,8 @@ def write_report(a: Analysis, out: str | Path, *, notes: str | None = None,
     figures = draw_all(a, out / "figures")
     facts = summary(a)
     facts["inputs"] = {"tool_version": __version__, **(inputs or {})}
+    (out / "methods.txt").write_text("\n\n".join(methods_paragraphs(a, facts)) + "\n",
+                                     encoding="utf-8")
     (out / "summary.json").write_text(json.dumps(facts, indent=1, default=_num),
                                       encoding="utf-8")
     return write_html(a, out, figures, facts, notes)

@@ -17,6 +17,7 @@ import pandas as pd
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 from markupsafe import Markup
 
+from .methods_text import methods_paragraphs
 from .panel import answer_counts_rows
 from .pipeline import Analysis
 from .quality import THRESHOLDS
@@ -285,6 +286,7 @@ def write_html(a: Analysis, out: Path, figures: dict[str, tuple[Path, str]],
     info = a.ratings.rater_info
     context = {
         "a": a, "s": summary, "notes": notes, "version": __version__,
+        "methods_text": methods_paragraphs(a, summary),
         "generated": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "css": Markup((TEMPLATES / "report.css").read_text(encoding="utf-8")),
         "figures": figures,

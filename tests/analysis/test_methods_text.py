@@ -39,7 +39,7 @@ def study(tmp_path_factory):
 
 def _report(root: Path, out: Path, *extra: str) -> str:
     assert main(["report", "--manifest", str(root / "manifest.json"), "--ratings",
-                 str(root / "ratings.csv"), "--bootstrap", "100", "--splits", "50",
+                 str(root / "ratings.csv"), "--bootstrap", "40", "--splits", "20",
                  "--out", str(out), *extra]) == 0
     text = (out / "methods.txt").read_text()
     html = (out / "report.html").read_text()
@@ -59,7 +59,7 @@ def test_the_text_states_the_study_as_generated_and_recomputed(study, tmp_path):
     kept = sorted(set(st.ratings["participant"]) - set(removed))
     assert f"2 raters were removed. The analysis uses {len(kept)} raters and " \
            f"{len(kept) * n_stim * 2} ratings." in text
-    assert "DMOS = Q(v) - Q(ref) + 100" in text and "100 bootstrap resamples" in text
+    assert "DMOS = Q(v) - Q(ref) + 100" in text and "40 bootstrap resamples" in text
     # ICC(2,k) (pingouin: ICC(A,k), two-way random, absolute agreement) from pingouin directly,
     # on the kept raters' mean ratings
     mean = (st.ratings[st.ratings["participant"].isin(kept)]
@@ -85,6 +85,7 @@ def test_without_screening_or_metrics_it_says_so_and_no_more(study, tmp_path):
     assert "Each metric" not in text and "bootstrap of the PLCC" not in text
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not NFLX.is_file(), reason="shared NFLX data absent")
 def test_the_netflix_dataset_reads_as_published(tmp_path):
     """NFLX public: 26 raters and 79 stimuli (70 distorted, 9 references), every stimulus

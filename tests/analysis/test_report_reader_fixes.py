@@ -141,8 +141,11 @@ def test_a_rerun_leaves_nothing_of_the_last_and_figures_come_as_pdf(study_files,
     assert sha[:12] in html
     # 8 raters: a ceiling is drawn, and the captions say where
     assert "the grey band is the human ceiling" in html and "{ceiling}" not in html
+    # with a metric, the DMOS caption names its markers
+    assert "(metric predictions after the logistic mapping as black markers)" in html
     # the same folder without --metric: no metric table or figure of the first run is left
     assert _report(study_files, out) == 0
+    _says_only_what_is_shown((out / "report.html").read_text(), out)
     left = [p.name for p in (out / "tables").iterdir()] + [
         p.name for p in (out / "figures").iterdir()]
     assert not [n for n in left if n.startswith(("metric", "significance", "williams",
@@ -215,18 +218,11 @@ def test_the_screening_section_describes_its_own_rule(study_files, tmp_path, mon
         assert says in section and ("r1: with" in section) == (rule == "p913")
 
 
-def test_captions_and_legends_say_only_what_is_shown(study_files, tmp_path):
+def _says_only_what_is_shown(html: str, out: Path) -> None:
     """A report of a ratings CSV has no viewing times, toggles or frames: those columns are
     left out, and so is their legend; the DMOS caption names metric markers only when a
-    metric was given."""
-    out = tmp_path / "report"
-    assert _report(study_files, out, "--metric", str(study_files["scores"])) == 0
-    html = (out / "report.html").read_text()
-    assert "(metric predictions after the logistic mapping as black markers)" in html
-    assert _report(study_files, out) == 0
-    html = (out / "report.html").read_text()
+    metric was given, and the agreement caption repetitions only when there are some."""
     assert "black markers" not in html and "{metrics}" not in html
-    # one rating per stimulus: no repetition bars, so the caption does not mention them
     assert "with the leave-one-out panel, with the flag thresholds" in html
     quality = html.split("id='quality'", 1)[1].split("<h2", 1)[0]
     assert "r others = Pearson r" in quality and "hidden ref = mean" in quality

@@ -211,7 +211,8 @@ def _split_warnings(out: FolderMapping, test_pattern: str) -> list[str]:
     """Test videos whose method looks like the rest of a scene name: with
     ``{scene}_{method}``, ``sponza_atrium_dlss_L1`` is method ``atrium_dlss`` of ``sponza``
     unless ``sponza_atrium`` has a reference. Said when that method is found under this
-    scene only and its tail (``dlss``) is a method of other scenes."""
+    scene only and its tail (``dlss``) is a method of any scene, this one included (a flat
+    folder whose only other scene is ``sponza``)."""
     m = re.search(r"{scene}([^{}/]+){method}", test_pattern)
     if m is None:
         return []
@@ -226,7 +227,7 @@ def _split_warnings(out: FolderMapping, test_pattern: str) -> list[str]:
         head, _, tail = method.partition(sep)
         if not tail or (v.scene, method) in said or scenes_of[method] != {v.scene}:
             continue
-        if scenes_of.get(tail, set()) - {v.scene}:
+        if tail in scenes_of:  # 'dlss' is a method here or elsewhere: a scene lost its ref
             said.add((v.scene, method))
             warnings.append(f"{v.path}: read as method {method!r} of scene {v.scene!r}; if "
                             f"{v.scene + sep + head!r} is a scene of its own, its reference "

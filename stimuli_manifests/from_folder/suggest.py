@@ -93,14 +93,15 @@ def _candidates(videos: list[PurePosixPath]) -> list[tuple[str, str]]:
 def suggest_patterns(folder: Path, videos: list[PurePosixPath],
                      exclude: Path | None = None) -> PatternSuggestion | None:
     """The first pattern pair read off ``videos`` (the folder's video files) that maps every
-    one of them with no problem; None when there is none."""
+    one of them with no problem and no doubt; None when there is none."""
     for reference_pattern, test_pattern in _candidates(videos):
         try:
             mapped = map_by_pattern(folder, test_pattern=test_pattern,
                                     reference_pattern=reference_pattern, exclude=exclude)
         except ValueError:
             continue
-        if mapped.unmatched or mapped.problems or len(mapped.videos) != len(videos):
+        if mapped.unmatched or mapped.problems or mapped.warnings \
+                or len(mapped.videos) != len(videos):  # a scene split in doubt is no advice
             continue
         return PatternSuggestion(reference_pattern, test_pattern,
                                  len(mapped.references()), len(mapped.videos))

@@ -63,6 +63,8 @@ def test_a_suggestion_maps_every_file_as_it_was_written(tmp_path, case):
     ["a/reference.mp4", "a/dlss_perf.mp4", "a/dlss_quality.mp4"],  # no level in the names
     ["sponza_ref.mp4", "sponza_TAA_q1.mp4", "sponza_notes_final.mp4"],  # one file fits no rule
     ["sponza_TAA_q1.mp4", "sponza_TAA_q2.mp4"],  # no reference
+    # sponza_atrium lost its reference: its videos would become methods of sponza
+    ["sponza_ref.mp4", "sponza_dlss_q1.mp4", "sponza_atrium_dlss_q1.mp4"],
 ])
 def test_no_suggestion_unless_every_file_maps(tmp_path, names):
     touch(tmp_path, names)
@@ -98,3 +100,16 @@ def test_without_a_suggestion_init_says_where_to_go(tmp_path, capsys):
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "(2 video file(s) found, e.g. take1.mp4); give --reference-pattern and --pattern" \
         in err and "--mapping CSV" in err
+
+
+def test_a_flat_scene_without_its_reference_is_named_when_it_is_the_only_other(tmp_path):
+    """With only sponza's reference, sponza_atrium_dlss_L1 was method 'atrium_dlss' of
+    sponza without a word (the warning needed 'dlss' to be a method of a third scene)."""
+    touch(tmp_path, ["sponza_reference.mp4", "sponza_dlss_L1.mp4", "sponza_fsr_L1.mp4",
+                     "sponza_atrium_dlss_L1.mp4", "sponza_atrium_fsr_L1.mp4"])
+    mapped = map_by_pattern(tmp_path, test_pattern="{scene}_{method}_L{level}.{ext}",
+                            reference_pattern="{scene}_reference.{ext}")
+    assert mapped.warnings == [
+        f"sponza_atrium_{m}_L1.mp4: read as method 'atrium_{m}' of scene 'sponza'; if "
+        "'sponza_atrium' is a scene of its own, its reference is missing" for m in ("dlss",
+                                                                                  "fsr")]

@@ -5,13 +5,16 @@ means, P.910 differencing against the hidden reference) is computed for all spli
 with matrix products, then PLCC/SRCC/KRCC/RMSE between halves over the distorted stimuli.
 A split-half r underestimates the full panel's reliability; the Spearman-Brown corrected
 PLCC (projected to all n raters, also when n is odd and one rater rests in each split) is
-reported beside it. The CI-width curve subsamples n raters (seeded) and fits a power
-law width(n) = a * n^(-b) (from 5 raters on, when there are enough points).
+reported beside it, and its square root: the PLCC a predictor of the true quality would reach
+against the full panel's DMOS, the ceiling for a metric. The CI-width curve subsamples n
+raters (seeded) and fits a power law width(n) = a * n^(-b) (from 5 raters on, when there
+are enough points).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import warnings
 from dataclasses import dataclass
 
@@ -42,7 +45,11 @@ class SplitHalf:
             out[key] = {"median": float(np.nanmedian(v)), "mean": float(np.nanmean(v)),
                         "ci95_low": lo, "ci95_high": hi}
         r = float(np.nanmedian(self.values["plcc"]))
-        out["plcc_spearman_brown"] = {"median": spearman_brown(r, self.n_raters)}
+        sb = spearman_brown(r, self.n_raters)
+        out["plcc_spearman_brown"] = {"median": sb}
+        # classical test theory: a predictor of the true score correlates with a mean of
+        # reliability rho at sqrt(rho); the ceiling a metric faces against the full panel
+        out["plcc_full_panel_bound"] = {"median": math.sqrt(sb) if sb >= 0 else float("nan")}
         return out
 
 

@@ -43,9 +43,9 @@ class Exclusion:
     """Something left out of the analysis as a whole (a session, a rater), with the rule.
 
     ``kind`` is one of ``refused session``, ``duplicate session``, ``partial rater``,
-    ``screened out``, ``ended by vision check``; ``who`` names the file or rater, ``reason``
-    says why in words a reader of the report understands, ``rule`` names the rule and its
-    threshold.
+    ``screened out``, ``rejected by the score model``, ``ended by vision check``; ``who``
+    names the file or rater, ``reason`` says why in words a reader of the report
+    understands, ``rule`` names the rule and its threshold.
     """
 
     kind: str
@@ -116,6 +116,11 @@ class RatingSet:
     # What part of the study's ratings this set holds (empty: all of them); see
     # :func:`balanced_subset`.
     subset: str = ""
+    # The scale as the participants saw it: "lower_is_better" when their ratings were
+    # mirrored (scale_min + scale_max - rating) on reading, and its (position, text) labels
+    # on their own scale; empty where the input does not say (a CSV without a manifest).
+    scale_direction: str = "higher_is_better"
+    scale_labels: tuple[tuple[float, str], ...] = ()
 
     def __post_init__(self) -> None:
         self.scores = np.asarray(self.scores, dtype=float)

@@ -355,7 +355,7 @@ def rater_agreement(a: Analysis, path: Path) -> Path | None:
                       np.where(np.char.startswith(status.astype(str), "removed"), "tab:red",
                                "0.6"))
     ax.bar(x - 0.2, q["loo_r"].to_numpy(dtype=float), 0.4, color=colors,
-           label="r with the others (blue used, red removed, grey dropped)")
+           label="r with all others (blue used, red removed, grey dropped)")
     ax.axhline(THRESHOLDS["loo_r"], color="tab:blue", ls="--", lw=0.8)
     if "repeat_r" in q.columns and q["repeat_r"].notna().any():  # its threshold only with it
         ax.bar(x + 0.2, q["repeat_r"].to_numpy(dtype=float), 0.4, color="tab:green",
@@ -440,8 +440,10 @@ FIGURES = {
                          "uniform weights) hatched"),
     "metric_per_method": (metric_per_method, "SRCC of each metric within each distortion "
                           "method"),
-    "rater_agreement": (rater_agreement, "each rater's correlation with the leave-one-out "
-                        "panel{repeats}, with the flag thresholds"),
+    "rater_agreement": (rater_agreement, "each rater's correlation with the mean of all "
+                        "other raters read (the data-quality table's r others; the "
+                        "screening's r1 uses only the raters kept){repeats}, with the flag "
+                        "thresholds"),
     "ratings_per_stimulus": (ratings_per_stimulus, "ratings per stimulus after screening, "
                              "grouped by scene (hatched: hidden references); in an adaptive "
                              "design block 1 gives every stimulus one rating per rater and "

@@ -250,7 +250,8 @@ def ratings_from_frame(
         stimuli=table, raters=raters, scores=scores, scale_min=float(scale.min),
         scale_max=float(scale.max), ref_score=float(scale.max), study=manifest.study_id,
         source=source, problems=problems, exclusions=list(exclusions), rater_info=info,
-        allocation=policy, allocation_settings=settings,
+        allocation=policy, allocation_settings=settings, scale_direction=scale.direction,
+        scale_labels=tuple((float(lb.position), lb.text) for lb in scale.labels),
     )
 
 

@@ -10,16 +10,24 @@ import math
 from typing import Any
 
 from .metrics import CEILING_ROW
-from .pipeline import Analysis
+from .pipeline import MODEL_REJECTION, Analysis
 
 SCREENING_PROSE = {
-    "p913": "raters whose ratings did not follow the others (correlation with the "
-            "leave-one-out panel r1 < 0.75 and r2 < 0.8, ITU-T P.913) and whose P.910 MLE "
-            "inconsistency was an outlier (robust z > 3.5) were removed, one at a time",
-    "grubbs": "raters were screened with an iterative Grubbs test on each rater's mean "
+    "p913": "Raters were screened one at a time for ratings that did not follow the others "
+            "({rule}; ITU-T P.913) together with a P.910 MLE inconsistency that was an outlier "
+            "(robust z > 3.5)",
+    "grubbs": "Raters were screened with an iterative Grubbs test on each rater's mean "
               "absolute deviation from the panel, as in the CGVQM+D paper",
-    "bt500": "raters were screened with the kurtosis-based procedure of ITU-R BT.500",
+    "bt500": "Raters were screened with the kurtosis-based procedure of ITU-R BT.500 (a vote "
+             "is outside when it lies beyond 2 s.d. of the stimulus's ratings, 4.47 s.d. for "
+             "non-normal ones; a rater is rejected when more than 5% of their votes are "
+             "outside and those are not mostly on one side, |P-Q|/(P+Q) < 0.3)",
 }
+P913_RULES = {True: "correlation with the leave-one-out panel r1 < 0.75 and, on per-HRC "
+                    "means, r2 < 0.8",
+              False: "correlation with the leave-one-out panel r1 < 0.75; the second test, "
+                     "r2 on per-HRC means, needs 4 HRCs and could not be applied, so r1 "
+                     "decided alone"}
 MODEL_PROSE = {
     "mle": "SUREAL's maximum-likelihood subject model (Li & Bampis 2020), which estimates "
            "each stimulus's quality together with each rater's bias and inconsistency and each "
@@ -34,93 +42,242 @@ MODEL_PROSE = {
 def _ci(value: float | None, low: float | None, high: float | None, digits: int = 3) -> str:
     if value is None or not math.isfinite(value):
         return "n/a"
-    out = f"{value:.{digits}f}"
+    out = fixed(value, digits)
     if low is not None and high is not None and math.isfinite(low) and math.isfinite(high):
-        out += f" [{low:.{digits}f}, {high:.{digits}f}]"
+        out += f" [{fixed(low, digits)}, {fixed(high, digits)}]"
     return out
+
+
+def fixed(x: float, digits: int = 3) -> str:
+    """``x`` with ``digits`` decimals, never "-0.000"."""
+    out = f"{x:.{digits}f}"
+    return out[1:] if out.startswith("-") and not out.strip("-0.") else out
+
+
+def p_text(p: float) -> str:
+    """A p value as a paper gives it: three decimals, and "p < 0.001" below that (the
+    smallest p of 1000 resamples, 1/1001, is not an exact "p = 0.000999")."""
+    return "p < 0.001" if p < 0.001 - 1e-12 else f"p = {p:.3f}"
 
 
 def _count(n: int, one: str, many: str | None = None) -> str:
     return f"{n} {one if n == 1 else (many or one + 's')}"
 
 
-def _panel(a: Analysis, s: dict[str, Any]) -> str:
+def _names(names: list[str]) -> str:
+    return ", ".join(map(str, names[:8])) + (f" and {len(names) - 8} more" if len(names) > 8
+                                             else "")
+
+
+def _design(a: Analysis) -> str:
+    """Source contents, distortion conditions (HRCs) and hidden references, counted."""
+    st = a.screened.stimuli
+    hidden = st["is_hidden_reference"].astype(bool)
+    dist = st[~hidden]
+    if dist["level"].isna().all():  # a SUREAL dataset names no method or level
+        return "; ".join([_count(st["reference"].nunique(), "source content"),
+                          _count(len(dist), "distorted version"),
+                          _count(int(hidden.sum()), "hidden reference")])
+    hrcs = dist[["method", "level"]].drop_duplicates()
+    methods = list(dict.fromkeys(dist["method"].astype(str)))
+    parts = [_count(st["reference"].nunique(), "source content"),
+             _count(len(hrcs), "distortion condition") + (
+                 f": {_names(methods)} at {_count(dist['level'].nunique(), 'level')}"
+                 if len(methods) else "")]
+    parts.append(_count(int(hidden.sum()), "hidden reference") if hidden.any() else
+                 "no hidden reference")
+    return "; ".join(parts)
+
+
+def _scale(a: Analysis) -> str:
+    """The scale as the participants saw it: range, labels, and the mirroring of an impairment
+    scale (every number in the report is on the mirrored, higher-is-better scale)."""
     rs = a.ratings
-    kinds: dict[str, int] = {}
+    lo, hi = f"{rs.scale_min:g}", f"{rs.scale_max:g}"
+    mirrored = rs.scale_direction == "lower_is_better"
+    labels = rs.scale_labels
+    if mirrored:  # the labels stand where the participants saw them
+        text = f"a {lo} to {hi} scale on which lower meant better"
+    else:
+        text = f"a {lo} to {hi} scale"
+    if labels:
+        text = "a continuous " + text[2:] + " labelled " + ", ".join(
+            f'"{t}" ({p:g})' for p, t in labels)
+    return text
+
+
+def _mirror_note(a: Analysis) -> str:
+    rs = a.ratings
+    if rs.scale_direction != "lower_is_better":
+        return ""
+    return (f" Before the analysis every rating x was mirrored to {rs.scale_min:g} + "
+            f"{rs.scale_max:g} - x, so that higher is better: all scores below, MOS included, "
+            "are on the mirrored scale.")
+
+
+def _screening(a: Analysis, s: dict[str, Any]) -> str:
+    removed = [str(r["rater"]) for r in s["removed_raters"]]
+    if s["outlier_method"] == "none":
+        return " No rater screening was applied."
+    prose = SCREENING_PROSE.get(s["outlier_method"], f"Raters were screened "
+                                                     f"({s['outlier_method']})")
+    if s["outlier_method"] == "p913":
+        has_r2 = any(r.get("r2") is not None for r in s["screening"])
+        prose = prose.replace("{rule}", P913_RULES[has_r2])
+    who = f" ({_names(removed)})" if removed else ""
+    text = (f" {prose}: {_count(len(removed), 'rater')}{who} "
+            f"{'was' if len(removed) == 1 else 'were'} removed.")
+    near = [str(r["rater"]) for r in s["screening"]
+            if str(r.get("reason") or "").startswith("near-miss")]
+    if near:
+        text += (f" {_count(len(near), 'rater')} close to the rule "
+                 f"{'was' if len(near) == 1 else 'were'} kept ({_names(near)}).")
+    return text
+
+
+def _panel(a: Analysis, s: dict[str, Any]) -> str:
+    kinds: dict[str, list[str]] = {}
     for x in s["exclusions"]:
-        kinds[x["kind"]] = kinds.get(x["kind"], 0) + 1
+        kinds.setdefault(x["kind"], []).append(str(x["who"]))
     text = (f"{_count(s['n_raters_input'], 'participant')} gave valid ratings of "
-            f"{_count(s['n_stimuli'], 'stimulus', 'stimuli')} on a {rs.scale_min:g} to "
-            f"{rs.scale_max:g} scale ({s['allocation']['sentence']}).")
+            f"{_count(s['n_stimuli'], 'stimulus', 'stimuli')} ({_design(a)}) on "
+            f"{_scale(a)} ({s['allocation']['sentence']}).{_mirror_note(a)}")
     left = []
-    if n := kinds.get("ended by vision check", 0) + kinds.get("failed vision check", 0):
+    if n := len(kinds.get("ended by vision check", [])) + len(kinds.get("failed vision check",
+                                                                       [])):
         left.append(f"{_count(n, 'participant')} who failed the remote vision screening")
     if kinds.get("partial rater"):
-        left.append(f"{_count(kinds['partial rater'], 'rater')} who answered less than "
+        left.append(f"{_count(len(kinds['partial rater']), 'rater')} who answered less than "
                     f"{s['min_completeness']:.0%} of their trials")
-    removed = len(s["removed_raters"])
-    if s["outlier_method"] == "none":
-        screening = " No rater screening was applied."
-    else:
-        prose = SCREENING_PROSE.get(s["outlier_method"], f"raters were screened "
-                                                         f"({s['outlier_method']})")
-        screening = (f" In the screening, {prose}: {_count(removed, 'rater')} "
-                     f"{'was' if removed == 1 else 'were'} removed.")
     if left:
         text += " Not analysed: " + "; ".join(left) + "."
-    return (text + screening + f" The analysis uses {_count(s['n_raters_used'], 'rater')} and "
+    if s["partial_kept"]:
+        kept = [f"{p['rater']}, {percent(p['completeness'])}" for p in s["partial_kept"]]
+        text += (f" {_count(len(kept), 'rater')} with an incomplete session "
+                 f"{'was' if len(kept) == 1 else 'were'} kept ({'; '.join(kept[:8])}).")
+    text += _screening(a, s)
+    if rejected := kinds.get(MODEL_REJECTION):
+        text += (f" ITU-R BT.500 rater rejection inside the score model removed "
+                 f"{_count(len(rejected), 'rater')} ({_names(rejected)}).")
+    return (text + f" The analysis uses {_count(s['n_raters_used'], 'rater')} and "
             f"{s['n_ratings_used']} ratings.")
+
+
+def percent(share: float) -> str:
+    """A share as a percentage that never rounds an incomplete session up to "100%" (or a
+    tiny share down to "0%")."""
+    out = f"{share:.0%}"
+    if (out == "100%" and share < 1) or (out == "0%" and share > 0):
+        out = f"{share:.1%}"
+    return out
 
 
 def _scores(a: Analysis, s: dict[str, Any]) -> str:
     model = MODEL_PROSE.get(a.config.model, s["model_name"])
-    text = (f"Quality scores Q were estimated with {model}. DMOS = Q(v) - Q(ref) + "
-            f"{a.screened.ref_score:g}, with Q(ref) the score of the hidden reference of the "
-            f"same content; 95% confidence intervals come from {s['n_bootstrap']} bootstrap "
-            "resamples of the raters.")
+    rs = a.screened
+    refs = rs.reference_index()
+    has = refs >= 0
+    estimator = ("plain means" if a.config.model in ("mos", "bt500") else
+                 "the model's rater bias and inconsistency held fixed")
+    ci = (f"95% confidence intervals are t intervals whose standard deviation comes from "
+          f"{s['n_bootstrap']} bootstrap resamples of the raters ({estimator}).")
+    text = f"Quality scores Q were estimated with {model}."
+    if not has.any():
+        text += (" No hidden reference was rated, so no DMOS was formed: the scores reported "
+                 "in the DMOS column are the quality estimates Q(v) themselves, on the rating "
+                 "scale. " + ci.replace("95% confidence", "Their 95% confidence"))
+    else:
+        text += (f" DMOS = Q(v) - Q(ref) + {a.screened.ref_score:g}, with Q(ref) the score of "
+                 f"the hidden reference of the same content; {ci}")
+        if not has.all():
+            missing = sorted(set(rs.stimuli["reference"].astype(str).to_numpy()[~has]))
+            text += (f" No hidden reference of {_names(missing)} was rated: "
+                     f"{_count(int((~has).sum()), 'stimulus', 'stimuli')} of "
+                     f"{'that content have' if len(missing) == 1 else 'those contents have'} "
+                     "no DMOS and are left out of the metric comparison.")
     if s.get("model_fallback"):
         text += f" {s['model_fallback']}"
     return text
 
 
-def _reliability(s: dict[str, Any]) -> str:
+def _reliability(a: Analysis, s: dict[str, Any]) -> str:
     parts = []
     icc, ci = s.get("icc") or {}, s.get("icc_ci95") or {}
     if "ICC(2,k)" in icc:
         lo, hi = (ci.get("ICC(2,k)") or [None, None])
         lo1, hi1 = (ci.get("ICC(2,1)") or [None, None])
         how = "REML variance components" if "REML" in str(s.get("icc_method")) else \
-            "a two-way random-effects ANOVA"
-        n = (s.get("icc_counts") or {}).get("raters", s["n_raters_used"])
-        parts.append(f"Inter-rater reliability over the {n} raters used was ICC(2,k) = "
-                     f"{_ci(icc['ICC(2,k)'], lo, hi)} "
+            "a two-way random-effects ANOVA (absolute agreement)"
+        counts = s.get("icc_counts") or {}
+        n = counts.get("raters", s["n_raters_used"])
+        n_hidden = int(a.screened.hidden_reference_mask.sum())
+        targets = _count(int(counts.get("stimuli", s["n_stimuli"])), "stimulus", "stimuli") + (
+            f" ({_count(n_hidden, 'hidden reference')} among them)" if n_hidden else "")
+        parts.append(f"Inter-rater reliability over the {n} raters used and {targets} was "
+                     f"ICC(2,k) = {_ci(icc['ICC(2,k)'], lo, hi)} "
                      f"(single rater ICC(2,1) = {_ci(icc.get('ICC(2,1)'), lo1, hi1)}; "
-                     f"computed from {how}, with 95% CIs)"
+                     f"computed from {how} on each rater's mean over repetitions, with 95% CIs)"
                      + (f", on the {s['icc_subset']}" if s.get("icc_subset") else "") + ".")
+        if d := s.get("icc_distorted_only"):
+            dci = d["icc_ci95"]
+            parts[-1] += (f" On the {d['n_stimuli']} distorted stimuli alone, the ones the "
+                          f"metrics are compared on, ICC(2,k) = "
+                          f"{_ci(d['icc'].get('ICC(2,k)'), *(dci.get('ICC(2,k)') or [None] * 2))}"
+                          f" and ICC(2,1) = "
+                          f"{_ci(d['icc'].get('ICC(2,1)'), *(dci.get('ICC(2,1)') or [None] * 2))}"
+                          ".")
     c = s.get("ceiling")
     if c:
         p = c["plcc"]
+        parts.append(f"Two halves of the raters agreed with PLCC = "
+                     f"{_ci(p['median'], p['ci95_low'], p['ci95_high'])} (median and 2.5-97.5 "
+                     f"percentiles of {s['n_splits']} random splits, plain-mean DMOS of the "
+                     "distorted stimuli).")
         sb = (c.get("plcc_spearman_brown") or {}).get("median")
-        parts.append(f"The human ceiling, half of the raters predicting the other half over "
-                     f"{s['n_splits']} random splits, was PLCC = "
-                     f"{_ci(p['median'], p['ci95_low'], p['ci95_high'])} (median and 95% "
-                     "range)" + (f"; Spearman-Brown corrected to the full panel, {sb:.3f}"
-                                 if sb is not None and math.isfinite(sb) else "") + ".")
+        bound = (c.get("plcc_full_panel_bound") or {}).get("median")
+        if sb is not None and math.isfinite(sb):
+            sentence = (f" Projected to the full panel (Spearman-Brown), the DMOS's "
+                        f"reliability is {sb:.3f}")
+            if bound is not None and math.isfinite(bound):
+                sentence += (f"; a metric that predicted the true quality exactly would reach "
+                             f"a PLCC of about {bound:.3f} (its square root) against this "
+                             "DMOS, the human ceiling for the metrics below (the half-panel "
+                             "agreement understates it)")
+            parts[-1] += sentence + "."
     return " ".join(parts)
 
 
-def _metric_line(m: dict[str, Any]) -> str:
+def _metric_line(m: dict[str, Any], n_max: int) -> str:
     plcc = _ci(m.get("plcc"), m.get("plcc_ci95_low"), m.get("plcc_ci95_high"))
     srcc = _ci(m.get("srcc"), m.get("srcc_ci95_low"), m.get("srcc_ci95_high"))
-    return f"{m['metric']}: PLCC {plcc}, SRCC {srcc}"
+    rmse = _ci(m.get("rmse"), m.get("rmse_ci95_low"), m.get("rmse_ci95_high"), digits=2)
+    notes = []
+    if int(m["n"]) != n_max:
+        notes.append(f"{m['n']} of the {n_max} stimuli scored")
+    if m.get("fit") != "logistic5":
+        notes.append("a straight line: the logistic mapping did not fit")
+    name = f"{m['metric']}" + (f" ({'; '.join(notes)})" if notes else "")
+    return f"{name}: PLCC {plcc}, SRCC {srcc}, RMSE {rmse}"
 
 
-def _significance(s: dict[str, Any], names: list[str]) -> str:
-    """Which metric's PLCC exceeds which, by the report's one-tailed paired bootstrap."""
-    p_of, alpha = s.get("significance_p") or {}, s["alpha"]
-    wins = [f"{a} over {b} (p = {p:.3g})" for a in names for b in names
-            if a != b and (p := (p_of.get(a) or {}).get(b)) is not None and p < alpha]
+def _significance(s: dict[str, Any], rows: list[dict[str, Any]]) -> str:
+    """Which metric's PLCC exceeds which, by the report's one-tailed paired bootstrap (on the
+    stimuli both metrics scored)."""
+    alpha = s["alpha"]
+    n_of = {str(m["metric"]): int(m["n"]) for m in rows}
+    wins, subsets = [], False
+    for c in s.get("pairwise") or []:
+        a, b, p = str(c["metric_a"]), str(c["metric_b"]), c.get("boot_p")
+        if a not in n_of or b not in n_of or p is None or not p < alpha:
+            continue
+        shared = int(c["n"])
+        where = f"; on the {shared} stimuli both scored" if shared != max(n_of[a],
+                                                                          n_of[b]) else ""
+        subsets |= bool(where)
+        wins.append(f"{a} over {b} ({p_text(p)}{where})")
     test = f"one-tailed paired bootstrap of the PLCC, alpha = {alpha:g}"
+    if subsets or len(set(n_of.values())) > 1:
+        test += ", each pair on the stimuli both metrics scored"
     if not wins:
         return f" No metric's PLCC was significantly higher than another's ({test})."
     return f" Significant differences ({test}, no correction for multiple comparisons): " \
@@ -132,18 +289,21 @@ def _metrics(s: dict[str, Any]) -> str:
             and m["metric"] != CEILING_ROW]  # the ceiling has its own sentence
     if not rows:
         return ""
-    stimuli = _count(max(int(m["n"]) for m in rows), "distorted stimulus", "distorted stimuli")
-    text = (f"Each metric was compared with DMOS on {stimuli} (hidden references excluded): "
-            "PLCC after a 5-parameter logistic mapping, SRCC on the scores oriented so that higher "
-            "is better, with 95% "
-            "confidence intervals from a two-way bootstrap over raters and stimuli. "
-            + "; ".join(_metric_line(m) for m in rows) + ".")
+    n_max = max(int(m["n"]) for m in rows)
+    stimuli = _count(n_max, "distorted stimulus", "distorted stimuli")
+    same = all(int(m["n"]) == n_max for m in rows)
+    text = (f"Each metric was compared with DMOS on {'the ' if same else 'up to '}{stimuli} "
+            "(hidden references excluded): PLCC and RMSE (ITU-T P.1401, N - d degrees of "
+            "freedom) after a 5-parameter logistic mapping, SRCC on the scores oriented so that "
+            "higher is better, with 95% confidence intervals from a two-way bootstrap over "
+            f"raters and stimuli ({s['n_bootstrap']} resamples, mapping refitted in each). "
+            + "; ".join(_metric_line(m, n_max) for m in rows) + ".")
     if len(rows) > 1:
-        text += _significance(s, [str(m["metric"]) for m in rows])
+        text += _significance(s, rows)
     return text
 
 
 def methods_paragraphs(a: Analysis, s: dict[str, Any]) -> list[str]:
     """The paragraphs, from the analysis ``a`` and its summary ``s``
     (:func:`analysis.report.summary`)."""
-    return [p for p in (_panel(a, s), _scores(a, s), _reliability(s), _metrics(s)) if p]
+    return [p for p in (_panel(a, s), _scores(a, s), _reliability(a, s), _metrics(s)) if p]

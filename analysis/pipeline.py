@@ -109,6 +109,42 @@ def prepare(rs: RatingSet, config: AnalysisConfig) -> tuple[RatingSet, OutlierRe
     return used, outliers, replace(screened, exclusions=exclusions)
 
 
+MODEL_REJECTION = "rejected by the score model"
+
+
+def without_model_rejected(screened: RatingSet, scores: ScoreResult) -> RatingSet:
+    """The raters a score model rejected itself (``--model bt500``) left out of everything
+    after it (reliability, ceiling, counts), as an exclusion of their own: the scores use
+    only the others, so every number beside them must too. The stimuli keep their rows (the
+    scores are per stimulus of ``screened``); one only they rated has a NaN score."""
+    if not scores.rejected:
+        return screened
+    gone = set(scores.rejected)
+    kept = screened.with_raters([i for i, r in enumerate(screened.raters) if r not in gone])
+    kept.exclusions += [Exclusion(MODEL_REJECTION, r, "ITU-R BT.500 rater rejection "
+                                  "(kurtosis-based, SUREAL) in the score model",
+                                  f"--model {scores.model}") for r in scores.rejected]
+    return kept
+
+
+def _quality(rs: RatingSet, used: RatingSet, outliers: OutlierResult, scores: ScoreResult,
+             config: AnalysisConfig) -> pd.DataFrame:
+    """The data-quality table of everyone read, with who the rules removed and why."""
+    info = used.rater_info if used.rater_info is not None else rs.rater_info
+    quality = quality_table(replace(rs, rater_info=info), screening=outliers.table,
+                            min_completeness=config.min_completeness)
+    for r in outliers.removed:
+        quality.loc[r.rater, "status"] = f"removed ({outliers.method})"
+    for rater in scores.rejected:
+        quality.loc[rater, "status"] = f"removed (--model {config.model})"
+    if rs.panel is not None and rs.panel.screenings:
+        quality["vision"] = vision_column(rs, list(quality.index))
+        for rater in rs.panel.failed_vision():
+            if config.exclude_failed_vision and rater in quality.index:
+                quality.loc[rater, "status"] = "excluded (vision check)"
+    return quality
+
+
 def run_analysis(rs: RatingSet, config: AnalysisConfig | None = None,
                  metric_scores: MetricScores | None = None, *, progress: bool = True) -> Analysis:
     """Completeness rule, screening, reliability, scores and DMOS, ceiling, metric validation."""
@@ -131,6 +167,12 @@ def run_analysis(rs: RatingSet, config: AnalysisConfig | None = None,
     problems = list(screened.problems)  # used's, plus the stimuli the screening emptied
     exclusions = list(screened.exclusions)
     done("outliers")
+    step("scores")
+    scores = fit_scores(screened, config.model, n_boot=config.n_boot, seed=config.seed)
+    problems += scores.problems
+    screened = without_model_rejected(screened, scores)
+    exclusions = list(screened.exclusions)
+    done("scores")
     step("reliability")
     try:
         rel = reliability(screened, n_boot=min(200, config.n_boot), seed=config.seed)
@@ -138,10 +180,6 @@ def run_analysis(rs: RatingSet, config: AnalysisConfig | None = None,
         problems.append(InputProblem("reliability", None, str(exc)))
         rel = None
     done("reliability")
-    step("scores")
-    scores = fit_scores(screened, config.model, n_boot=config.n_boot, seed=config.seed)
-    problems += scores.problems
-    done("scores")
     step("ceiling")
     try:
         ceiling = split_half(screened, config.n_splits, config.seed)
@@ -154,18 +192,7 @@ def run_analysis(rs: RatingSet, config: AnalysisConfig | None = None,
         if screened.n_raters >= 3 else None
     done("ci curve")
     step("quality")
-    info = rs.rater_info
-    if used.rater_info is not None:
-        info = used.rater_info
-    quality = quality_table(replace(rs, rater_info=info), screening=outliers.table,
-                            min_completeness=config.min_completeness)
-    for r in outliers.removed:
-        quality.loc[r.rater, "status"] = f"removed ({outliers.method})"
-    if rs.panel is not None and rs.panel.screenings:
-        quality["vision"] = vision_column(rs, list(quality.index))
-        for rater in rs.panel.failed_vision():
-            if config.exclude_failed_vision and rater in quality.index:
-                quality.loc[rater, "status"] = "excluded (vision check)"
+    quality = _quality(rs, used, outliers, scores, config)
     panel = None
     if rs.panel is not None and rs.panel.definition is not None:
         problems += panel_problems(rs.panel)

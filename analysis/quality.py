@@ -246,7 +246,7 @@ def rater_flags(row: pd.Series, min_completeness: float | None, *,
                    f"(< {t['hidden_reference']:.0%})")
     r = row.get("loo_r")
     if r is not None and np.isfinite(r) and r < t["loo_r"]:
-        out.append(f"r with the others {r:.2f} < {t['loo_r']}")
+        out.append(f"r with all others {r:.2f} < {t['loo_r']}")
     elif row.get("status") == "used" and r is not None and not np.isfinite(r):
         out.append("no agreement figure (too few ratings or no variance)")
     rr = row.get("repeat_r")

@@ -42,6 +42,11 @@ class Reliability:
     n_cells: int = 0
     complete_case: dict | None = None
     subset: str = ""
+    # pingouin's ICCs on the distorted stimuli alone ({"icc", "ci", "n_stimuli"}), when hidden
+    # references are among the targets and the data are complete: a hidden reference is easy
+    # to agree on, so the ICC over all stimuli is higher than over the distortions a metric
+    # is compared on (a paper comparing ICC(2,1) across studies needs to know which)
+    distorted_only: dict | None = None
 
 
 _PINGOUIN_OPTIONS = threading.Lock()
@@ -104,7 +109,22 @@ def reliability(rs: RatingSet, *, n_boot: int = 200, seed: int = 0) -> Reliabili
     sub, text = balanced_subset(rs)
     out = _agreement(sub, intra, n_boot=n_boot, seed=seed)
     out.subset = text
+    out.distorted_only = _distorted_only(sub)
     return out
+
+
+def _distorted_only(rs: RatingSet) -> dict | None:
+    """pingouin's ICCs without the hidden references (complete data only; None otherwise)."""
+    hidden = rs.hidden_reference_mask
+    if not hidden.any():
+        return None
+    means = rs.rater_means()[~hidden]
+    if means.shape[0] < 3 or rs.n_raters < 2 or not np.isfinite(means).all():
+        return None
+    long = pd.DataFrame(means, columns=rs.raters).stack().rename("rating").rename_axis(
+        ["stimulus", "rater"]).reset_index()
+    icc, ci = icc_from_long(long, "stimulus", "rater", "rating")
+    return {"icc": icc, "ci": ci, "n_stimuli": int(means.shape[0])}
 
 
 def _agreement(rs: RatingSet, intra: pd.Series, *, n_boot: int, seed: int) -> Reliability:

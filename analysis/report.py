@@ -38,6 +38,9 @@ _QUALITY_COLUMNS = ("status", "sessions", "n_ratings", "n_planned", "completenes
                     "dropped_frames", "trials_with_drops", "requeued", "median_viewing_s",
                     "median_toggles", "hidden_ref_mean_share", "loo_r", "repeat_r", "vision",
                     "flags")
+#: The overall pairwise metric tests in summary.json (each on the stimuli both scored).
+_PAIRWISE_COLUMNS = ("metric_a", "metric_b", "n", "plcc_a", "plcc_b", "boot_p", "boot_n",
+                     "williams_p")
 
 
 def _num(x: Any) -> Any:
@@ -104,8 +107,12 @@ def allocation_sentence(a: Analysis, counts: dict[str, float]) -> str:
             r = int(per_cell.max())
             return (f"full design: every stimulus rated {'once' if r == 1 else f'{r} times'} "
                     "by every rater")
-        return f"full design ({rs.n_repetitions} repetitions planned, partial sessions kept): " \
-            + spread
+        reps = rs.n_repetitions
+        planned = f"{reps} repetition{'' if reps == 1 else 's'} planned"
+        n_partial = len(a.partial_kept)
+        why = (f"unbalanced by the {n_partial} partial session{'' if n_partial == 1 else 's'} "
+               "kept" if n_partial else "unbalanced: not every rating was given as often")
+        return f"full design ({planned}), {why}: " + spread
     if rs.allocation == "adaptive":
         info = rs.rater_info
         planned_by = ({p.strip() for v in info["blocks_planned_by"].dropna() for p in
@@ -138,6 +145,11 @@ def _reliability_summary(rel: Reliability) -> dict[str, Any]:
         out["icc_complete_case"] = {
             "n_stimuli": rel.complete_case["n_stimuli"],
             "icc": {k: _num(v) for k, v in rel.complete_case["icc"].items()}}
+    if rel.distorted_only:
+        d = rel.distorted_only
+        out["icc_distorted_only"] = {
+            "n_stimuli": d["n_stimuli"], "icc": {k: _num(v) for k, v in d["icc"].items()},
+            "icc_ci95": {k: [_num(v[0]), _num(v[1])] for k, v in d["ci"].items()}}
     out["intra_rater_mean_r"] = _num(rel.intra_rater.mean())
     return out
 
@@ -161,6 +173,10 @@ def summary(a: Analysis) -> dict[str, Any]:
         "seed": a.config.seed,
         "n_bootstrap": a.config.n_boot,
         "n_splits": a.config.n_splits,
+        "scale": {"min": a.ratings.scale_min, "max": a.ratings.scale_max,
+                  "direction": a.ratings.scale_direction,
+                  "mirrored": a.ratings.scale_direction == "lower_is_better",
+                  "labels": [{"position": p, "text": t} for p, t in a.ratings.scale_labels]},
         "n_raters_input": a.ratings.n_raters,
         "n_raters_after_completeness": used.n_raters,
         "n_raters_used": rs.n_raters,
@@ -211,6 +227,10 @@ def summary(a: Analysis) -> dict[str, Any]:
         out["williams_p"] = {
             r: {c: _num(m.williams.loc[r, c]) for c in m.williams.columns}
             for r in m.williams.index}
+        overall = (m.comparisons[m.comparisons["scope"] == "all"]
+                   if len(m.comparisons) else m.comparisons)
+        out["pairwise"] = _records(overall.reindex(columns=list(_PAIRWISE_COLUMNS))
+                                   if len(overall) else None)
     return out
 
 
@@ -240,6 +260,9 @@ def summary_text(a: Analysis) -> str:
                  + (", ".join(r["rater"] for r in s["removed_raters"]) or "none")
                  + (f"; screened on the {s['screening_subset']}" if s["screening_subset"]
                     else ""))
+    if s["model_rejected_raters"]:
+        lines.append(f"rejected by the score model (--model {s['model']}), left out of every "
+                     "number: " + ", ".join(map(str, s["model_rejected_raters"])))
     if "icc" in s:
         lines.append(f"ICC(2,k) {s['icc']['ICC(2,k)']:.3f}   ICC(3,k) {s['icc']['ICC(3,k)']:.3f}"
                      + ("   (REML, unbalanced)" if "REML" in s["icc_method"] else "")

@@ -17,7 +17,7 @@ import pandas as pd
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 from markupsafe import Markup
 
-from .methods_text import methods_paragraphs
+from .methods_text import fixed, methods_paragraphs, percent
 from .panel import answer_counts_rows
 from .pipeline import Analysis
 from .quality import THRESHOLDS
@@ -80,8 +80,8 @@ def with_ci(frame: pd.DataFrame) -> pd.DataFrame:
         if lo in frame.columns and hi in frame.columns:
             out[col] = [
                 "" if not np.isfinite(v) else
-                f"{v:.3f}" + ("" if not (np.isfinite(a) and np.isfinite(b))
-                              else f" [{a:.3f},\u00a0{b:.3f}]")  # wraps before '[' only
+                fixed(v) + ("" if not (np.isfinite(a) and np.isfinite(b))
+                            else f" [{fixed(a)},\u00a0{fixed(b)}]")  # wraps before '[' only
                 for v, a, b in zip(frame[col].astype(float), frame[lo].astype(float),
                                    frame[hi].astype(float), strict=True)]
             out = out.drop(columns=[lo, hi])
@@ -143,7 +143,9 @@ QUALITY_COLUMNS = {
     "view s": "view s = median viewing time per trial",
     "toggles": "toggles = median switches between test and reference per trial",
     "hidden ref": "hidden ref = mean hidden-reference rating as a share of the scale",
-    "r others": "r others = Pearson r with the mean of all other raters",
+    "r others": "r others = Pearson r with the mean of all other raters read, those the "
+                "screening removed included (the screening's r1 uses only the raters it "
+                "kept, so the two can differ)",
     "repeat r": "repeat r = mean r between the rater's repetitions",
 }
 """The legend of each column of the data-quality table, said only for the columns shown."""
@@ -194,6 +196,17 @@ SCREENING_COLUMNS_TEXT = {
 }
 
 
+def _screening_text(a: Analysis) -> str:
+    """The screening rule as applied: P.913's r2 needs 4 HRCs, and without it r1 decides."""
+    text = _SCREENING_TEXT.get(a.config.outliers, a.config.outliers)
+    table = a.outliers.table
+    if a.config.outliers == "p913" and table is not None and "r2" in table.columns and \
+            not table["r2"].notna().any():
+        text = text.replace("r1 < 0.75 and r2 < 0.8", "r1 < 0.75 (r2, on per-HRC means, "
+                            "needs 4 HRCs and was not computed)")
+    return text
+
+
 def methods_table(a: Analysis) -> pd.DataFrame:
     """The "Methods and defaults" table: every choice of the run and what it means."""
     c = a.config
@@ -201,7 +214,9 @@ def methods_table(a: Analysis) -> pd.DataFrame:
     rows = [
         ("Score model", f"--model {c.model}", _MODEL_TEXT.get(c.model, c.model)),
         ("DMOS", "P.910", "DMOS(v) = Q(v) - Q(ref(v)) + top of the scale, Q(ref) from the "
-         "hidden reference."),
+         "hidden reference." if (a.screened.reference_index() >= 0).any() else
+         "not formed: no hidden reference was rated, so the dmos column holds the quality "
+         "scores Q(v)."),
         ("DMOS 95% CI", f"{c.n_boot} rater resamples", "bootstrap over raters with "
          + _CI_ESTIMATOR.get(c.model, "the model's estimator") + "; keeps the covariance of "
          "Q(v) and Q(ref); half-width t(n_eff-1) sqrt(n/(n-1)) sd. Coverage checked by "
@@ -210,8 +225,7 @@ def methods_table(a: Analysis) -> pd.DataFrame:
          "less than this share of their planned trials are left out: their bias and "
          "inconsistency would rest on too few ratings, and their ratings cover only part of "
          "the conditions. 0 keeps everyone."),
-        ("Screening", f"--outliers {c.outliers}", _SCREENING_TEXT.get(c.outliers,
-                                                                       c.outliers)),
+        ("Screening", f"--outliers {c.outliers}", _screening_text(a)),
         ("Significance level", f"--alpha {c.alpha:g}", "one-tailed tests between metrics; no "
          "correction for multiple comparisons (P.1401 7.6.5 discusses one)."),
         ("Metric intervals", f"{c.n_boot} resamples", "two-way bootstrap (raters and stimuli, "
@@ -254,6 +268,12 @@ def curve_text(a: Analysis) -> str:
             txt += "; too few participants to fit how this reduction decays"
         txt += (". The CGVQM+D paper reports 1.83 at the 5th and 0.12 at the 20th participant "
                 "and a decay rate of 0.19 for this reduction; it is not comparable with b.")
+        span = a.ratings.scale_max - a.ratings.scale_min
+        if span != 100:
+            txt += (f" The paper's widths are on its 0..100 scale, these on a "
+                    f"{a.ratings.scale_min:g}..{a.ratings.scale_max:g} scale: compare them as "
+                    f"shares of the range (here {red[first] / span:.2%} and "
+                    f"{red[last] / span:.2%}; the paper's 1.83% and 0.12%).")
     return txt
 
 
@@ -269,6 +289,7 @@ def _environment() -> Environment:
     env.filters["table"] = table_html
     env.filters["with_ci"] = with_ci
     env.filters["filename"] = lambda p: Path(str(p)).name
+    env.filters["percent"] = percent
     return env
 
 

@@ -7,9 +7,31 @@ refused too.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
 from .errors import ManifestError
+
+#: Characters no file name may hold on Windows (``:`` would also restart a path on a drive).
+UNSAFE_CHARS = re.compile(r'[\x00-\x1f<>:"|?*\\]')
+#: Device names Windows refuses as a file or folder name, with any extension.
+WINDOWS_RESERVED = frozenset({"con", "prn", "aux", "nul", *(f"com{i}" for i in range(10)),
+                              *(f"lpt{i}" for i in range(10))})
+
+
+def portable_part_problem(part: str) -> str | None:
+    """Why one path segment would not name the same file on every participant's system
+    (None: it would): Windows' forbidden characters, a trailing dot or space (dropped
+    there), a reserved device name (CON, AUX, NUL...), or ``.``/``..``/empty."""
+    if part in ("", ".", ".."):
+        return "is empty, '.' or '..'"
+    if (m := UNSAFE_CHARS.search(part)) is not None:
+        return f"holds {m.group(0)!r}, which a Windows file name cannot"
+    if part.endswith((".", " ")):
+        return "ends in a dot or a space, which Windows drops"
+    if part.split(".")[0].strip().lower() in WINDOWS_RESERVED:
+        return "is a device name Windows reserves"
+    return None
 
 
 def check_relative(path: str, *, field: str) -> PurePosixPath:
@@ -23,6 +45,10 @@ def check_relative(path: str, *, field: str) -> PurePosixPath:
         raise ManifestError(f"{field}: {path!r} is absolute; paths must be relative to the root")
     if ".." in pure.parts:
         raise ManifestError(f"{field}: {path!r} contains '..' and could leave the root")
+    for part in path.split("/"):
+        if part and (why := portable_part_problem(part)) is not None:
+            raise ManifestError(f"{field}: {path!r}: {part!r} {why}; every participant's "
+                                "download refuses it, so rename it")
     return pure
 
 

@@ -24,6 +24,9 @@ class InitChoices:
     mapping_csv: str | None = None
     """Absolute path of the CSV, as it was when init read it."""
     transcode: str | None = None
+    renders: str | None = None
+    """Absolute path of the renders folder: a re-run on another folder that would remove
+    stimuli is refused unless forced."""
 
     def options(self) -> list[str]:
         """The command-line options these choices stand for, for a message."""

@@ -49,7 +49,7 @@ from stimuli_manifests.manifest_io import manifest_to_json
 from stimuli_manifests.model import is_valid_id
 from stimuli_manifests.pairs import pair_mismatches
 
-from .init_choices import InitChoices, write_choices
+from .init_choices import InitChoices, read_choices, write_choices
 from .preflight import MAX_PAIR_DECODE_S
 from .study_check import label_room_problem, playback_findings
 
@@ -107,6 +107,8 @@ def init_study(opts: InitOptions) -> InitResult:
     previous = _previous_manifest(out)
     display = _display(opts, previous)
     result = InitResult(_map(opts, folder, out))
+    if previous is not None and not opts.force:
+        _refuse_another_folder(previous, result.mapping, folder, out)
     if not result.mapping.videos and not result.mapping.problems:
         how = f"listed in {opts.mapping_csv}" if opts.mapping_csv else (
             f"matching {opts.reference_pattern!r} or {opts.test_pattern!r}")
@@ -173,7 +175,7 @@ def init_study(opts: InitOptions) -> InitResult:
         opts.test_pattern if by_name and opts.test_pattern != DEFAULT_TEST_PATTERN else None,
         opts.reference_pattern if by_name and opts.reference_pattern !=
         DEFAULT_REFERENCE_PATTERN else None,
-        None if by_name else str(opts.mapping_csv.resolve()), opts.transcode))
+        None if by_name else str(opts.mapping_csv.resolve()), opts.transcode, str(folder)))
     return result
 
 
@@ -323,6 +325,30 @@ def _speed_problems(result: InitResult, files: dict[str, Path],
                 f"decoding it with its reference takes {seconds:.1f} s on this computer; the "
                 f"player's pre-flight refuses more than {MAX_PAIR_DECODE_S:g} s per pair "
                 f"({advice})"))
+
+
+def _refuse_another_folder(previous: Manifest, mapping: FolderMapping, folder: Path,
+                           out: Path) -> None:
+    """A re-run that reads another renders folder (a typo, a neighbouring folder) and would
+    remove stimuli is refused before anything is probed or deleted: the copies it would
+    delete may have taken long to make (``--transcode``). The folder of the last run is in
+    init.json; a study without it is refused when no stimulus at all would stay."""
+    old = [str(e.id) for e in [*previous.references, *previous.conditions]]
+    new = {v.stimulus_id for v in mapping.videos}
+    gone = [sid for sid in old if sid not in new]
+    if not gone:
+        return
+    last = read_choices(out)
+    made_from = last.renders if last is not None else None
+    if made_from is not None and Path(made_from) == folder:
+        return
+    if made_from is None and len(gone) < len(old):
+        return
+    source = f"was made from {made_from}" if made_from else "holds other stimuli"
+    raise StudyError(
+        f"{out} {source}; this run reads {folder} and would remove {len(gone)} of its "
+        f"{len(old)} stimuli (e.g. {', '.join(gone[:3])}) and delete their copies: give the "
+        "folder it was made from, or pass --force to replace them")
 
 
 def _refuse_if_sessions_would_break(previous: Manifest, placements: list, out: Path) -> None:

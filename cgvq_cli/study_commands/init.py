@@ -55,7 +55,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="the participants' minimum refresh rate (default: the manifest's, "
                              "else 59)")
     parser.add_argument("--force", action="store_true",
-                        help="change stimuli even when the study already holds sessions")
+                        help="change stimuli even when the study already holds sessions, "
+                             "or replace them from another renders folder")
 
 
 def _display(args: argparse.Namespace) -> tuple[tuple[int, int] | None, float | None]:

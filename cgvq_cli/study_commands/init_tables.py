@@ -65,7 +65,9 @@ def print_changes(result: InitResult, out: Path) -> None:
           f"{n_stimuli * manifest.protocol.repetitions} trials")
     for label, ids in (("added", changes.added), ("removed", changes.removed),
                        ("replaced (new file or content)", changes.replaced),
-                       ("settings changed", changes.settings)):
+                       ("settings changed", changes.settings),
+                       ("mapped anew (scores or ratings under these ids now mean another "
+                        "comparison)", changes.remapped)):
         if ids:
             print(f"  {label}: {', '.join(ids)}")
     if "display" in changes.settings:

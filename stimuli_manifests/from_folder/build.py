@@ -51,6 +51,9 @@ class StudyChanges:
     removed: list[str] = field(default_factory=list)
     replaced: list[str] = field(default_factory=list)
     settings: list[str] = field(default_factory=list)
+    remapped: list[str] = field(default_factory=list)
+    """Ids kept whose reference, method, level or setting changed, with the change in words:
+    scores or ratings keyed by such an id now refer to another comparison."""
     files_written: list[str] = field(default_factory=list)
     """Ids whose copy was written (new, replaced, or missing or edited in the study)."""
     files_deleted: list[str] = field(default_factory=list)
@@ -180,11 +183,33 @@ def compare(previous: Manifest | None, new: Manifest) -> StudyChanges:
     changes.added = sorted(set(now) - set(old))
     changes.removed = sorted(set(old) - set(now))
     changes.replaced = sorted(sid for sid in set(old) & set(now) if old[sid] != now[sid])
+    changes.remapped = _remapped(previous, new)
     if previous is not None:
         before = previous.model_dump(exclude={"references", "conditions"})
         after = new.model_dump(exclude={"references", "conditions"})
         changes.settings = sorted(k for k in after if before.get(k) != after[k])
     return changes
+
+
+_MAPPED_FIELDS = ("reference", "method", "level", "setting")
+
+
+def _remapped(previous: Manifest | None, new: Manifest) -> list[str]:
+    """``id (reference a -> b, method x -> y)`` for each test stimulus kept under its id whose
+    mapping changed (a scene's reference exported after a first run split its names)."""
+    if previous is None:
+        return []
+    before = {c.id: c for c in previous.conditions}
+    out = []
+    for cond in sorted(new.conditions, key=lambda c: c.id):
+        old = before.get(cond.id)
+        if old is None:
+            continue
+        diffs = [f"{name} {getattr(old, name)} -> {getattr(cond, name)}"
+                 for name in _MAPPED_FIELDS if getattr(old, name) != getattr(cond, name)]
+        if diffs:
+            out.append(f"{cond.id} ({', '.join(diffs)})")
+    return out
 
 
 def delete_stale(previous: Manifest | None, new: Manifest, study: Path) -> list[str]:

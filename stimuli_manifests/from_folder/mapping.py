@@ -17,6 +17,7 @@ from pathlib import Path, PurePosixPath
 from typing import Literal, TextIO
 
 from ..model import is_valid_id
+from ..paths import portable_part_problem
 
 Role = Literal["reference", "test"]
 
@@ -210,9 +211,11 @@ def map_by_pattern(folder: Path, *, test_pattern: str = DEFAULT_TEST_PATTERN,
 def _split_warnings(out: FolderMapping, test_pattern: str) -> list[str]:
     """Test videos whose method looks like the rest of a scene name: with
     ``{scene}_{method}``, ``sponza_atrium_dlss_L1`` is method ``atrium_dlss`` of ``sponza``
-    unless ``sponza_atrium`` has a reference. Said when that method is found under this
-    scene only and its tail (``dlss``) is a method of any scene, this one included (a flat
-    folder whose only other scene is ``sponza``)."""
+    unless ``sponza_atrium`` has a reference. Said for every method that holds the separator
+    and is found under this scene only: whether its tail (``dlss``, ``xess``) is a method
+    elsewhere or not (``sponza_night_xess`` beside ``sponza_ref`` alone), the names cannot
+    tell a lost reference from a method with the separator in its name (``path_traced``); a
+    method every scene shares is not in doubt."""
     m = re.search(r"{scene}([^{}/]+){method}", test_pattern)
     if m is None:
         return []
@@ -227,11 +230,10 @@ def _split_warnings(out: FolderMapping, test_pattern: str) -> list[str]:
         head, _, tail = method.partition(sep)
         if not tail or (v.scene, method) in said or scenes_of[method] != {v.scene}:
             continue
-        if tail in scenes_of:  # 'dlss' is a method here or elsewhere: a scene lost its ref
-            said.add((v.scene, method))
-            warnings.append(f"{v.path}: read as method {method!r} of scene {v.scene!r}; if "
-                            f"{v.scene + sep + head!r} is a scene of its own, its reference "
-                            "is missing")
+        said.add((v.scene, method))
+        warnings.append(f"{v.path}: read as method {method!r} of scene {v.scene!r}; if "
+                        f"{v.scene + sep + head!r} is a scene of its own, its reference is "
+                        "missing (if not, a --mapping CSV confirms this reading)")
     return warnings
 
 
@@ -327,6 +329,22 @@ def _reference_candidates(out: FolderMapping, scene: str) -> list[PurePosixPath]
     return found
 
 
+def _unportable(videos: list[MappedVideo]) -> list[Problem]:
+    """Folder and file names a participant's download refuses on every system (the study's
+    copies keep them): one problem per name, with a file it holds."""
+    found: dict[tuple[int, str], Problem] = {}
+    for video in videos:
+        parts = video.path.parts
+        for depth, part in enumerate(parts):
+            if (depth, part) in found or (why := portable_part_problem(part)) is None:
+                continue
+            what = "file" if depth == len(parts) - 1 else "folder"
+            found[(depth, part)] = Problem(
+                "bad name", str(video.path), f"{what} name {part!r} {why}; every "
+                f"participant's download would refuse it: rename the {what}")
+    return list(found.values())
+
+
 def _check(out: FolderMapping, fix: str = "") -> None:
     """Ids that are not valid, used twice, or test videos without a reference (with the
     files left out that look like it, and ``fix``: how to take one)."""
@@ -342,6 +360,7 @@ def _check(out: FolderMapping, fix: str = "") -> None:
                 "duplicate id", sid, f"{seen[sid].path} and {video.path} are both {sid}"))
         else:
             seen[sid] = video
+    out.problems += _unportable(out.videos)
     refs = out.references()
     missing = sorted({v.scene for v in out.videos if v.role == "test"} - set(refs))
     for scene in missing:

@@ -26,6 +26,7 @@ from urllib.parse import quote
 
 from session_store.errors import StudyError
 from session_store.protocol import participant_path
+from stimuli_manifests.paths import portable_part_problem
 
 from .http import ServerClient, ServerUnavailable
 
@@ -119,18 +120,10 @@ def _sha256(p: Path) -> str:
     return digest.hexdigest()
 
 
-UNSAFE_CHARS = re.compile(r'[\x00-\x1f<>:"|?*\\]')
-WINDOWS_RESERVED = frozenset({"con", "prn", "aux", "nul", *(f"com{i}" for i in range(10)),
-                              *(f"lpt{i}" for i in range(10))})
-
-
 def _safe_part(part: str) -> bool:
-    """One path segment that means the same file on every OS: no ``:`` (on Windows ``D:``
-    restarts the path on that drive), none of Windows' forbidden characters, not ``.`` or
-    ``..``, no trailing dot or space, no reserved device name (CON, NUL...)."""
-    return (part not in ("", ".", "..") and UNSAFE_CHARS.search(part) is None
-            and not part.endswith((".", " "))
-            and part.split(".")[0].strip().lower() not in WINDOWS_RESERVED)
+    """One path segment that means the same file on every OS (the manifest's own rule,
+    :func:`stimuli_manifests.paths.portable_part_problem`)."""
+    return portable_part_problem(part) is None
 
 
 def _safe_relative(text: Any) -> str:

@@ -4,6 +4,7 @@ published layout of the Netflix dataset), and it says only what was computed."""
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -13,6 +14,7 @@ import pingouin as pg
 import pytest
 
 from analysis.cli import main
+from analysis.methods_text import fixed, p_text, percent
 from analysis.synthetic import synthetic_study
 from stimuli_manifests import save_manifest
 
@@ -52,12 +54,20 @@ def test_the_text_states_the_study_as_generated_and_recomputed(study, tmp_path):
     out = tmp_path / "report"
     text = _report(root, out, "--metric", str(root / "scores.csv"))
     n_stim = len(st.quality)
-    assert text.startswith(f"10 participants gave valid ratings of {n_stim} stimuli on a "
-                           "0 to 100 scale (full design: every stimulus rated 2 times")
-    removed = sorted(pd.read_csv(out / "tables" / "outliers.csv", dtype={"rater": str})["rater"])
-    assert removed == sorted(st.outliers)  # the two random raters, and only they
+    # the design as generated: 3 scenes, 2 methods x 3 levels, one hidden reference each;
+    # the manifest's default labels
+    assert text.startswith(
+        f"10 participants gave valid ratings of {n_stim} stimuli (3 source contents; 6 "
+        "distortion conditions: blur, noise at 3 levels; 3 hidden references) on a "
+        'continuous 0 to 100 scale labelled "Very annoying" (0), "Annoying" (25), '
+        '"Slightly annoying" (50), "Perceptible but not annoying" (75), "Imperceptible" (100) '
+        "(full design: every stimulus rated 2 times")
+    assert "mirrored" not in text
+    removed = pd.read_csv(out / "tables" / "outliers.csv", dtype={"rater": str})["rater"]
+    assert sorted(removed) == sorted(st.outliers)  # the two random raters, and only they
     kept = sorted(set(st.ratings["participant"]) - set(removed))
-    assert f"2 raters were removed. The analysis uses {len(kept)} raters and " \
+    assert f"2 raters ({', '.join(removed)}) were removed. The analysis uses {len(kept)} " \
+           "raters and " \
            f"{len(kept) * n_stim * 2} ratings." in text
     assert "DMOS = Q(v) - Q(ref) + 100" in text and "40 bootstrap resamples" in text
     # ICC(2,k) (pingouin: ICC(A,k), two-way random, absolute agreement) from pingouin directly,
@@ -73,9 +83,28 @@ def test_the_text_states_the_study_as_generated_and_recomputed(study, tmp_path):
     for name in ("good", "weak"):
         assert f"{name}: PLCC {table.loc[name, 'plcc']:.3f} [" in text
         assert f"SRCC {table.loc[name, 'srcc']:.3f} [" in text
+        assert f"RMSE {table.loc[name, 'rmse']:.2f} [" in text
     assert "human ceiling (split-half): PLCC" not in text
-    assert re.search(r"good over weak \(p = [0-9.e-]+\)", text)
-    assert "weak over good" not in text
+    assert re.search(r"good over weak \(p [=<] [0-9.e-]+\)", text)
+    assert "weak over good" not in text and "each pair on the stimuli" not in text
+    # the ICC on the distorted stimuli alone, from pingouin directly
+    dist = mean[mean["stimulus"].str.contains("_")]
+    icc_d = pg.intraclass_corr(dist, targets="stimulus", raters="participant",
+                               ratings="rating").set_index("Type")
+    assert f"On the {n_stim - 3} distorted stimuli alone, the ones the metrics are compared " \
+           f"on, ICC(2,k) = {icc_d.loc['ICC(A,k)', 'ICC']:.3f} [" in text
+    assert f"and ICC(2,1) = {icc_d.loc['ICC(A,1)', 'ICC']:.3f} [" in text
+    # the ICC's targets include the hidden references, and the text says so
+    assert f"over the {len(kept)} raters used and {n_stim} stimuli (3 hidden references " \
+           "among them)" in text
+    # the ceiling a metric faces: Spearman-Brown of the median split-half PLCC (8 raters: two
+    # halves of 4, k = 2), and its square root
+    half = pd.read_csv(out / "tables" / "ceiling.csv", index_col=0)
+    r = float(half.loc["plcc", "median"]) if "plcc" in half.index else None
+    assert r is not None
+    sb = 2 * r / (1 + r)
+    assert f"reliability is {sb:.3f}; a metric that predicted the true quality exactly would " \
+           f"reach a PLCC of about {np.sqrt(sb):.3f}" in text
 
 
 def test_without_screening_or_metrics_it_says_so_and_no_more(study, tmp_path):
@@ -93,7 +122,120 @@ def test_the_netflix_dataset_reads_as_published(tmp_path):
     assert main(["report", "--sureal", str(NFLX), "--bootstrap", "50", "--splits", "20",
                  "--out", str(tmp_path / "nflx")]) == 0
     text = " ".join((tmp_path / "nflx" / "methods.txt").read_text().split())
-    assert text.startswith("30 participants gave valid ratings of 79 stimuli on a 1 to 5 "
+    assert text.startswith("30 participants gave valid ratings of 79 stimuli (9 source "
+                           "contents; 70 distorted versions; 9 hidden references) on a 1 to 5 "
                            "scale (full design: every stimulus rated once by every rater).")
-    assert "4 raters were removed. The analysis uses 26 raters and 2054 ratings." in text
+    # NFLX labels no HRC, so P.913's r2 cannot run, and the text says so
+    assert "r1 decided alone" in text and "r2 < 0.8" not in text
+    assert re.search(r"4 raters \((2[6-9], ){3}2[6-9]\) were removed\. [^.]*\. The analysis "
+                     r"uses 26 raters and 2054 ratings\.", text)
+    assert "2 raters close to the rule were kept (2, 6)" in text  # the report's near-misses
     assert "DMOS = Q(v) - Q(ref) + 5" in text
+
+
+def _ratings(root: Path) -> pd.DataFrame:
+    return pd.read_csv(root / "ratings.csv", dtype={"participant": str})
+
+
+def test_an_impairment_scale_is_said_to_be_mirrored_and_changes_no_number(study, tmp_path):
+    """The same study on a lower-is-better scale (ratings 100 - r): the text says how the
+    participants rated and that the numbers are on the mirrored scale; every number stays."""
+    _, root = study
+    manifest = json.loads((root / "manifest.json").read_text())
+    manifest["scale"] = {"min": 0, "max": 100, "direction": "lower_is_better",
+                         "labels": [{"position": 0, "text": "Imperceptible"},
+                                    {"position": 100, "text": "Very annoying"}]}
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+    flipped = _ratings(root)
+    flipped["rating"] = 100 - flipped["rating"]
+    flipped.to_csv(tmp_path / "ratings.csv", index=False)
+    text = _report(tmp_path, tmp_path / "lib")
+    same = _report(root, tmp_path / "hib")
+    assert ('on a continuous 0 to 100 scale on which lower meant better labelled '
+            '"Imperceptible" (0), "Very annoying" (100)') in text
+    assert "every rating x was mirrored to 0 + 100 - x" in text and "mirrored" not in same
+    icc = re.search(r"ICC\(2,k\) = [0-9.]+ \[[0-9., ]+\]", same)
+    assert icc and icc.group(0) in text
+    summary = json.loads((tmp_path / "lib" / "summary.json").read_text())
+    assert summary["scale"]["mirrored"] is True and summary["scale"]["direction"] == \
+        "lower_is_better"
+
+
+def test_without_hidden_references_no_dmos_is_claimed(study, tmp_path):
+    """No hidden reference rated: the scores are quality estimates, and the text, the methods
+    table and dmos.csv agree (dmos equals quality)."""
+    _, root = study
+    ratings = _ratings(root)
+    ratings[~ratings["is_hidden_reference"]].to_csv(tmp_path / "ratings.csv", index=False)
+    (tmp_path / "manifest.json").write_text((root / "manifest.json").read_text())
+    text = _report(tmp_path, tmp_path / "noref", "--outliers", "none")
+    dmos = pd.read_csv(tmp_path / "noref" / "dmos.csv")
+    assert (dmos["dmos"] - dmos["quality"]).abs().max() == 0
+    assert "no DMOS was formed" in text and "Q(ref)" not in text
+    assert "no hidden reference)" in text  # the design counts none
+    html = (tmp_path / "noref" / "report.html").read_text()
+    assert "not formed: no hidden reference was rated" in html
+
+
+def test_each_metric_is_given_its_own_stimuli_and_pairs_their_shared_ones(study, tmp_path):
+    """A metric scored on fewer stimuli: its count in the text is the metric table's, and a
+    significant difference involving it names the stimuli both metrics scored."""
+    _, root = study
+    scores = pd.read_csv(root / "scores.csv")
+    weak = scores[scores["metric"] == "weak"]
+    drop = weak["stimulus"].iloc[:5]
+    fewer = scores.drop(index=drop.index)
+    fewer.to_csv(tmp_path / "scores.csv", index=False)
+    text = _report(root, tmp_path / "few", "--metric", str(tmp_path / "scores.csv"))
+    table = pd.read_csv(tmp_path / "few" / "tables" / "metrics.csv").set_index("metric")
+    n_all, n_weak = int(table.loc["good", "n"]), int(table.loc["weak", "n"])
+    assert n_weak == n_all - 5
+    assert f"on up to {n_all} distorted stimuli" in text
+    assert f"weak ({n_weak} of the {n_all} stimuli scored): PLCC " \
+           f"{table.loc['weak', 'plcc']:.3f}" in text
+    assert "each pair on the stimuli both metrics scored" in text
+    if "good over weak" in text:
+        assert f"on the {n_weak} stimuli both scored" in text
+
+
+def test_raters_the_bt500_model_rejects_are_left_out_of_every_number(study, tmp_path):
+    """--model bt500 rejects raters inside the model: they count as removals in the text and
+    summary, and the ICC is pingouin's on the raters the scores used."""
+    st, root = study
+    out = tmp_path / "bt500"
+    text = _report(root, out, "--model", "bt500", "--outliers", "none")
+    summary = json.loads((out / "summary.json").read_text())
+    rejected = summary["model_rejected_raters"]
+    assert sorted(rejected) == sorted(st.outliers)  # BT.500 finds the two random raters
+    kept = sorted(set(st.ratings["participant"]) - set(rejected))
+    assert summary["n_raters_used"] == len(kept)
+    assert f"removed {len(rejected)} rater" in text and f"uses {len(kept)} raters" in text
+    mean = (st.ratings[st.ratings["participant"].isin(kept)]
+            .groupby(["stimulus", "participant"], as_index=False)["rating"].mean())
+    icc = pg.intraclass_corr(mean, targets="stimulus", raters="participant",
+                             ratings="rating").set_index("Type")
+    assert summary["icc"]["ICC(2,k)"] == pytest.approx(icc.loc["ICC(A,k)", "ICC"], abs=1e-9)
+    quality = pd.read_csv(out / "tables" / "data_quality.csv", dtype={"rater": str})
+    status = quality.set_index("rater")["status"]
+    assert all(status[r] == "removed (--model bt500)" for r in rejected)
+    assert "rejected by the score model" in (out / "report.html").read_text()
+
+
+def test_with_fewer_than_four_hrcs_the_p913_rule_is_r1_alone(tmp_path):
+    """Three HRCs (two levels and the hidden reference): P.913's r2 cannot be computed,
+    and the text does not claim it."""
+    st = synthetic_study(n_scenes=5, methods=("blur",), levels=2, n_raters=8,
+                         repetitions=1, n_outliers=1, seed=3)
+    save_manifest(st.manifest.manifest, tmp_path / "manifest.json")
+    st.ratings.to_csv(tmp_path / "ratings.csv", index=False)
+    text = _report(tmp_path, tmp_path / "r1")
+    assert "r1 decided alone" in text and "r1 < 0.75 and r2 < 0.8" not in text
+    assert "needs 4 HRCs and was not computed" in (tmp_path / "r1" / "report.html").read_text()
+
+
+def test_numbers_are_printed_as_a_paper_prints_them():
+    assert p_text(1 / 1001) == "p < 0.001" and p_text(0.001) == "p = 0.001"
+    assert p_text(0.0366) == "p = 0.037"
+    assert percent(0.995) == "99.5%" and percent(0.83) == "83%" and percent(1.0) == "100%"
+    assert percent(0.004) == "0.4%"
+    assert fixed(-0.0001) == "0.000" and fixed(-0.01) == "-0.010"

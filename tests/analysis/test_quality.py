@@ -88,7 +88,7 @@ def test_agreement_figures_from_ratings_alone() -> None:
                          special={"Xinv": "inverted"})
     rs = ratings_from_frame(st.ratings, st.manifest)
     q = quality_table(rs)
-    assert q.loc["Xinv", "loo_r"] < 0 and "r with the others" in q.loc["Xinv", "flags"]
+    assert q.loc["Xinv", "loo_r"] < 0 and "r with all others" in q.loc["Xinv", "flags"]
     assert q.loc["Xinv", "hidden_ref_mean_share"] < THRESHOLDS["hidden_reference"]
     hid = hidden_reference_mean(rs)
     s = rs.raters.index("P01")

@@ -223,7 +223,7 @@ def _says_only_what_is_shown(html: str, out: Path) -> None:
     left out, and so is their legend; the DMOS caption names metric markers only when a
     metric was given, and the agreement caption repetitions only when there are some."""
     assert "black markers" not in html and "{metrics}" not in html
-    assert "with the leave-one-out panel, with the flag thresholds" in html
+    assert "uses only the raters kept), with the flag thresholds" in html
     quality = html.split("id='quality'", 1)[1].split("<h2", 1)[0]
     assert "r others = Pearson r" in quality and "hidden ref = mean" in quality
     for column in ("view s", "toggles", "frames", "timing"):

@@ -111,5 +111,25 @@ def test_a_flat_scene_without_its_reference_is_named_when_it_is_the_only_other(t
                             reference_pattern="{scene}_reference.{ext}")
     assert mapped.warnings == [
         f"sponza_atrium_{m}_L1.mp4: read as method 'atrium_{m}' of scene 'sponza'; if "
-        "'sponza_atrium' is a scene of its own, its reference is missing" for m in ("dlss",
-                                                                                  "fsr")]
+        "'sponza_atrium' is a scene of its own, its reference is missing (if not, a "
+        "--mapping CSV confirms this reading)" for m in ("dlss", "fsr")]
+
+
+def test_a_lost_reference_is_named_even_when_its_methods_are_nowhere_else(tmp_path):
+    """sponza_night's reference was not exported and it alone has xess: its renders were
+    method 'night_xess' of sponza with exit 0, no warning, and the suggester proposed that
+    mapping. Now the reading is named, and no pattern pair is suggested."""
+    names = ["sponza_ref.mkv", "sponza_dlss_q1.mkv", "sponza_dlss_q2.mkv",
+             "sponza_night_xess_q1.mkv", "sponza_night_xess_q2.mkv"]
+    touch(tmp_path, names)
+    mapped = map_by_pattern(tmp_path, test_pattern="{scene}_{method}_q{level}.{ext}",
+                            reference_pattern="{scene}_ref.{ext}")
+    assert [w.split(":")[0] for w in mapped.warnings] == ["sponza_night_xess_q1.mkv"]
+    assert "if 'sponza_night' is a scene of its own, its reference is missing" in \
+        mapped.warnings[0]
+    assert suggest_patterns(tmp_path, scan_folder(tmp_path).videos) is None
+    # a method every scene has is not in doubt, separator or not
+    other = tmp_path / "two"
+    touch(other, ["a_ref.mkv", "a_path_traced_q1.mkv", "b_ref.mkv", "b_path_traced_q1.mkv"])
+    assert map_by_pattern(other, test_pattern="{scene}_{method}_q{level}.{ext}",
+                          reference_pattern="{scene}_ref.{ext}").warnings == []

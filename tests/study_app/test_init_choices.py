@@ -92,3 +92,48 @@ def test_an_unreadable_record_is_one_line(tmp_path, capsys):
     code, _, err = init(capsys, renders, "--out", study)
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "init.json cannot be read" in err and "Traceback" not in err
+
+
+def test_a_rerun_on_another_folder_asks_before_it_removes_stimuli(tmp_path, capsys):
+    """A mistyped renders folder removed every stimulus and deleted the copies (exit 0):
+    now it is refused, naming the folder the study was made from, until --force; the same
+    folder may still drop a stimulus whose render was deleted."""
+    renders, other, study = tmp_path / "renders", tmp_path / "other", tmp_path / "study"
+    for seed, scene in enumerate(("sponza", "bistro")):
+        write_video(renders / scene / "reference.mkv", clip(seed), FPS)
+        write_video(renders / scene / "blur_L1.mkv", clip(seed + 10), FPS)
+    write_video(other / "kitchen" / "reference.mkv", clip(5), FPS)
+    write_video(other / "kitchen" / "blur_L1.mkv", clip(6), FPS)
+    assert init(capsys, renders, "--out", study)[0] == 0
+    assert json.loads((study / INIT_FILE).read_text())["renders"] == str(renders.resolve())
+    before = paths(study)
+    code, _, err = init(capsys, other, "--out", study)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert f"was made from {renders.resolve()}" in err and "would remove 4 of its 4" in err
+    assert paths(study) == before and all((study / p).is_file() for p in before.values())
+    (renders / "bistro" / "blur_L1.mkv").unlink()
+    code, out, _ = init(capsys, renders, "--out", study)
+    assert code == 0 and "removed: bistro_blur_L1" in out
+    code, out, _ = init(capsys, other, "--out", study, "--force")
+    assert code == 0 and set(paths(study)) == {"kitchen", "kitchen_blur_L1"}
+
+
+def test_a_rerun_that_maps_an_id_anew_says_so(tmp_path, capsys):
+    """sponza_night's reference exported after a first run: its renders keep their ids but
+    change reference and method; the re-run said only "added: sponza_night"."""
+    renders, study = tmp_path / "renders", tmp_path / "study"
+    write_video(renders / "sponza_ref.mkv", clip(1), FPS)
+    write_video(renders / "sponza_dlss_q1.mkv", clip(2), FPS)
+    write_video(renders / "sponza_night_xess_q1.mkv", clip(3), FPS)
+    patterns = ("--reference-pattern", "{scene}_ref.{ext}", "--pattern",
+                "{scene}_{method}_q{level}.{ext}")
+    code, out, _ = init(capsys, renders, "--out", study, *patterns)
+    assert code == 0 and "if 'sponza_night' is a scene of its own" in out
+    write_video(renders / "sponza_night_ref.mkv", clip(4), FPS)
+    code, out, _ = init(capsys, renders, "--out", study)
+    assert code == 0 and "added: sponza_night\n" in out
+    assert "sponza_night_xess_L1 (reference sponza -> sponza_night, method night_xess -> xess)" \
+        in out
+    m = load_manifest(study / "manifest.json").manifest
+    cond = next(c for c in m.conditions if c.id == "sponza_night_xess_L1")
+    assert (cond.reference, cond.method) == ("sponza_night", "xess")

@@ -290,4 +290,5 @@ def test_a_scene_whose_reference_is_missing_is_not_split_without_a_word(tmp_path
     assert not mapping.problems
     assert mapping.warnings == [
         "sponza_atrium_dlss_L1.mp4: read as method 'atrium_dlss' of scene 'sponza'; if "
-        "'sponza_atrium' is a scene of its own, its reference is missing"]
+        "'sponza_atrium' is a scene of its own, its reference is missing (if not, a "
+        "--mapping CSV confirms this reading)"]

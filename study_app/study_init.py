@@ -226,7 +226,9 @@ def _what_would_map(opts: InitOptions, folder: Path, out: Path, mapping: FolderM
     if hint is None:
         return (f"{found}; give --reference-pattern and --pattern that match their names, "
                 "or list the files in a --mapping CSV (docs: Bring your own videos)")
-    return (f"{found}; these patterns map all {hint.videos} ({hint.scenes} scene(s)): "
+    maps = (f"all {hint.videos}" if not hint.left_out else
+            f"{hint.videos} of {len(videos)}, leaving out {', '.join(hint.left_out)}")
+    return (f"{found}; these patterns map {maps} ({hint.scenes} scene(s)): "
             f"{hint.flags()}. Check the list init prints: level 1 must be the strongest "
             "distortion, or use a --mapping CSV")
 
@@ -297,11 +299,27 @@ def _video_problems(result: InitResult, folder: Path, display: DisplayRequiremen
             for message in pair_mismatches(str(video.path), str(ref.path), test_info, ref_info):
                 result.problems.append(Problem("mismatch", str(video.path),
                                                message.split(": ", 1)[1]))
+            if (problem := _out_of_step(result, folder, video, ref)) is not None:
+                result.problems.append(problem)
     if (problem := label_room_problem(infos.values(), display, settings="init")) is not None:
         result.problems.append(Problem("player", "all videos", problem))
     if not transcoding:
         _speed_problems(result, {v.stimulus_id: folder / v.path for v in videos},
                         result.probes, transcoded=False)
+
+
+def _out_of_step(result: InitResult, folder: Path, video: MappedVideo,
+                 ref: MappedVideo) -> Problem | None:
+    """A test whose timestamps skip frame slots its reference's do not (a frame dropped in
+    the export): same frame count, but from the gap on it shows what the reference shows
+    one frame later, so the comparison and any frame-wise metric are out of step."""
+    test, reference = result.probes[folder / video.path], result.probes[folder / ref.path]
+    if test.skipped_slots == reference.skipped_slots:
+        return None
+    return Problem("mismatch", str(video.path), (
+        f"its timestamps skip {test.skipped_slots} frame slot(s) and those of its reference "
+        f"{ref.path} skip {reference.skipped_slots}: a frame was dropped in an export, so the "
+        "two are out of step from there on; re-export the one that skips"))
 
 
 def _speed_problems(result: InitResult, files: dict[str, Path],

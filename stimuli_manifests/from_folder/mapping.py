@@ -33,12 +33,14 @@ not left out without a word)."""
 CSV_COLUMNS = ("path", "scene", "role", "method", "level", "setting")
 _PLACEHOLDERS = {
     "scene": r"(?P<scene>[^/]+?)",
-    "method": r"(?P<method>[^/]+?)",
+    "method": r"(?P<method>[^/]+)",  # greedy: path_traced_4spp is path_traced + 4spp
     "level": r"(?P<level>\d+)",
     "setting": r"(?P<setting>[^/]+?)",
     "ext": r"(?P<ext>[A-Za-z0-9]+)",
 }
 _ROLE_WORDS = {"reference": "reference", "ref": "reference", "src": "reference",
+               "gt": "reference", "ground truth": "reference", "ground_truth": "reference",
+               "original": "reference",
                "test": "test", "condition": "test", "distorted": "test", "pvs": "test"}
 
 
@@ -185,11 +187,15 @@ def map_by_pattern(folder: Path, *, test_pattern: str = DEFAULT_TEST_PATTERN,
     scan = scan_folder(folder, exclude=exclude)
     out = FolderMapping(problems=scan.broken, frame_sequences=scan.frame_sequences)
     tests: list[PurePosixPath] = []
-    for rel in scan.videos:
-        text = rel.as_posix()
-        if m := ref_re.fullmatch(text):
-            out.videos.append(MappedVideo(rel, m["scene"], "reference"))
-        elif test_re.fullmatch(text):
+    matches = {rel: (ref_re.fullmatch(rel.as_posix()), test_re.fullmatch(rel.as_posix()))
+               for rel in scan.videos}
+    # a file both patterns match (a loose '{scene}.{ext}' takes every file) is a test video
+    # when its scene's reference is among the files only the reference pattern matches
+    plain_refs = {r["scene"] for r, t in matches.values() if r and not t}
+    for rel, (ref_m, test_m) in matches.items():
+        if ref_m and not (test_m and test_m["scene"] in plain_refs):
+            out.videos.append(MappedVideo(rel, ref_m["scene"], "reference"))
+        elif test_m:
             tests.append(rel)
         else:
             out.unmatched.append(rel)
@@ -205,7 +211,24 @@ def map_by_pattern(folder: Path, *, test_pattern: str = DEFAULT_TEST_PATTERN,
                                       int(m["level"]), m.groupdict().get("setting")))
     _check(out, f"Rename it to match {reference_pattern!r}, or give --reference-pattern")
     out.warnings += _split_warnings(out, test_pattern)
+    out.warnings += case_warnings(out)
     return out
+
+
+def case_warnings(out: FolderMapping) -> list[str]:
+    """Methods (and scenes) whose names differ only in case (``TAA`` and ``taa``): they
+    become two methods of the study, which the analysis draws and scores apart."""
+    warnings = []
+    for what, names in (("methods", {str(v.method) for v in out.videos if v.method}),
+                        ("scenes", {v.scene for v in out.videos})):
+        groups: dict[str, list[str]] = {}
+        for name in sorted(names):
+            groups.setdefault(name.casefold(), []).append(name)
+        warnings += [f"{what} {' and '.join(repr(n) for n in group)} differ only in case: "
+                     f"they are {len(group)} {what} of the study; rename the files (or map "
+                     "them in a CSV) if they are one" for group in groups.values()
+                     if len(group) > 1]
+    return warnings
 
 
 def _split_warnings(out: FolderMapping, test_pattern: str) -> list[str]:
@@ -244,7 +267,8 @@ def map_by_csv(folder: Path, csv_path: Path) -> FolderMapping:
     try:
         with open(csv_path, newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh, delimiter=_delimiter(fh))
-            columns = [c.strip() for c in reader.fieldnames or []]
+            # as a spreadsheet saves it: any case, empty trailing columns
+            columns = [c.strip().lower() for c in reader.fieldnames or [] if c and c.strip()]
             missing = [c for c in ("path", "scene", "role") if c not in columns]
             if missing:
                 raise ValueError(f"{csv_path}: missing column(s) {', '.join(missing)}; "
@@ -254,7 +278,10 @@ def map_by_csv(folder: Path, csv_path: Path) -> FolderMapping:
                 raise ValueError(f"{csv_path}: unknown column(s) {', '.join(unknown)}; "
                                  f"expected {','.join(CSV_COLUMNS)}")
             for line, row in enumerate(reader, start=2):
-                clean = {k.strip(): (v or "").strip() for k, v in row.items() if k}
+                clean = {k.strip().lower(): (v or "").strip() for k, v in row.items()
+                         if k and k.strip()}
+                if not any(clean.values()):  # a blank row (or one of empty cells)
+                    continue
                 _csv_row(folder, clean, f"{csv_path.name} line {line}", out)
     except UnicodeDecodeError:
         raise ValueError(f"cannot read {csv_path}: it is not UTF-8 text; save it as "
@@ -264,6 +291,7 @@ def map_by_csv(folder: Path, csv_path: Path) -> FolderMapping:
     listed = {v.path for v in out.videos}
     out.unmatched = [p for p in scan_folder(folder).videos if p not in listed]
     _check(out, f"It is not in {csv_path.name}: add it with role 'reference'")
+    out.warnings += case_warnings(out)
     return out
 
 
@@ -303,6 +331,7 @@ def _csv_row(folder: Path, row: dict[str, str], where: str, out: FolderMapping) 
         out.videos.append(MappedVideo(rel, scene, "reference", setting=row.get("setting") or None))
         return
     method, level = row.get("method", ""), row.get("level", "")
+    level = re.sub(r"^(\d+)\.0*$", r"\1", level)  # 1.0: a number column saved again
     if not method or not re.fullmatch(r"\d+", level):
         out.problems.append(Problem("mapping", where, "a test video needs a method and a "
                                     f"whole-number level >= 0 (got {method!r}, {level!r})"))

@@ -24,19 +24,20 @@ from .timing import decoder_errors, uneven_timing
 _HDR_TRANSFERS = {16: "PQ transfer, SMPTE ST 2084", 18: "HLG transfer, ARIB STD-B67"}
 
 
-def container_warnings(path: Path, fps: float) -> list[str]:
+def container_warnings(path: Path, fps: float) -> tuple[list[str], int]:
     """What the container says that decoded frames do not (one open of the file): uneven
-    timestamps, further video streams, an HDR transfer function."""
+    timestamps, further video streams, an HDR transfer function; and the frame slots its
+    timestamps skip (:class:`~.timing.TimestampCheck`)."""
     warnings: list[str] = []
     try:
         with av.open(str(path)) as container:
             streams = container.streams.video
             count = len(streams)
             trc = streams[0].codec_context.color_trc if streams else None
-            gap = uneven_timing(container)
+            timing = uneven_timing(container)
     except (av.error.FFmpegError, AttributeError):
-        return warnings
-    if gap is not None:
+        return warnings, 0
+    if (gap := timing.uneven) is not None:
         warnings.append(f"{gap}; the player and the metrics show every frame for "
                         f"1/{fps:g} s, so the file's own timing is not reproduced")
     if count > 1:
@@ -45,7 +46,7 @@ def container_warnings(path: Path, fps: float) -> list[str]:
         warnings.append(f"HDR video ({hdr}); the player and the metrics show its code values "
                         "as SDR RGB without tone mapping, so it looks washed out: export SDR "
                         "(BT.709) renders for the study")
-    return warnings
+    return warnings, timing.skipped_slots
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,9 @@ class ProbedVideo:
     error: str | None = None
     warnings: tuple[str, ...] = ()
     error_kind: str = "undecodable"
+    skipped_slots: int = 0
+    """Frame slots its timestamps skip (a dropped frame): a test that skips where its
+    reference does not is out of step with it."""
 
     @property
     def decode_fps(self) -> float:
@@ -81,6 +85,7 @@ class DecodeFindings:
     error_kind: str = "undecodable"
     """What ``error`` is: 'undecodable', or 'not as stored' (it decodes, but media players
     show it otherwise than the toolkit would)."""
+    skipped_slots: int = 0
 
 
 def decode_findings(path: Path) -> DecodeFindings:
@@ -115,8 +120,8 @@ def decode_findings(path: Path) -> DecodeFindings:
             f"damaged: the decoder reported {errors[0]}"
             + (f" and {len(errors) - 1} more error(s)" if len(errors) > 1 else "")
             + "; frames may show wrong pixels: re-export or re-encode it"))
-    warnings = container_warnings(path, info.fps) if info.kind == "video" else []
-    return DecodeFindings(info, seconds, warnings=tuple(warnings))
+    warnings, skipped = container_warnings(path, info.fps) if info.kind == "video" else ([], 0)
+    return DecodeFindings(info, seconds, warnings=tuple(warnings), skipped_slots=skipped)
 
 
 def probe_file(path: Path) -> ProbedVideo:
@@ -125,7 +130,7 @@ def probe_file(path: Path) -> ProbedVideo:
     size = path.stat().st_size
     found = decode_findings(path)
     return ProbedVideo(path, sha, size, found.info, found.decode_seconds, found.error,
-                       found.warnings, found.error_kind)
+                       found.warnings, found.error_kind, found.skipped_slots)
 
 
 def probe_files(paths: Iterable[Path], *, progress: bool = False,

@@ -1,6 +1,7 @@
 """Patterns that would map a renders folder the default patterns do not: read off the file
 names (a reference word such as ``ref`` or ``GT``, a trailing level number), then checked by
-mapping the folder with them. Only a pair that maps every video is suggested, so a guess
+mapping the folder with them. Only a pair that maps every video (but for a stray file or
+three, which the suggestion names) with no problem and no doubt is suggested, so a guess
 never reaches the researcher as advice."""
 
 from __future__ import annotations
@@ -26,6 +27,9 @@ class PatternSuggestion:
     test_pattern: str
     scenes: int
     videos: int
+    left_out: tuple[str, ...] = ()
+    """Files the pair does not match (a stray copy such as ``x (1).mp4``), at most
+    :data:`MAX_LEFT_OUT`; they are named with the suggestion."""
 
     def flags(self) -> str:
         return (f"--reference-pattern '{self.reference_pattern}' "
@@ -93,16 +97,27 @@ def _candidates(videos: list[PurePosixPath]) -> list[tuple[str, str]]:
 def suggest_patterns(folder: Path, videos: list[PurePosixPath],
                      exclude: Path | None = None) -> PatternSuggestion | None:
     """The first pattern pair read off ``videos`` (the folder's video files) that maps every
-    one of them with no problem and no doubt; None when there is none."""
+    one of them with no problem and no doubt, or all but a few strays it leaves out (named);
+    None when there is none."""
     for reference_pattern, test_pattern in _candidates(videos):
         try:
             mapped = map_by_pattern(folder, test_pattern=test_pattern,
                                     reference_pattern=reference_pattern, exclude=exclude)
         except ValueError:
             continue
-        if mapped.unmatched or mapped.problems or mapped.warnings \
-                or len(mapped.videos) != len(videos):  # a scene split in doubt is no advice
+        strays = len(mapped.unmatched)
+        if mapped.problems or mapped.warnings or strays > _max_left_out(len(videos)) \
+                or len(mapped.videos) + strays != len(videos):  # a split in doubt: no advice
             continue
         return PatternSuggestion(reference_pattern, test_pattern,
-                                 len(mapped.references()), len(mapped.videos))
+                                 len(mapped.references()), len(mapped.videos),
+                                 tuple(p.as_posix() for p in mapped.unmatched))
     return None
+
+
+MAX_LEFT_OUT = 3
+
+
+def _max_left_out(n_videos: int) -> int:
+    """Strays a suggestion may leave out: one, or a tenth of the files up to three."""
+    return min(MAX_LEFT_OUT, max(1, n_videos // 10))

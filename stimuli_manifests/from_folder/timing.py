@@ -13,6 +13,7 @@ import itertools
 import statistics
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 import av
 import av.logging
@@ -46,26 +47,40 @@ def decoder_errors() -> Iterator[list[str]]:
         lines.append(" ".join(pending.split()))
 
 
-def uneven_timing(container: av.container.InputContainer) -> str | None:
-    """A line naming the largest uneven frame interval of the first video stream, or None
-    when the presentation timestamps are evenly spaced (or absent). Reads every packet of
+@dataclass(frozen=True)
+class TimestampCheck:
+    """The largest uneven frame interval in words (None: evenly spaced), and how many frame
+    slots the timestamps skip in all (a 30-frame file whose timestamps span 31 intervals of
+    1/fps skips one: it is out of step with an even reference from the gap on)."""
+
+    uneven: str | None = None
+    skipped_slots: int = 0
+
+
+def uneven_timing(container: av.container.InputContainer) -> TimestampCheck:
+    """The presentation timestamps of the first video stream, checked; reads every packet of
     that stream (no decoding)."""
     try:
         stream = container.streams.video[0]
         pts = sorted(p.pts for p in container.demux(stream) if p.pts is not None)
         base = stream.time_base
     except (av.error.FFmpegError, IndexError):
-        return None
+        return TimestampCheck()
     if base is None or len(pts) < 3:
-        return None
+        return TimestampCheck()
     steps = [float((b - a) * base) for a, b in itertools.pairwise(pts)]
     typical = statistics.median(steps)
     if typical <= 0:
-        return None
+        return TimestampCheck()
+    # the mean of the ordinary intervals (not the median: ms-rounded 30 fps steps are 33 or
+    # 34 ms, and 1267 ms / 34 would miss a slot)
+    ordinary = [x for x in steps if 1 / UNEVEN_RATIO <= x / typical <= UNEVEN_RATIO]
+    skipped = max(0, round(sum(steps) / statistics.fmean(ordinary)) - len(steps))
     worst = max(range(len(steps)), key=lambda i: abs(steps[i] / typical - 1))
     ratio = steps[worst] / typical
     if 1 / UNEVEN_RATIO <= ratio <= UNEVEN_RATIO:
-        return None
-    return (f"uneven timestamps: {steps[worst] * 1000:.0f} ms between frames {worst} and "
-            f"{worst + 1}, where most are {typical * 1000:.0f} ms (variable frame rate or "
-            "dropped frames)")
+        return TimestampCheck(None, skipped)
+    return TimestampCheck(
+        f"uneven timestamps: {steps[worst] * 1000:.0f} ms between frames {worst} and "
+        f"{worst + 1}, where most are {typical * 1000:.0f} ms (variable frame rate or "
+        "dropped frames)", skipped)

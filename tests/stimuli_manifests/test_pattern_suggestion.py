@@ -61,12 +61,13 @@ def test_a_suggestion_maps_every_file_as_it_was_written(tmp_path, case):
 
 @pytest.mark.parametrize("names", [
     ["a/reference.mp4", "a/dlss_perf.mp4", "a/dlss_quality.mp4"],  # no level in the names
-    ["sponza_ref.mp4", "sponza_TAA_q1.mp4", "sponza_notes_final.mp4"],  # one file fits no rule
+    # two of four files fit no rule: more than a stray
+    ["sponza_ref.mp4", "sponza_TAA_q1.mp4", "sponza_notes_final.mp4", "notes_v2_final.mp4"],
     ["sponza_TAA_q1.mp4", "sponza_TAA_q2.mp4"],  # no reference
     # sponza_atrium lost its reference: its videos would become methods of sponza
     ["sponza_ref.mp4", "sponza_dlss_q1.mp4", "sponza_atrium_dlss_q1.mp4"],
 ])
-def test_no_suggestion_unless_every_file_maps(tmp_path, names):
+def test_no_suggestion_unless_every_file_but_a_stray_maps(tmp_path, names):
     touch(tmp_path, names)
     assert suggest_patterns(tmp_path, scan_folder(tmp_path).videos) is None
 
@@ -133,3 +134,52 @@ def test_a_lost_reference_is_named_even_when_its_methods_are_nowhere_else(tmp_pa
     touch(other, ["a_ref.mkv", "a_path_traced_q1.mkv", "b_ref.mkv", "b_path_traced_q1.mkv"])
     assert map_by_pattern(other, test_pattern="{scene}_{method}_q{level}.{ext}",
                           reference_pattern="{scene}_ref.{ext}").warnings == []
+
+
+def test_a_method_with_the_separator_keeps_it_before_a_setting(tmp_path):
+    """'{method}_{setting}' read path_traced_4spp as method 'path', setting 'traced_4spp'."""
+    touch(tmp_path, ["bistro/reference.mkv", "bistro/path_traced_4spp_L1.mkv",
+                     "bistro/dlss_perf_L2.mkv"])
+    mapped = map_by_pattern(tmp_path, test_pattern="{scene}/{method}_{setting}_L{level}.{ext}",
+                            reference_pattern="{scene}/reference.{ext}")
+    assert not mapped.problems
+    assert {(v.method, v.setting, v.level) for v in mapped.videos if v.role == "test"} == {
+        ("path_traced", "4spp", 1), ("dlss", "perf", 2)}
+
+
+def test_methods_that_differ_only_in_case_are_named(tmp_path):
+    """sponza_TAA and bistro_taa became two methods without a word."""
+    touch(tmp_path, ["sponza_ref.mp4", "sponza_TAA_q1.mp4", "bistro_ref.mp4",
+                     "bistro_taa_q1.mp4", "bistro_fsr_q1.mp4", "sponza_fsr_q1.mp4"])
+    mapped = map_by_pattern(tmp_path, test_pattern="{scene}_{method}_q{level}.{ext}",
+                            reference_pattern="{scene}_ref.{ext}")
+    assert mapped.warnings == ["methods 'TAA' and 'taa' differ only in case: they are 2 "
+                               "methods of the study; rename the files (or map them in a "
+                               "CSV) if they are one"]
+
+
+def test_a_loose_reference_pattern_leaves_the_test_videos_to_the_test_pattern(tmp_path):
+    """'{scene}.{ext}' matches every file: the test videos were all taken as references and
+    init said "only references were found"."""
+    touch(tmp_path, ["sponza.mp4", "sponza_taa_q1.mp4", "bistro.mp4", "bistro_taa_q2.mp4"])
+    mapped = map_by_pattern(tmp_path, test_pattern="{scene}_{method}_q{level}.{ext}",
+                            reference_pattern="{scene}.{ext}")
+    assert not mapped.problems
+    assert truth(mapped) == {("sponza.mp4", "sponza", "reference", None, None),
+                             ("bistro.mp4", "bistro", "reference", None, None),
+                             ("sponza_taa_q1.mp4", "sponza", "test", "taa", 1),
+                             ("bistro_taa_q2.mp4", "bistro", "test", "taa", 2)}
+
+
+def test_a_stray_copy_is_named_beside_the_suggestion(tmp_path, capsys):
+    """A browser's duplicate 'sponza_TAA_q1 (1).mp4' hid the suggestion for the other files;
+    now they get it, and the stray is named as left out."""
+    renders = tmp_path / "renders"
+    touch(renders, ["sponza_ref.mp4", "sponza_TAA_q1.mp4", "sponza_TAA_q2.mp4",
+                    "sponza_TAA_q1 (1).mp4"])
+    hint = suggest_patterns(renders, scan_folder(renders).videos)
+    assert hint is not None and hint.left_out == ("sponza_TAA_q1 (1).mp4",)
+    assert (hint.reference_pattern, hint.test_pattern) == ("{scene}_ref.{ext}",
+                                                           "{scene}_{method}_q{level}.{ext}")
+    code, _, err = init(capsys, renders, "--out", tmp_path / "study")
+    assert code == 2 and "these patterns map 3 of 4, leaving out sponza_TAA_q1 (1).mp4" in err

@@ -50,3 +50,4 @@ def test_init_names_each_bad_folder_once(tmp_path: Path):
         ("bistro/dlss:fast_L1.mp4", "file name 'dlss:fast_L1.mp4' holds ':', which a Windows "
          "file name cannot")]
     assert all("rename the" in d for *_, d in bad)
+

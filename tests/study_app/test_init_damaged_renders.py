@@ -90,7 +90,10 @@ def test_a_checksum_error_inside_a_frame_is_a_problem(tmp_path, capsys):
     assert "damaged: the decoder reported ffv1" in line
 
 
-def test_uneven_timestamps_are_named_in_a_warning(tmp_path, capsys):
+def test_uneven_timestamps_are_named_and_a_skip_its_reference_lacks_is_refused(tmp_path,
+                                                                              capsys):
+    """A 300 ms gap in a 30 fps test: 9 frame slots skipped where its (steady) reference
+    skips none, so from frame 15 on the pair is out of step: a mismatch, not only timing."""
     renders = tmp_path / "renders"
     folder = scene(renders)
     steady = [round(i * 1000 / 30) for i in range(FRAMES)]
@@ -98,10 +101,19 @@ def test_uneven_timestamps_are_named_in_a_warning(tmp_path, capsys):
     write_timed(folder / "gap_L2.mkv", clip(4), gap)
     write_timed(folder / "steady_L3.mkv", clip(5), steady)  # 33 and 34 ms in turn: even
     code, out, err = init(capsys, renders, "--out", tmp_path / "study")
-    assert code == 0
     warned = [line for line in (out + err).splitlines() if "uneven timestamps" in line]
     assert len(warned) == 1 and "gap_L2.mkv" in warned[0]
     assert "333 ms between frames 14 and 15, where most are 33 ms" in warned[0]
+    assert code == 2
+    refused = [line for line in out.splitlines() if line.lstrip().startswith("mismatch")]
+    assert len(refused) == 1 and "gap_L2.mkv" in refused[0]
+    assert "skip 9 frame slot(s)" in refused[0] and "skip 0:" in refused[0]
+    # the same gap in the reference too: in step, so only the timing warning
+    write_timed(folder / "reference.mkv", clip(1), gap)
+    for even in ("steady_L3.mkv", "good_L1.mkv"):
+        (folder / even).unlink()
+    code, out, err = init(capsys, renders, "--out", tmp_path / "study")
+    assert code == 0 and "out of step" not in out + err
 
 
 def test_lossy_h264_is_warned_about_and_lossless_h264_is_not(tmp_path, capsys):

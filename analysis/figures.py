@@ -273,7 +273,9 @@ def metric_comparison(a: Analysis, path: Path) -> Path | None:
         hi = t[f"{key}_ci95_high"].to_numpy(dtype=float)
         err = np.nan_to_num(np.abs(np.vstack([val - lo, hi - val])))
         ax.bar(x + off, val, w, yerr=err, capsize=3, color=col, label=key.upper())
-    ax.set_xticks(x, t["metric"], rotation=20, ha="right", fontsize=8)
+    names = ["two half panels\n(2.5-97.5% of splits)" if fit == "none" else m
+             for m, fit in zip(t["metric"], t["fit"], strict=True)]
+    ax.set_xticks(x, names, rotation=20, ha="right", fontsize=8)
     ax.set_ylim(_lowest(t) - 0.05, 1.05)
     ax.legend(fontsize=8)
     ax.set_title("metrics versus DMOS (95% bootstrap CI)", fontsize=10)
@@ -303,7 +305,13 @@ def metric_benchmark(a: Analysis, path: Path) -> Path | None:
     if len(human):
         lo, hi = float(human["plcc_ci95_low"].iloc[0]), float(human["plcc_ci95_high"].iloc[0])
         if np.isfinite(lo) and np.isfinite(hi):
-            ax.axvspan(lo, hi, color="0.85", zorder=0, label="human ceiling PLCC (95%)")
+            ax.axvspan(lo, hi, color="0.85", zorder=0,
+                       label="two half panels' PLCC\n(2.5-97.5% of splits)")
+        bound = a.ceiling.summary()["plcc_full_panel_bound"]["median"] \
+            if a.ceiling is not None else float("nan")
+        if np.isfinite(bound):
+            ax.axvline(bound, color="0.3", ls="--", lw=1, zorder=0,
+                       label="ceiling against the\nfull panel's DMOS")
     labels = [f"{m}  [FLAGGED]" if m in a.metrics.untrained else m for m in t["metric"]]
     ax.set_yticks(y, labels, fontsize=8)
     for tick, name in zip(ax.get_yticklabels(), t["metric"], strict=True):
@@ -468,8 +476,11 @@ FIGURES = {
 }
 """Each figure's drawing function and caption; ``{ceiling}`` in a caption is
 :data:`CEILING_NOTES`' text for it where the human ceiling is drawn, and nothing where not."""
-CEILING_NOTES = {"metric_benchmark": "; the grey band is the human ceiling",
-                 "metric_comparison": ", human ceiling alongside"}
+CEILING_NOTES = {"metric_benchmark": "; the grey band is the agreement of two half panels "
+                                     "and the dashed line the PLCC a perfect metric would "
+                                     "reach against the full panel's DMOS",
+                 "metric_comparison": ", and the agreement of two half panels (its whiskers: "
+                                      "2.5-97.5% of the splits)"}
 SPLIT_NOTE = ("; the score model identifies only inconsistency\u00b2 + ambiguity\u00b2 of each "
               "rating: a constant can move from every rater's inconsistency\u00b2 to every "
               "content's ambiguity\u00b2 without changing the fit, so compare raters (and "

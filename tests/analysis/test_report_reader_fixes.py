@@ -140,7 +140,7 @@ def test_a_rerun_leaves_nothing_of_the_last_and_figures_come_as_pdf(study_files,
     html = (out / "report.html").read_text()
     assert sha[:12] in html
     # 8 raters: a ceiling is drawn, and the captions say where
-    assert "the grey band is the human ceiling" in html and "{ceiling}" not in html
+    assert "the grey band is the agreement of two half panels" in html and "{ceiling}" not in html
     # with a metric, the DMOS caption names its markers
     assert "(metric predictions after the logistic mapping as black markers)" in html
     # the same folder without --metric: no metric table or figure of the first run is left

@@ -85,6 +85,9 @@ class InitResult:
     manifest: Manifest | None = None
     changes: StudyChanges | None = None
     manifest_written: bool = False
+    suggestion: str = ""
+    """Patterns read off the names that map the folder (checked), when the given ones left
+    scenes without a reference and files unmatched (per-method folders read as scenes)."""
 
     @property
     def ok(self) -> bool:
@@ -115,6 +118,10 @@ def init_study(opts: InitOptions) -> InitResult:
         raise StudyError(f"no videos {how} in {opts.folder}"
                          + _what_would_map(opts, folder, out, result.mapping))
     result.problems += result.mapping.problems
+    if any(p.kind == "missing reference" for p in result.problems) and \
+            opts.mapping_csv is None and result.mapping.unmatched:
+        result.suggestion = _suggestion(folder, out, sorted(
+            [*result.mapping.unmatched, *(v.path for v in result.mapping.videos)]))
     if not any(v.role == "test" for v in result.mapping.videos):
         how = (f"list them with role 'test' in {opts.mapping_csv}" if opts.mapping_csv else
                f"name them to match --pattern {opts.test_pattern!r}"
@@ -222,15 +229,23 @@ def _what_would_map(opts: InitOptions, folder: Path, out: Path, mapping: FolderM
         return ""
     videos = sorted([*mapping.unmatched, *(v.path for v in mapping.videos)])
     found = f" ({len(videos)} video file(s) found, e.g. {mapping.unmatched[0]})"
-    hint = suggest_patterns(folder, videos, exclude=out)
-    if hint is None:
+    hint = _suggestion(folder, out, videos)
+    if not hint:
         return (f"{found}; give --reference-pattern and --pattern that match their names, "
                 "or list the files in a --mapping CSV (docs: Bring your own videos)")
+    return f"{found}; {hint}"
+
+
+def _suggestion(folder: Path, out: Path, videos: list) -> str:
+    """The checked pattern pair for ``videos`` in words, or "" when there is none."""
+    hint = suggest_patterns(folder, videos, exclude=out)
+    if hint is None:
+        return ""
     maps = (f"all {hint.videos}" if not hint.left_out else
             f"{hint.videos} of {len(videos)}, leaving out {', '.join(hint.left_out)}")
-    return (f"{found}; these patterns map {maps} ({hint.scenes} scene(s)): "
-            f"{hint.flags()}. Check the list init prints: level 1 must be the strongest "
-            "distortion, or use a --mapping CSV")
+    return (f"these patterns map {maps} ({hint.scenes} scene(s)): {hint.flags()}. Check the "
+            "list init prints: level 1 must be the strongest distortion, or use a --mapping "
+            "CSV")
 
 
 def _default_study_id(out: Path) -> str:

@@ -146,9 +146,12 @@ def run(args: argparse.Namespace) -> int:
     print_warnings(result.warnings)
     if not result.ok:
         print_problems(result.problems)
+        if result.suggestion:
+            print(f"the names read another way: {result.suggestion}", flush=True)
         print(f"{len(result.problems)} problem(s): nothing was written to {args.out}; fix them "
               "and run init again", flush=True)
         raise StudyError(f"{len(result.problems)} problem(s) (listed on stdout), e.g. "
-                         f"{result.problems[0]}; nothing was written to {args.out}")
+                         f"{result.problems[0]}; nothing was written to {args.out}"
+                         + (f"; {result.suggestion}" if result.suggestion else ""))
     print_changes(result, args.out)
     return 0

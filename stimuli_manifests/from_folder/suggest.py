@@ -1,5 +1,6 @@
 """Patterns that would map a renders folder the default patterns do not: read off the file
-names (a reference word such as ``ref`` or ``GT``, a trailing level number), then checked by
+names (a reference word such as ``ref`` or ``GT`` in the name or as a folder of per-method
+layouts, a trailing level number), then checked by
 mapping the folder with them. Only a pair that maps every video (but for a stray file or
 three, which the suggestion names) with no problem and no doubt is suggested, so a guess
 never reaches the researcher as advice."""
@@ -80,6 +81,8 @@ def _candidates(videos: list[PurePosixPath]) -> list[tuple[str, str]]:
         stem = rel.name[: -len(rel.suffix)] if rel.suffix else rel.name
         if len(rel.parts) == 2 and _is_reference_word(stem):  # scene/ref.ext
             refs["{scene}/" + stem + ".{ext}"] += 1
+        elif len(rel.parts) == 2 and _is_reference_word(rel.parts[0]):  # ref/scene.ext
+            refs[rel.parts[0] + "/{scene}.{ext}"] += 1
         elif len(rel.parts) == 1 and (ending := _reference_ending(stem)) is not None:
             refs["{scene}" + ending + ".{ext}"] += 1  # scene<sep>ref.ext
             scenes.append(stem[: -len(ending)])
@@ -88,6 +91,8 @@ def _candidates(videos: list[PurePosixPath]) -> list[tuple[str, str]]:
     for rel, stem in rest:
         if len(rel.parts) == 2 and (template := _level_template(stem)) is not None:
             tests["{scene}/" + template + ".{ext}"] += 1
+            if m := _LEVEL_AFTER_SEPARATOR.fullmatch(stem):  # method/scene_L1.ext
+                tests["{method}/{scene}" + m["sep"] + m["prefix"] + "{level}.{ext}"] += 1
         elif len(rel.parts) == 1 and (split := _split_scene(stem, scenes)) is not None \
                 and (template := _level_template(split[1])) is not None:
             tests["{scene}" + split[0] + template + ".{ext}"] += 1

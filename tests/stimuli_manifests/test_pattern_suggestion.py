@@ -183,3 +183,25 @@ def test_a_stray_copy_is_named_beside_the_suggestion(tmp_path, capsys):
                                                            "{scene}_{method}_q{level}.{ext}")
     code, _, err = init(capsys, renders, "--out", tmp_path / "study")
     assert code == 2 and "these patterns map 3 of 4, leaving out sponza_TAA_q1 (1).mp4" in err
+
+
+def test_per_method_folders_read_as_scenes_get_the_per_method_patterns(tmp_path, capsys):
+    """reference/bistro.mkv and dlss/bistro_L1.mkv: the defaults read 'dlss' as a scene
+    without a reference; init now offers the per-method pair, which maps every file."""
+    renders = tmp_path / "renders"
+    names = ["reference/bistro.mkv", "reference/sponza.mkv", "dlss/bistro_L1.mkv",
+             "dlss/sponza_L2.mkv", "fsr/bistro_L1.mkv", "fsr/sponza_L1.mkv"]
+    for i, name in enumerate(names):
+        write_video(renders / name, np.full((4, 16, 16, 3), 40 * i, np.uint8), 10)
+    code, out, err = init(capsys, renders, "--out", tmp_path / "study")
+    flags = ("--reference-pattern 'reference/{scene}.{ext}' "
+             "--pattern '{method}/{scene}_L{level}.{ext}'")
+    assert code == 2 and "missing reference" in out
+    assert f"these patterns map all 6 (2 scene(s)): {flags}" in err
+    code, _, err = init(capsys, renders, "--out", tmp_path / "study",
+                        "--reference-pattern", "reference/{scene}.{ext}",
+                        "--pattern", "{method}/{scene}_L{level}.{ext}")
+    assert code == 0, err
+    ids = {s.id for s in load_manifest(tmp_path / "study" / "manifest.json").manifest.stimuli()}
+    assert ids == {"bistro", "sponza", "bistro_dlss_L1", "sponza_dlss_L2", "bistro_fsr_L1",
+                   "sponza_fsr_L1"}

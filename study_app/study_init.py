@@ -140,6 +140,7 @@ def init_study(opts: InitOptions) -> InitResult:
     paths = [folder / v.path for v in result.mapping.videos]
     result.probes = probe_files(paths, progress=opts.progress)
     result.warnings += _naming_warnings(result.mapping, result.probes, folder)
+    result.problems += _shared_references(result.mapping, result.probes, folder)
     _video_problems(result, folder, display, transcoding=opts.transcode is not None)
     placements = place(result.mapping.videos, result.probes, folder, opts.transcode)
     result.problems += shared_paths(placements)  # listed with the others, not after them
@@ -243,6 +244,11 @@ def _suggestion(folder: Path, out: Path, videos: list) -> str:
         return ""
     maps = (f"all {hint.videos}" if not hint.left_out else
             f"{hint.videos} of {len(videos)}, leaving out {', '.join(hint.left_out)}")
+    if hint.doubts:
+        more = f" (and {len(hint.doubts) - 1} more)" if len(hint.doubts) > 1 else ""
+        return (f"these patterns would map {maps} ({hint.scenes} scene(s)): {hint.flags()}, "
+                f"but {hint.doubts[0]}{more}: settle that first (or list the files in a "
+                "--mapping CSV)")
     return (f"these patterns map {maps} ({hint.scenes} scene(s)): {hint.flags()}. Check the "
             "list init prints: level 1 must be the strongest distortion, or use a --mapping "
             "CSV")
@@ -263,15 +269,38 @@ def _naming_warnings(mapping: FolderMapping, probes: dict[Path, ProbedVideo],
             "names of its test videos)" for v in mapping.videos
             if v.role == "reference" and v.scene not in tested]
     refs = mapping.references()
+    ref_of_sha = {probes[folder / r.path].sha256: r for r in refs.values()}
     first: dict[str, MappedVideo] = {}
     for v in sorted((v for v in mapping.videos if v.role == "test"), key=lambda v: v.path):
         sha = probes[folder / v.path].sha256
         ref = refs.get(v.scene)
         if ref is not None and probes[folder / ref.path].sha256 == sha:
             out.append(f"{v.path}: the same file as its reference {ref.path} (byte for byte)")
+        elif (other := ref_of_sha.get(sha)) is not None:
+            out.append(f"{v.path}: the same file as the reference of scene {other.scene!r}, "
+                       f"{other.path} (byte for byte): an export in the wrong folder?")
         elif sha in first:
             out.append(f"{v.path}: the same file as {first[sha].path} (byte for byte)")
         first.setdefault(sha, v)
+    return out
+
+
+def _shared_references(mapping: FolderMapping, probes: dict[Path, ProbedVideo],
+                       folder: Path) -> list[Problem]:
+    """Two scenes whose references are one file (a copy or a link into the wrong folder):
+    every test of the second would be rated and scored against the first's content."""
+    first: dict[str, MappedVideo] = {}
+    out = []
+    for ref in sorted(mapping.references().values(), key=lambda v: v.path):
+        probe = probes[folder / ref.path]
+        if probe.info is None:
+            continue
+        if (other := first.get(probe.sha256)) is not None:
+            out.append(Problem("same reference", str(ref.path), (
+                f"byte for byte the reference of scene {other.scene!r} ({other.path}): two "
+                "scenes cannot share one reference; put scene "
+                f"{ref.scene!r}'s own reference there, or make the two one scene")))
+        first.setdefault(probe.sha256, ref)
     return out
 
 

@@ -103,6 +103,12 @@ def compile_pattern(pattern: str, *, required: tuple[str, ...],
                              + ", ".join(f"{{{p}}}" for p in _PLACEHOLDERS))
     if len(set(names)) != len(names):
         raise ValueError(f"pattern {pattern!r} uses a placeholder twice")
+    if pattern.startswith("/") or ".." in pattern.split("/"):
+        raise ValueError(f"pattern {pattern!r} must be relative to the renders folder, "
+                         "without '..'")
+    if not re.search(r"\.(\{ext\}|[A-Za-z0-9]+)$", pattern):
+        raise ValueError(f"pattern {pattern!r} must end in the file's extension: '.{{ext}}' "
+                         "(any video) or a literal one such as '.mkv'")
     for name in required:
         if name not in names:
             raise ValueError(f"pattern {pattern!r} needs a {{{name}}} placeholder")
@@ -160,7 +166,10 @@ def _walk(folder: Path, exclude: Path | None, frames: dict[PurePosixPath, int] |
         if exclude is not None and Path(real).is_relative_to(exclude):
             dirs[:] = []
             continue
-        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        # real folders before links to them (an 'Aaa_current' link to 'sponza' would
+        # otherwise be walked first and rename the scene)
+        dirs[:] = sorted((d for d in dirs if not d.startswith(".")),
+                         key=lambda d: (os.path.islink(os.path.join(root, d)), d))
         for name in files:
             path = here / name
             if name.startswith("."):
@@ -358,6 +367,23 @@ def _reference_candidates(out: FolderMapping, scene: str) -> list[PurePosixPath]
     return found
 
 
+def _read_as(video: MappedVideo) -> str:
+    if video.role == "reference":
+        return f"the reference of {video.scene}"
+    return f"method {video.method!r}" + (f", setting {video.setting!r}" if video.setting
+                                         else "")
+
+
+def _duplicate_hint(a: MappedVideo, b: MappedVideo) -> str:
+    """Why two files got one id: the same name in two containers (a .mov master and its .mp4
+    preview: a literal extension in the patterns takes one set), or what each was read as."""
+    if a.path.with_suffix("") == b.path.with_suffix(""):
+        return (f" (the same name as {a.path.suffix} and {b.path.suffix}: to take only one, "
+                f"end the patterns in a literal extension, e.g. "
+                f"--pattern '{{scene}}/{{method}}_L{{level}}{a.path.suffix}')")
+    return f" (read as {_read_as(a)} and {_read_as(b)})"
+
+
 def _unportable(videos: list[MappedVideo]) -> list[Problem]:
     """Folder and file names a participant's download refuses on every system (the study's
     copies keep them): one problem per name, with a file it holds."""
@@ -386,7 +412,8 @@ def _check(out: FolderMapping, fix: str = "") -> None:
                 "ASCII letters, digits, '_', '-' and '.'; rename the file or map it in a CSV"))
         if sid in seen:
             out.problems.append(Problem(
-                "duplicate id", sid, f"{seen[sid].path} and {video.path} are both {sid}"))
+                "duplicate id", sid, f"{seen[sid].path} and {video.path} are both {sid}"
+                + _duplicate_hint(seen[sid], video)))
         else:
             seen[sid] = video
     out.problems += _unportable(out.videos)

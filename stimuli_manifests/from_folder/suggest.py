@@ -31,6 +31,9 @@ class PatternSuggestion:
     left_out: tuple[str, ...] = ()
     """Files the pair does not match (a stray copy such as ``x (1).mp4``), at most
     :data:`MAX_LEFT_OUT`; they are named with the suggestion."""
+    doubts: tuple[str, ...] = ()
+    """What the mapping warns of (a scene that seems to have lost its reference): a pair with
+    doubts is offered only with them, never as plain advice."""
 
     def flags(self) -> str:
         return (f"--reference-pattern '{self.reference_pattern}' "
@@ -103,7 +106,9 @@ def suggest_patterns(folder: Path, videos: list[PurePosixPath],
                      exclude: Path | None = None) -> PatternSuggestion | None:
     """The first pattern pair read off ``videos`` (the folder's video files) that maps every
     one of them with no problem and no doubt, or all but a few strays it leaves out (named);
-    None when there is none."""
+    else the first that maps them with doubts (:attr:`PatternSuggestion.doubts`); None when
+    there is none."""
+    doubtful = None
     for reference_pattern, test_pattern in _candidates(videos):
         try:
             mapped = map_by_pattern(folder, test_pattern=test_pattern,
@@ -111,13 +116,17 @@ def suggest_patterns(folder: Path, videos: list[PurePosixPath],
         except ValueError:
             continue
         strays = len(mapped.unmatched)
-        if mapped.problems or mapped.warnings or strays > _max_left_out(len(videos)) \
-                or len(mapped.videos) + strays != len(videos):  # a split in doubt: no advice
+        if mapped.problems or strays > _max_left_out(len(videos)) \
+                or len(mapped.videos) + strays != len(videos):
             continue
-        return PatternSuggestion(reference_pattern, test_pattern,
-                                 len(mapped.references()), len(mapped.videos),
-                                 tuple(p.as_posix() for p in mapped.unmatched))
-    return None
+        found = PatternSuggestion(reference_pattern, test_pattern, len(mapped.references()),
+                                  len(mapped.videos),
+                                  tuple(p.as_posix() for p in mapped.unmatched),
+                                  tuple(mapped.warnings))
+        if not found.doubts:
+            return found
+        doubtful = doubtful or found  # a split in doubt: said with its doubts, if nothing else
+    return doubtful
 
 
 MAX_LEFT_OUT = 3

@@ -64,8 +64,6 @@ def test_a_suggestion_maps_every_file_as_it_was_written(tmp_path, case):
     # two of four files fit no rule: more than a stray
     ["sponza_ref.mp4", "sponza_TAA_q1.mp4", "sponza_notes_final.mp4", "notes_v2_final.mp4"],
     ["sponza_TAA_q1.mp4", "sponza_TAA_q2.mp4"],  # no reference
-    # sponza_atrium lost its reference: its videos would become methods of sponza
-    ["sponza_ref.mp4", "sponza_dlss_q1.mp4", "sponza_atrium_dlss_q1.mp4"],
 ])
 def test_no_suggestion_unless_every_file_but_a_stray_maps(tmp_path, names):
     touch(tmp_path, names)
@@ -128,7 +126,8 @@ def test_a_lost_reference_is_named_even_when_its_methods_are_nowhere_else(tmp_pa
     assert [w.split(":")[0] for w in mapped.warnings] == ["sponza_night_xess_q1.mkv"]
     assert "if 'sponza_night' is a scene of its own, its reference is missing" in \
         mapped.warnings[0]
-    assert suggest_patterns(tmp_path, scan_folder(tmp_path).videos) is None
+    hint = suggest_patterns(tmp_path, scan_folder(tmp_path).videos)
+    assert hint is not None and hint.doubts == tuple(mapped.warnings)  # never plain advice
     # a method every scene has is not in doubt, separator or not
     other = tmp_path / "two"
     touch(other, ["a_ref.mkv", "a_path_traced_q1.mkv", "b_ref.mkv", "b_path_traced_q1.mkv"])
@@ -205,3 +204,60 @@ def test_per_method_folders_read_as_scenes_get_the_per_method_patterns(tmp_path,
     ids = {s.id for s in load_manifest(tmp_path / "study" / "manifest.json").manifest.stimuli()}
     assert ids == {"bistro", "sponza", "bistro_dlss_L1", "sponza_dlss_L2", "bistro_fsr_L1",
                    "sponza_fsr_L1"}
+
+
+def test_a_pair_in_doubt_is_offered_only_with_its_doubt(tmp_path, capsys):
+    """sponza_atrium lost its reference: the pair that maps every file would make its videos
+    methods of sponza. The error gives the pair with that doubt, not as plain advice, and
+    not the generic "give patterns" (which hid the likely missing reference)."""
+    renders = tmp_path / "renders"
+    touch(renders, ["sponza_ref.mp4", "sponza_dlss_q1.mp4", "sponza_atrium_dlss_q1.mp4"])
+    code, _, err = init(capsys, renders, "--out", tmp_path / "study")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "these patterns would map all 3 (1 scene(s)): --reference-pattern " \
+           "'{scene}_ref.{ext}' --pattern '{scene}_{method}_q{level}.{ext}', but " \
+           "sponza_atrium_dlss_q1.mp4: read as method 'atrium_dlss' of scene 'sponza'; if " \
+           "'sponza_atrium' is a scene of its own, its reference is missing" in err
+    assert "settle that first" in err and "these patterns map all" not in err
+
+
+def test_pattern_slips_are_named_at_once(tmp_path, capsys):
+    """A pattern without its extension, absolute or with '..' got "only references were
+    found"; now one line names the slip."""
+    touch(tmp_path / "renders", ["a/reference.mkv", "a/dlss_L1.mkv"])
+    for pattern, says in (("{scene}/{method}_L{level}", "must end in the file's extension"),
+                          ("/abs/{scene}/{method}_L{level}.{ext}", "must be relative"),
+                          ("../{scene}/{method}_L{level}.{ext}", "without '..'")):
+        code, _, err = init(capsys, tmp_path / "renders", "--out", tmp_path / "study",
+                            "--pattern", pattern)
+        assert code == 2 and says in err and len(err.strip().splitlines()) == 1, pattern
+
+
+def test_duplicate_ids_say_how_the_files_were_read(tmp_path):
+    """A .mov master beside its .mp4 preview: the duplicate says a literal extension takes
+    one set; two files one split reads alike say what each was read as."""
+    touch(tmp_path, ["a/reference.mov", "a/reference.mp4", "a/dlss_L1.mov", "a/dlss_L1.mp4"])
+    mapped = map_by_pattern(tmp_path, test_pattern="{scene}/{method}_L{level}.{ext}",
+                            reference_pattern="{scene}/reference.{ext}")
+    dup = [p.detail for p in mapped.problems if p.kind == "duplicate id"]
+    assert len(dup) == 2 and all("end the patterns in a literal extension, e.g. --pattern "
+                                 "'{scene}/{method}_L{level}.mov'" in d for d in dup)
+    only = map_by_pattern(tmp_path, test_pattern="{scene}/{method}_L{level}.mov",
+                          reference_pattern="{scene}/reference.mov")
+    assert not only.problems and len(only.videos) == 2
+    other = tmp_path / "split"
+    touch(other, ["a/reference.mkv", "a/path_16spp_L1.mkv", "a/path_4spp_L1.mkv"])
+    mapped = map_by_pattern(other, test_pattern="{scene}/{method}_{setting}_L{level}.{ext}",
+                            reference_pattern="{scene}/reference.{ext}")
+    assert [p.detail.split(" (read as ")[1] for p in mapped.problems
+            if p.kind == "duplicate id"] == [
+        "method 'path', setting '16spp' and method 'path', setting '4spp')"]
+
+
+def test_a_link_to_a_scene_folder_does_not_rename_the_scene(tmp_path):
+    """'Aaa_current' linking to 'sponza' sorted first and became the scene's name."""
+    touch(tmp_path, ["sponza/reference.mkv", "sponza/dlss_L1.mkv"])
+    (tmp_path / "Aaa_current").symlink_to(tmp_path / "sponza", target_is_directory=True)
+    mapped = map_by_pattern(tmp_path, test_pattern="{scene}/{method}_L{level}.{ext}",
+                            reference_pattern="{scene}/reference.{ext}")
+    assert {v.scene for v in mapped.videos} == {"sponza"} and not mapped.problems

@@ -137,3 +137,26 @@ def test_a_rerun_that_maps_an_id_anew_says_so(tmp_path, capsys):
     m = load_manifest(study / "manifest.json").manifest
     cond = next(c for c in m.conditions if c.id == "sponza_night_xess_L1")
     assert (cond.reference, cond.method) == ("sponza_night", "xess")
+
+
+def test_two_scenes_cannot_share_one_reference_and_a_stray_reference_copy_is_named(tmp_path,
+                                                                                  capsys):
+    """scene02's reference a copy of scene01's: every scene02 test would be compared with
+    scene01's content (exit 0 before); a test that is another scene's reference is named."""
+    renders = tmp_path / "renders"
+    write_video(renders / "scene01" / "reference.mkv", clip(1), FPS)
+    write_video(renders / "scene01" / "dlss_L1.mkv", clip(2), FPS)
+    write_video(renders / "scene02" / "dlss_L1.mkv", clip(3), FPS)
+    (renders / "scene02" / "reference.mkv").write_bytes(
+        (renders / "scene01" / "reference.mkv").read_bytes())
+    code, out, _ = init(capsys, renders, "--out", tmp_path / "study")
+    assert code == 2
+    row = next(line for line in out.splitlines() if "same reference" in line)
+    assert "scene02/reference.mkv" in row and "the reference of scene 'scene01'" in row
+    write_video(renders / "scene02" / "reference.mkv", clip(4), FPS)
+    (renders / "scene02" / "fsr_L1.mkv").write_bytes(
+        (renders / "scene01" / "reference.mkv").read_bytes())
+    code, out, _ = init(capsys, renders, "--out", tmp_path / "study")
+    assert code == 0
+    warned = next(line for line in out.splitlines() if "reference of scene 'scene01'" in line)
+    assert warned.startswith("  warning: the same file as") and "(scene02/fsr_L1.mkv)" in warned

@@ -26,7 +26,8 @@ def pair_mismatches(test_id: str, reference_id: str, test: VideoInfo, reference:
                    "re-encode it at the reference's size")
     if not same_frame_rate(test.fps, reference.fps):
         out.append(f"{test_id}: {test.fps:g} fps differs from its reference {reference_id} "
-                   f"({reference.fps:g} fps)")
+                   f"({reference.fps:g} fps); re-render or re-encode it at the reference's "
+                   "frame rate")
     if test.frame_count != reference.frame_count:
         out.append(f"{test_id}: {test.frame_count} frames, its reference {reference_id} has "
                    f"{reference.frame_count}; both loops must match")

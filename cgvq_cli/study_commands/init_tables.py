@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 
 from cgvq_cli.text_table import format_table
@@ -18,7 +19,7 @@ def print_probe_table(result: InitResult, folder: Path) -> None:
         what = "reference" if video.role == "reference" else f"{video.method} L{video.level}"
         if info is None:
             rows.append([video.path, video.stimulus_id, what, "-", "-", "-", "-", "-", "-", "-",
-                         "UNDECODABLE"])
+                         (probe.error_kind if probe else "undecodable").upper()])
             continue
         rows.append([video.path, video.stimulus_id, what, f"{info.width}x{info.height}",
                      f"{info.fps:g}", info.frame_count, f"{info.duration:.2f}",
@@ -84,8 +85,8 @@ def print_changes(result: InitResult, out: Path) -> None:
         print(f"no changes: {out / 'manifest.json'} is up to date"
               + (" (copies restored as listed)" if changes.restored else ""))
     else:
-        print(f"wrote {out / 'manifest.json'}; next: cgvq-study check {out}, then "
-              f"cgvq-study preview {out}")
+        print(f"wrote {out / 'manifest.json'}; next: cgvq-study check {shlex.quote(str(out))}, "
+              f"then cgvq-study preview {shlex.quote(str(out))}")
 
 
 def _mib(size: int) -> str:

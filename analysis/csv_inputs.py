@@ -69,6 +69,9 @@ def read_csv(path: Path) -> pd.DataFrame:
             RATINGS.check_versions([v for v in frame[FORMAT_COLUMN] if v != ""], path)
         except TableError as exc:
             raise AnalysisError(str(exc)) from None
+    if "stimulus" in frame.columns and "participant" not in frame.columns and \
+            "rating" not in frame.columns:
+        frame = melt_rating_matrix(frame, path)
     missing = [c for c in _REQUIRED if c not in frame.columns]
     if missing:
         shown = ", ".join(str(c) for c in data[:8]) + (", ..." if len(data) > 8 else "")
@@ -78,6 +81,40 @@ def read_csv(path: Path) -> pd.DataFrame:
             f"(the other columns of the tidy ratings table, {RATINGS.version}, are optional)")
     _read_decimal_commas(frame, path, comma_separated=frame.attrs["sep"] == ",")
     return frame
+
+
+#: Columns of a wide matrix that hold no rater's ratings (its stimulus's facts, aggregates).
+_NOT_RATERS = frozenset({"reference", "scene", "method", "level", "setting", "is_hidden_reference",
+                         "format", "mos", "dmos", "mean", "std", "sd", "var", "ci", "ci95",
+                         "n", "count", "n_ratings", "path"})
+_REPEAT = re.compile(r"^(?P<rater>.+)#(?P<rep>[1-9]\d*)$")
+
+
+def melt_rating_matrix(frame: pd.DataFrame, path: Path) -> pd.DataFrame:
+    """A wide ITU-T P.910 rating matrix (one row per stimulus, one column per rater, as the
+    report's ``rating_matrix_p910.csv`` and many published datasets hold it; ``rater#2``
+    columns for repetitions) in the tidy layout: one row per rating, empty and ``NaN``
+    cells left out. The line numbers stay the matrix's."""
+    raters = [c for c in frame.columns if not str(c).startswith("_") and c != "stimulus"
+              and str(c).strip().lower() not in _NOT_RATERS]
+    if len(raters) < 2:
+        raise AnalysisError(
+            f"ratings file {path} has a stimulus column but neither participant nor rating: "
+            "give the tidy table (participant, stimulus, rating), or a rating matrix with one "
+            "column per rater")
+    rows = []
+    for column in raters:
+        m = _REPEAT.fullmatch(str(column))
+        rater, rep = (m["rater"], int(m["rep"])) if m else (str(column), 1)
+        cells = frame[column].astype(str).str.strip()
+        rated = ~cells.str.lower().isin(["", "nan", "na", "n/a", "-"])
+        rows.append(pd.DataFrame({"participant": rater, "stimulus": frame["stimulus"][rated],
+                                  "rating": cells[rated], "repetition": str(rep),
+                                  "_source": frame["_source"][rated],
+                                  "_row": frame["_row"][rated]}))
+    tidy = pd.concat(rows, ignore_index=True)
+    tidy.attrs.update(frame.attrs)
+    return tidy
 
 
 def _read(path: Path, sep: str, *, header_only: bool = False) -> pd.DataFrame:

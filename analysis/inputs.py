@@ -233,8 +233,10 @@ def ratings_from_frame(
             f"manifest's protocol.repetitions is {repetitions} (3 when not given), so every "
             f"rater's plan counts {repetitions} ratings per stimulus: if each stimulus was "
             f"rated {scores.shape[2]} time(s), set protocol.repetitions to {scores.shape[2]}"))
-    info = _rater_info(good, raters, frame.loc[~no_part], facts,
-                       planned=n_planned_stimuli * repetitions,
+    planned = n_planned_stimuli * repetitions
+    if facts is None and policy != "adaptive":
+        planned = _planned_by_design(scores, repetitions) or planned
+    info = _rater_info(good, raters, frame.loc[~no_part], facts, planned=planned,
                        stimuli=n_planned_stimuli if policy == "adaptive" else None)
     table = pd.DataFrame(
         {
@@ -285,6 +287,23 @@ def allocation_of(manifest: Manifest) -> tuple[str, dict[str, Any] | None]:
     in), so the report can say how the ratings were allocated."""
     settings = manifest.protocol.adaptive_settings()
     return manifest.protocol.allocation, (settings.model_dump() if settings else None)
+
+
+def _planned_by_design(scores: np.ndarray, repetitions: int) -> int | None:
+    """The trials of a design that repeats some stimuli less often than
+    ``protocol.repetitions`` (hidden references once, conditions three times): when most
+    raters (at least half, and two) gave every stimulus the same number of ratings, with the
+    manifest's count for some and fewer for others, that pattern is the plan, and none of
+    them is partial for following it. None when the ratings show no such shared pattern."""
+    counts = np.isfinite(scores).sum(axis=2).T  # (raters, stimuli)
+    if counts.shape[0] < 2:
+        return None
+    patterns, freq = np.unique(counts, axis=0, return_counts=True)
+    mode = patterns[int(np.argmax(freq))]
+    if freq.max() < max(2, counts.shape[0] / 2) or mode.max() != repetitions or \
+            mode.min() < 1 or mode.min() == repetitions:
+        return None
+    return int(mode.sum())
 
 
 def _rater_info(good: pd.DataFrame, raters: list[str], frame: pd.DataFrame,

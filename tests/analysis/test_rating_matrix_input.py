@@ -1,6 +1,8 @@
-"""A wide ITU-T P.910 rating matrix (one row per stimulus, one column per rater, repetitions
-as ``rater#2``) reads as the tidy table it was made from: the report's own export goes back
-in, and so does a matrix from another lab with a MOS column beside the raters."""
+"""Ratings as other labs lay them out. A wide ITU-T P.910 rating matrix (one row per stimulus,
+one column per rater, repetitions as ``rater#2``) reads as the tidy table it was made from:
+the report's own export goes back in, and so does a matrix from another lab with a MOS
+column beside the raters. A design that repeats some stimuli less often makes no rater
+partial."""
 
 from __future__ import annotations
 
@@ -61,3 +63,21 @@ def test_a_stimulus_column_alone_is_refused_in_one_line(tmp_path):
 
     with pytest.raises(AnalysisError, match="one column per rater"):
         read_csv(tmp_path / "one.csv")
+
+
+def test_fewer_repetitions_by_design_make_no_rater_partial(study, tmp_path):
+    """Every rater rated half the stimuli twice and the rest once (the manifest says 2): each
+    followed the design, so none is partial (all were 75% before); one who skipped a
+    stimulus entirely still is."""
+    ratings = pd.read_csv(study / "ratings.csv", dtype={"participant": str})
+    stimuli = sorted(ratings["stimulus"].unique())
+    once = set(stimuli[::2])
+    uneven = ratings[~((ratings["repetition"] == 2) & ratings["stimulus"].isin(once))]
+    short = uneven[~((uneven["participant"] == "P05") & (uneven["stimulus"] == stimuli[1]))]
+    short.to_csv(tmp_path / "uneven.csv", index=False)
+    rs = load_ratings(study / "manifest.json", ratings_csv=tmp_path / "uneven.csv")
+    comp = dict(zip(rs.raters, rs.completeness(), strict=True))
+    planned = len(stimuli) * 2 - len(once)
+    assert all(comp[r] == 1.0 for r in rs.raters if r != "P05")
+    assert comp["P05"] == pytest.approx((planned - 2) / planned)
+    assert rs.allocation == "unbalanced"

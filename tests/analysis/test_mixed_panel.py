@@ -72,6 +72,7 @@ def _check_report(out: Path, *, foreign: str, partial: str, removed: set[str],
                              .split())
 
 
+@pytest.mark.slow  # 10 s; the generated panel covers the same rules by default
 def test_mixed_panel_on_nflx_with_injected_raters(sureal_dir: Path, tmp_path: Path,
                                                   capsys) -> None:
     rs = load_sureal(sureal_dir / "NFLX_dataset_public_raw.py")

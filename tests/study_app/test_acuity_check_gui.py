@@ -114,6 +114,7 @@ def test_the_check_measures_the_screen_and_records_the_thresholds(tmp_path, xdis
         assert (ARTIFACTS / f"{name}.png").is_file()
 
 
+@pytest.mark.slow  # 11 s of GUI; CI runs it after make test
 def test_a_failed_check_ends_the_session_when_the_study_says_so(tmp_path, xdisplay,
                                                                 app_driver):
     study = _study(tmp_path, "end")

@@ -14,7 +14,7 @@ from support.studies import make_study
 
 from .conftest import REPO, cli_env, run_cli
 
-pytestmark = pytest.mark.gui
+pytestmark = [pytest.mark.gui, pytest.mark.slow]  # 16 s: CI runs it after make test
 
 ARTIFACTS = REPO / "test-artifacts" / "server" / "withdrawn-e2e"
 

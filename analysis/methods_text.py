@@ -141,7 +141,7 @@ def _panel(a: Analysis, s: dict[str, Any]) -> str:
         kinds.setdefault(x["kind"], []).append(str(x["who"]))
     text = (f"{_count(s['n_raters_input'], 'participant')} gave valid ratings of "
             f"{_count(s['n_stimuli'], 'stimulus', 'stimuli')} ({_design(a)}) on "
-            f"{_scale(a)} ({s['allocation']['sentence']}).{_mirror_note(a)}")
+            f"{_scale(a)}; {s['allocation']['sentence']}.{_mirror_note(a)}")
     left = []
     if n := len(kinds.get("ended by vision check", [])) + len(kinds.get("failed vision check",
                                                                        [])):
@@ -213,15 +213,17 @@ def _reliability(a: Analysis, s: dict[str, Any]) -> str:
         n_hidden = int(a.screened.hidden_reference_mask.sum())
         targets = _count(int(counts.get("stimuli", s["n_stimuli"])), "stimulus", "stimuli") + (
             f" ({_count(n_hidden, 'hidden reference')} among them)" if n_hidden else "")
+        basis = (f"the {s['icc_subset']}" if s.get("icc_subset") else
+                 "each rater's mean over repetitions")
         parts.append(f"Inter-rater reliability over the {n} raters used and {targets} was "
                      f"ICC(2,k) = {_ci(icc['ICC(2,k)'], lo, hi)} "
                      f"(single rater ICC(2,1) = {_ci(icc.get('ICC(2,1)'), lo1, hi1)}; "
-                     f"computed from {how} on each rater's mean over repetitions, with 95% CIs)"
-                     + (f", on the {s['icc_subset']}" if s.get("icc_subset") else "") + ".")
+                     f"computed from {how} on {basis}, with 95% CIs).")
         if d := s.get("icc_distorted_only"):
             dci = d["icc_ci95"]
-            parts[-1] += (f" On the {d['n_stimuli']} distorted stimuli alone, the ones the "
-                          f"metrics are compared on, ICC(2,k) = "
+            which = ", the ones the metrics are compared on," if s.get("metrics") else ""
+            parts[-1] += (f" On the {d['n_stimuli']} distorted stimuli alone{which} "
+                          f"ICC(2,k) = "
                           f"{_ci(d['icc'].get('ICC(2,k)'), *(dci.get('ICC(2,k)') or [None] * 2))}"
                           f" and ICC(2,1) = "
                           f"{_ci(d['icc'].get('ICC(2,1)'), *(dci.get('ICC(2,1)') or [None] * 2))}"
@@ -241,8 +243,8 @@ def _reliability(a: Analysis, s: dict[str, Any]) -> str:
             if bound is not None and math.isfinite(bound):
                 sentence += (f"; a metric that predicted the true quality exactly would reach "
                              f"a PLCC of about {bound:.3f} (its square root) against this "
-                             "DMOS, the human ceiling for the metrics below (the half-panel "
-                             "agreement understates it)")
+                             "DMOS: the human ceiling for a metric (the half-panel agreement "
+                             "understates it)")
             parts[-1] += sentence + "."
     return " ".join(parts)
 

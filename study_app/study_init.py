@@ -345,11 +345,30 @@ def _video_problems(result: InitResult, folder: Path, display: DisplayRequiremen
                                                message.split(": ", 1)[1]))
             if (problem := _out_of_step(result, folder, video, ref)) is not None:
                 result.problems.append(problem)
+            if (chroma := _chroma(test_info.pix_fmt)) != (ref_chroma := _chroma(
+                    ref_info.pix_fmt)) and chroma and ref_chroma:
+                result.warnings.append(
+                    f"{video.path}: {test_info.pix_fmt} ({chroma}), its reference {ref.path} "
+                    f"is {ref_info.pix_fmt} ({ref_chroma}); the colour resolution differs, "
+                    "which is part of what raters and metrics see (an export setting?)")
     if (problem := label_room_problem(infos.values(), display, settings="init")) is not None:
         result.problems.append(Problem("player", "all videos", problem))
     if not transcoding:
         _speed_problems(result, {v.stimulus_id: folder / v.path for v in videos},
                         result.probes, transcoded=False)
+
+
+def _chroma(pix_fmt: str) -> str:
+    """The colour sampling of an FFmpeg pixel format ("4:2:0", "4:4:4"; "" when unknown)."""
+    f = pix_fmt.lower()
+    if f.startswith(("rgb", "bgr", "gbr", "argb", "abgr", "0rgb", "0bgr", "yuv444",
+                     "yuvj444")):
+        return "4:4:4"
+    if f.startswith(("yuv422", "yuvj422", "nv16", "yuyv422", "uyvy422")):
+        return "4:2:2"
+    if f.startswith(("yuv420", "yuvj420", "nv12", "nv21", "p010", "yuva420")):
+        return "4:2:0"
+    return ""
 
 
 def _out_of_step(result: InitResult, folder: Path, video: MappedVideo,

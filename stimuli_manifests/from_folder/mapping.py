@@ -101,8 +101,10 @@ def compile_pattern(pattern: str, *, required: tuple[str, ...],
         if name not in _PLACEHOLDERS:
             raise ValueError(f"pattern {pattern!r}: unknown placeholder {{{name}}}; use "
                              + ", ".join(f"{{{p}}}" for p in _PLACEHOLDERS))
-    if len(set(names)) != len(names):
-        raise ValueError(f"pattern {pattern!r} uses a placeholder twice")
+    twice = sorted({n for n in names if names.count(n) > 1} - {"scene"})
+    if twice:  # {scene} may repeat (scene01/scene01_dlss_L1.mp4): it must read the same
+        raise ValueError(f"pattern {pattern!r} uses {{{twice[0]}}} twice (only {{scene}} may "
+                         "appear more than once)")
     if pattern.startswith("/") or ".." in pattern.split("/"):
         raise ValueError(f"pattern {pattern!r} must be relative to the renders folder, "
                          "without '..'")
@@ -116,11 +118,16 @@ def compile_pattern(pattern: str, *, required: tuple[str, ...],
     if scenes:
         alternatives = "|".join(re.escape(n) for n in sorted(scenes, key=len, reverse=True))
         pieces["scene"] = f"(?P<scene>{alternatives})"
-    regex = "".join(
-        pieces[part[1:-1]] if part.startswith("{") else re.escape(part)
-        for part in re.split(r"({[^{}]*})", pattern) if part
-    )
-    return re.compile(regex)
+    parts, seen = [], set()
+    for part in (p for p in re.split(r"({[^{}]*})", pattern) if p):
+        if not part.startswith("{"):
+            parts.append(re.escape(part))
+        elif part[1:-1] in seen:  # a repeated {scene}: the same text again
+            parts.append(f"(?P={part[1:-1]})")
+        else:
+            seen.add(part[1:-1])
+            parts.append(pieces[part[1:-1]])
+    return re.compile("".join(parts))
 
 
 @dataclass
@@ -426,4 +433,7 @@ def _check(out: FolderMapping, fix: str = "") -> None:
         if candidates := _reference_candidates(out, scene):
             names = " or ".join(c.as_posix() for c in candidates[:3])
             detail += f"; did you mean {names}? {fix}".rstrip()
+        elif other := [r for r in refs if r != scene and r.casefold() == scene.casefold()]:
+            detail += (f"; {refs[other[0]].path} is the reference of scene {other[0]!r}, which "
+                       "differs only in case: rename one so the names match")
         out.problems.append(Problem("missing reference", scene, detail))

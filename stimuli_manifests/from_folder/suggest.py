@@ -86,6 +86,9 @@ def _candidates(videos: list[PurePosixPath]) -> list[tuple[str, str]]:
             refs["{scene}/" + stem + ".{ext}"] += 1
         elif len(rel.parts) == 2 and _is_reference_word(rel.parts[0]):  # ref/scene.ext
             refs[rel.parts[0] + "/{scene}.{ext}"] += 1
+        elif len(rel.parts) == 2 and (ending := _reference_ending(stem)) is not None \
+                and stem[: -len(ending)] == rel.parts[0]:  # scene/scene_ref.ext
+            refs["{scene}/{scene}" + ending + ".{ext}"] += 1
         elif len(rel.parts) == 1 and (ending := _reference_ending(stem)) is not None:
             refs["{scene}" + ending + ".{ext}"] += 1  # scene<sep>ref.ext
             scenes.append(stem[: -len(ending)])
@@ -93,6 +96,11 @@ def _candidates(videos: list[PurePosixPath]) -> list[tuple[str, str]]:
             rest.append((rel, stem))
     for rel, stem in rest:
         if len(rel.parts) == 2 and (template := _level_template(stem)) is not None:
+            scene = rel.parts[0]  # scene/scene_dlss_L1.ext first: else methods 'scene_dlss'
+            if stem.startswith(scene) and len(stem) > len(scene) + 1 and \
+                    stem[len(scene)] in _SEPARATORS and \
+                    (inner := _level_template(stem[len(scene) + 1:])) is not None:
+                tests["{scene}/{scene}" + stem[len(scene)] + inner + ".{ext}"] += 1
             tests["{scene}/" + template + ".{ext}"] += 1
             if m := _LEVEL_AFTER_SEPARATOR.fullmatch(stem):  # method/scene_L1.ext
                 tests["{method}/{scene}" + m["sep"] + m["prefix"] + "{level}.{ext}"] += 1

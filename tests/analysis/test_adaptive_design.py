@@ -186,6 +186,10 @@ def test_report_states_the_policy_and_counts(adaptive) -> None:
     assert (out / "figures" / "ratings_per_stimulus.png").stat().st_size > 5000
     assert "Allocation of ratings" in html and "ratings_per_stimulus.png" in html
     assert f"median {np.median(counts):g}" in html
+    # the paper text gives the ICC on what it was computed on: block 1's single ratings
+    text = " ".join((out / "methods.txt").read_text(encoding="utf-8").split())
+    assert f"on the {BLOCK1}: {n} stimuli x {N_RATERS} raters, with 95% CIs" in text
+    assert "mean over repetitions" not in text and "metrics are compared on" not in text
 
 
 def test_balanced_input_is_unchanged() -> None:

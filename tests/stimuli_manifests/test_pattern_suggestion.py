@@ -261,3 +261,26 @@ def test_a_link_to_a_scene_folder_does_not_rename_the_scene(tmp_path):
     mapped = map_by_pattern(tmp_path, test_pattern="{scene}/{method}_L{level}.{ext}",
                             reference_pattern="{scene}/reference.{ext}")
     assert {v.scene for v in mapped.videos} == {"sponza"} and not mapped.problems
+
+
+def test_a_scene_named_twice_in_each_path_maps_and_is_suggested(tmp_path):
+    """scene01/scene01_dlss_q1.mp4: no pattern could say it ({scene} could not repeat), and
+    the defaults gave per-scene methods 'scene01_dlss'."""
+    touch(tmp_path, ["scene01/scene01_ref.mp4", "scene01/scene01_dlss_q1.mp4",
+                     "scene02/scene02_ref.mp4", "scene02/scene02_dlss_q2.mp4"])
+    hint = suggest_patterns(tmp_path, scan_folder(tmp_path).videos)
+    assert hint is not None and not hint.doubts
+    assert (hint.reference_pattern, hint.test_pattern) == ("{scene}/{scene}_ref.{ext}",
+                                                           "{scene}/{scene}_{method}_q{level}.{ext}")
+    mapped = map_by_pattern(tmp_path, test_pattern=hint.test_pattern,
+                            reference_pattern=hint.reference_pattern)
+    assert truth(mapped) == {
+        ("scene01/scene01_ref.mp4", "scene01", "reference", None, None),
+        ("scene02/scene02_ref.mp4", "scene02", "reference", None, None),
+        ("scene01/scene01_dlss_q1.mp4", "scene01", "test", "dlss", 1),
+        ("scene02/scene02_dlss_q2.mp4", "scene02", "test", "dlss", 2)}
+    # the second {scene} must read as the first: a file of another scene's name is left out
+    touch(tmp_path, ["scene01/scene02_dlss_q3.mp4"])
+    again = map_by_pattern(tmp_path, test_pattern=hint.test_pattern,
+                           reference_pattern=hint.reference_pattern)
+    assert [p.as_posix() for p in again.unmatched] == ["scene01/scene02_dlss_q3.mp4"]

@@ -160,3 +160,31 @@ def test_two_scenes_cannot_share_one_reference_and_a_stray_reference_copy_is_nam
     assert code == 0
     warned = next(line for line in out.splitlines() if "reference of scene 'scene01'" in line)
     assert warned.startswith("  warning: the same file as") and "(scene02/fsr_L1.mkv)" in warned
+
+
+def test_a_test_with_another_colour_resolution_than_its_reference_is_named(tmp_path, capsys):
+    """A 4:2:0 H.264 test beside an RGB (4:4:4) reference passed without a word."""
+    renders = tmp_path / "renders"
+    write_video(renders / "bistro" / "reference.mkv", clip(1), FPS)
+    encode(renders / "bistro" / "x264_L1.mp4", clip(2), codec="libx264", pix_fmt="yuv420p",
+           rate=FPS)
+    write_video(renders / "bistro" / "blur_L2.mkv", clip(3), FPS)
+    code, out, _ = init(capsys, renders, "--out", tmp_path / "study")
+    assert code == 0
+    chroma = [line for line in out.splitlines() if "colour resolution differs" in line]
+    assert len(chroma) == 1 and "(bistro/x264_L1.mp4)" in chroma[0]
+    assert "yuv420p (4:2:0), its reference bistro/reference.mkv is bgr0 (4:4:4)" in chroma[0]
+
+
+def test_a_reference_whose_scene_differs_only_in_case_is_pointed_to(tmp_path):
+    """Sponza_ref.mp4 beside sponza_TAA_q1.mp4: 'missing reference sponza' and 'Sponza has no
+    test video' said nothing that linked them."""
+    from stimuli_manifests.from_folder.mapping import map_by_pattern
+
+    for name in ("Sponza_ref.mp4", "sponza_TAA_q1.mp4"):
+        (tmp_path / name).write_bytes(b"")
+    mapped = map_by_pattern(tmp_path, test_pattern="{scene}_{method}_q{level}.{ext}",
+                            reference_pattern="{scene}_ref.{ext}")
+    detail = next(p.detail for p in mapped.problems if p.kind == "missing reference")
+    assert "Sponza_ref.mp4 is the reference of scene 'Sponza', which differs only in case" \
+        in detail

@@ -95,15 +95,13 @@ def _scale(a: Analysis) -> str:
     rs = a.ratings
     lo, hi = f"{rs.scale_min:g}", f"{rs.scale_max:g}"
     mirrored = rs.scale_direction == "lower_is_better"
-    labels = rs.scale_labels
-    if mirrored:  # the labels stand where the participants saw them
-        text = f"a {lo} to {hi} scale on which lower meant better"
-    else:
-        text = f"a {lo} to {hi} scale"
+    labels = rs.scale_labels  # where the participants saw them
+    text = f"a{' continuous' if labels else ''} {lo} to {hi} scale"
+    if mirrored:
+        text += ", on which lower meant better,"
     if labels:
-        text = "a continuous " + text[2:] + " labelled " + ", ".join(
-            f'"{t}" ({p:g})' for p, t in labels)
-    return text
+        text += " labelled " + ", ".join(f'"{t}" ({p:g})' for p, t in labels)
+    return text.rstrip(",")
 
 
 def _mirror_note(a: Analysis) -> str:
@@ -126,7 +124,8 @@ def _screening(a: Analysis, s: dict[str, Any]) -> str:
         prose = prose.replace("{rule}", P913_RULES[has_r2])
     who = f" ({_names(removed)})" if removed else ""
     text = (f" {prose}: {_count(len(removed), 'rater')}{who} "
-            f"{'was' if len(removed) == 1 else 'were'} removed.")
+            f"{'was' if len(removed) == 1 else 'were'} removed." if removed else
+            f" {prose}: no rater was removed.")
     near = [str(r["rater"]) for r in s["screening"]
             if str(r.get("reason") or "").startswith("near-miss")]
     if near:
@@ -257,7 +256,7 @@ def _metric_line(m: dict[str, Any], n_max: int) -> str:
     if int(m["n"]) != n_max:
         notes.append(f"{m['n']} of the {n_max} stimuli scored")
     if m.get("fit") != "logistic5":
-        notes.append("a straight line: the logistic mapping did not fit")
+        notes.append("mapped with a straight line: too few stimuli, or no logistic fit")
     name = f"{m['metric']}" + (f" ({'; '.join(notes)})" if notes else "")
     return f"{name}: PLCC {plcc}, SRCC {srcc}, RMSE {rmse}"
 

@@ -151,7 +151,7 @@ def test_an_impairment_scale_is_said_to_be_mirrored_and_changes_no_number(study,
     flipped.to_csv(tmp_path / "ratings.csv", index=False)
     text = _report(tmp_path, tmp_path / "lib")
     same = _report(root, tmp_path / "hib")
-    assert ('on a continuous 0 to 100 scale on which lower meant better labelled '
+    assert ('on a continuous 0 to 100 scale, on which lower meant better, labelled '
             '"Imperceptible" (0), "Very annoying" (100)') in text
     assert "every rating x was mirrored to 0 + 100 - x" in text and "mirrored" not in same
     icc = re.search(r"ICC\(2,k\) = [0-9.]+ \[[0-9., ]+\]", same)

@@ -6,6 +6,7 @@ the default patterns, and a study transcoded once was silently re-copied lossy."
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -22,11 +23,12 @@ class InitChoices:
     test_pattern: str | None = None
     reference_pattern: str | None = None
     mapping_csv: str | None = None
-    """Absolute path of the CSV, as it was when init read it."""
+    """The CSV init read, relative to the study folder (absolute only on another drive), so
+    that a published study names no one's home folder and a moved pair still finds it."""
     transcode: str | None = None
     renders: str | None = None
-    """Absolute path of the renders folder: a re-run on another folder that would remove
-    stimuli is refused unless forced."""
+    """The renders folder, stored like ``mapping_csv``: a re-run on another folder that would
+    remove stimuli is refused unless forced."""
 
     def options(self) -> list[str]:
         """The command-line options these choices stand for, for a message."""
@@ -38,6 +40,20 @@ class InitChoices:
                 out.append(f"{flag} '{value}'" if "{" in value or " " in value
                            else f"{flag} {value}")
         return out
+
+
+def stored_path(study: Path, path: Path) -> str:
+    """``path`` as init.json keeps it: relative to the study folder where it can be."""
+    try:
+        return Path(os.path.relpath(path.resolve(), study.resolve())).as_posix()
+    except ValueError:  # another drive (Windows)
+        return str(path.resolve())
+
+
+def resolved_path(study: Path, text: str) -> Path:
+    """A path init.json keeps, as a path on this machine (relative ones from the study)."""
+    path = Path(text)
+    return path if path.is_absolute() else (study / path).resolve()
 
 
 def read_choices(study: Path) -> InitChoices | None:

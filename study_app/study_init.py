@@ -49,7 +49,13 @@ from stimuli_manifests.manifest_io import manifest_to_json
 from stimuli_manifests.model import is_valid_id
 from stimuli_manifests.pairs import pair_mismatches
 
-from .init_choices import InitChoices, read_choices, write_choices
+from .init_choices import (
+    InitChoices,
+    read_choices,
+    resolved_path,
+    stored_path,
+    write_choices,
+)
 from .preflight import MAX_PAIR_DECODE_S
 from .study_check import label_room_problem, playback_findings
 
@@ -183,7 +189,8 @@ def init_study(opts: InitOptions) -> InitResult:
         opts.test_pattern if by_name and opts.test_pattern != DEFAULT_TEST_PATTERN else None,
         opts.reference_pattern if by_name and opts.reference_pattern !=
         DEFAULT_REFERENCE_PATTERN else None,
-        None if by_name else str(opts.mapping_csv.resolve()), opts.transcode, str(folder)))
+        None if by_name else stored_path(out, opts.mapping_csv), opts.transcode,
+        stored_path(out, folder)))
     return result
 
 
@@ -421,11 +428,12 @@ def _refuse_another_folder(previous: Manifest, mapping: FolderMapping, folder: P
         return
     last = read_choices(out)
     made_from = last.renders if last is not None else None
-    if made_from is not None and Path(made_from) == folder:
+    if made_from is not None and resolved_path(out, made_from) == folder:
         return
     if made_from is None and len(gone) < len(old):
         return
-    source = f"was made from {made_from}" if made_from else "holds other stimuli"
+    source = (f"was made from {resolved_path(out, made_from)}" if made_from else
+              "holds other stimuli")
     raise StudyError(
         f"{out} {source}; this run reads {folder} and would remove {len(gone)} of its "
         f"{len(old)} stimuli (e.g. {', '.join(gone[:3])}) and delete their copies: give the "

@@ -85,7 +85,7 @@ def _with_last_choices(args: argparse.Namespace, patterns_given: bool
     no options maps and copies the renders as before."""
     from session_store.errors import StudyError
     from stimuli_manifests.lossless import LOSSLESS_CODECS
-    from study_app.init_choices import INIT_FILE, InitChoices, read_choices
+    from study_app.init_choices import INIT_FILE, InitChoices, read_choices, resolved_path
 
     mapping, pattern, ref_pattern, transcode = (args.mapping, args.pattern,
                                                 args.reference_pattern, args.transcode)
@@ -94,8 +94,8 @@ def _with_last_choices(args: argparse.Namespace, patterns_given: bool
         return mapping, pattern, ref_pattern, transcode
     kept = InitChoices()
     if mapping is None and not patterns_given and last.mapping_csv is not None:
-        mapping = Path(last.mapping_csv)
-        kept = InitChoices(mapping_csv=last.mapping_csv)
+        mapping = resolved_path(args.out, last.mapping_csv)
+        kept = InitChoices(mapping_csv=str(mapping))
     elif mapping is None and last.mapping_csv is None:
         kept = InitChoices(None if pattern else last.test_pattern,
                            None if ref_pattern else last.reference_pattern)

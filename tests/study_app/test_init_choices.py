@@ -80,6 +80,15 @@ def test_a_rerun_keeps_the_mapping_csv(tmp_path, capsys):
     code, out, err = init(capsys, renders, "--out", study)
     assert code == 0 and "no changes" in out, err
     assert f"--mapping {table.resolve()}" in out
+    assert json.loads((study / INIT_FILE).read_text())["mapping_csv"] == "../map.csv"
+    # the three moved together still find each other
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    for item in (renders, study, table):
+        item.rename(moved / item.name)
+    code, out, err = init(capsys, moved / "renders", "--out", moved / "study")
+    assert code == 0 and "no changes" in out, err
+    assert f"--mapping {(moved / 'map.csv').resolve()}" in out
 
 
 def test_an_unreadable_record_is_one_line(tmp_path, capsys):
@@ -105,7 +114,8 @@ def test_a_rerun_on_another_folder_asks_before_it_removes_stimuli(tmp_path, caps
     write_video(other / "kitchen" / "reference.mkv", clip(5), FPS)
     write_video(other / "kitchen" / "blur_L1.mkv", clip(6), FPS)
     assert init(capsys, renders, "--out", study)[0] == 0
-    assert json.loads((study / INIT_FILE).read_text())["renders"] == str(renders.resolve())
+    # kept relative to the study: a published study names no home folder
+    assert json.loads((study / INIT_FILE).read_text())["renders"] == "../renders"
     before = paths(study)
     code, _, err = init(capsys, other, "--out", study)
     assert code == 2 and len(err.strip().splitlines()) == 1

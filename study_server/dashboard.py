@@ -107,6 +107,9 @@ def attention(row: dict[str, Any], partial: bool, limits: CellLimits) -> list[st
     return out
 
 
+ORDERS = ("id", "look")
+
+
 class Pages:
     """The login and dashboard pages, from the session listing and the latest statistics."""
 
@@ -127,7 +130,8 @@ class Pages:
         return self.env.get_template("login.html").render(
             study_id=self.study_id, message=message)
 
-    def context(self) -> dict[str, Any]:
+    def context(self, order: str = "id") -> dict[str, Any]:
+        """The page's data; ``order`` "look" puts the participants to look at first."""
         listing = self.sessions_listing()
         snap = self.stats.snapshot()
         rows = []
@@ -169,6 +173,8 @@ class Pages:
         partial = set(snap.study.partial) if snap.study is not None else set()
         for r in rows:
             r["attention"] = attention(r, r["p"]["participant"] in partial, snap.limits)
+        if order == "look":  # the rows to look at first, the most reasons first (stable)
+            rows.sort(key=lambda r: -len(r["attention"]))
         finished = sum(1 for r in rows if r["state"] == "finished")
         pending = sum(1 for r in rows if r["state"] in ("invited", "running"))
         rate = self.stats.rate_per_hour()
@@ -189,7 +195,8 @@ class Pages:
             "n_withdrawn": len(listing["withdrawn"]) + len(left),
             "rate_per_hour": rate, "eta_hours": to_go / rate if rate > 0 else None,
             "versions": {v["manifest_sha256"]: v["version"] for v in listing["versions"]},
+            "order": order,
         }
 
-    def dashboard(self) -> str:
-        return self.env.get_template("dashboard.html").render(**self.context())
+    def dashboard(self, order: str = "id") -> str:
+        return self.env.get_template("dashboard.html").render(**self.context(order))

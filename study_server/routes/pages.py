@@ -13,6 +13,7 @@ from starlette.requests import Request
 from starlette.responses import HTMLResponse, RedirectResponse, Response
 
 from .. import auth
+from ..dashboard import ORDERS
 from ..ingest import Refused
 from .admin import admin_status
 from .common import HTML_HEADERS, SECURITY_HEADERS, error, read_body, server_of
@@ -31,7 +32,8 @@ async def dashboard(request: Request) -> Response:
     if not ok:
         return HTMLResponse(pages.login("That is not the admin token."), status_code=403,
                             headers=HTML_HEADERS)
-    html = await run_in_threadpool(pages.dashboard)
+    order = request.query_params.get("order", "id")
+    html = await run_in_threadpool(pages.dashboard, order if order in ORDERS else "id")
     return HTMLResponse(html, headers=HTML_HEADERS)
 
 

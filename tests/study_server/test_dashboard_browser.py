@@ -123,9 +123,22 @@ def test_dashboard_in_a_real_browser(browser, tmp_path, invites, server_factory)
     marked = {r.get_attribute("data-participant") for r in
               browser.find_elements(By.CSS_SELECTOR, "#participants tr.look")}
     assert {outlier, "P08"} <= marked and "P01" not in marked
+    # ordered by attention, the marked rows come first (the reload keeps the order's query)
+    browser.get(srv.url + "/dashboard?order=look")
+    looked = [r.get_attribute("data-participant") for r in
+              browser.find_elements(By.CSS_SELECTOR, "#participants tr[data-participant]")]
+    assert set(looked[:len(marked)]) == marked and len(looked) == 8
+    assert "those to look at first" in browser.find_element(By.CSS_SELECTOR,
+                                                            "#order strong").text
+    browser.get(srv.url + "/dashboard?order=nonsense")  # an unknown order is the default
+    assert browser.find_element(By.CSS_SELECTOR, "#order strong").text == "by participant"
     assert browser.find_element(By.ID, "n-ratings").text == str(7 * 32)
     icc = float(browser.find_element(By.ID, "icc").text)
     assert 0.5 < icc <= 1.0
+    # the ceiling as the report gives it: Spearman-Brown and its square root
+    card = browser.find_element(By.XPATH, "//*[contains(text(), 'split-half PLCC')]").text
+    sb = float(card.split("Spearman-Brown ")[1].split(";")[0])
+    assert f"ceiling for a metric {sb ** 0.5:.3f}"[:-1] in card  # last digit: rounding
     # the figure really loaded (the cookie authenticates the image too)
     loaded = browser.execute_script(
         "const i = document.getElementById('dmos-figure'); return i.complete && "

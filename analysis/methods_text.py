@@ -158,8 +158,11 @@ def _panel(a: Analysis, s: dict[str, Any]) -> str:
     if rejected := kinds.get(MODEL_REJECTION):
         text += (f" ITU-R BT.500 rater rejection inside the score model removed "
                  f"{_count(len(rejected), 'rater')} ({_names(rejected)}).")
-    return (text + f" The analysis uses {_count(s['n_raters_used'], 'rater')} and "
-            f"{s['n_ratings_used']} ratings.")
+    text += (f" The analysis uses {_count(s['n_raters_used'], 'rater')} and "
+             f"{s['n_ratings_used']} ratings.")
+    if sentence := (s.get("panel") or {}).get("sentence"):  # from their questionnaires
+        text += f" Panel analysed: {sentence}"
+    return text
 
 
 def percent(share: float) -> str:

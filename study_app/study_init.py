@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import shutil
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 from session_store.errors import StudyError
 from session_store.study_folder import (
@@ -238,6 +238,13 @@ def _what_would_map(opts: InitOptions, folder: Path, out: Path, mapping: FolderM
     videos = sorted([*mapping.unmatched, *(v.path for v in mapping.videos)])
     found = f" ({len(videos)} video file(s) found, e.g. {mapping.unmatched[0]})"
     hint = _suggestion(folder, out, videos)
+    tops = {v.parts[0] for v in videos if len(v.parts) > 1}
+    if not hint and len(tops) == 1 and all(len(v.parts) > 2 for v in videos):
+        top = tops.pop()  # renders/2024-05-01/scene01/...: one folder too high
+        inner = _suggestion(folder / top, out, [PurePosixPath(*v.parts[1:]) for v in videos])
+        return (f"{found}; every video is under {top}/: run init on {folder / top}"
+                + (f" ({inner.replace('these patterns', 'where these patterns')})"
+                   if inner else ""))
     if not hint:
         return (f"{found}; give --reference-pattern and --pattern that match their names, "
                 "or list the files in a --mapping CSV (docs: Bring your own videos)")

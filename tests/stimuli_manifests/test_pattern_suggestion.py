@@ -284,3 +284,14 @@ def test_a_scene_named_twice_in_each_path_maps_and_is_suggested(tmp_path):
     again = map_by_pattern(tmp_path, test_pattern=hint.test_pattern,
                            reference_pattern=hint.reference_pattern)
     assert [p.as_posix() for p in again.unmatched] == ["scene01/scene02_dlss_q3.mp4"]
+
+
+def test_a_folder_one_level_too_high_is_named(tmp_path, capsys):
+    """renders/2024-05-01/scene01/...: nothing maps, and the message said only "give
+    patterns"; now it names the folder to run init on."""
+    renders = tmp_path / "renders"
+    touch(renders, ["2024-05-01/scene01/reference.mp4", "2024-05-01/scene01/dlss_L1.mp4",
+                    "2024-05-01/scene02/reference.mp4", "2024-05-01/scene02/dlss_L2.mp4"])
+    code, _, err = init(capsys, renders, "--out", tmp_path / "study")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert f"every video is under 2024-05-01/: run init on {renders / '2024-05-01'}" in err

@@ -154,20 +154,21 @@ def test_two_scenes_cannot_share_one_reference_and_a_stray_reference_copy_is_nam
     """scene02's reference a copy of scene01's: every scene02 test would be compared with
     scene01's content (exit 0 before); a test that is another scene's reference is named."""
     renders = tmp_path / "renders"
-    write_video(renders / "scene01" / "reference.mkv", clip(1), FPS)
+    first = renders / "scene01" / "reference.mkv"
+    write_video(first, clip(1), FPS)
     write_video(renders / "scene01" / "dlss_L1.mkv", clip(2), FPS)
     write_video(renders / "scene02" / "dlss_L1.mkv", clip(3), FPS)
-    (renders / "scene02" / "reference.mkv").write_bytes(
-        (renders / "scene01" / "reference.mkv").read_bytes())
-    code, out, _ = init(capsys, renders, "--out", tmp_path / "study")
+    (renders / "scene02" / "reference.mkv").write_bytes(first.read_bytes())
+    results = [init(capsys, renders, "--out", tmp_path / "study")]
+    write_video(renders / "scene02" / "reference.mkv", clip(4), FPS)  # its own, now
+    (renders / "scene02" / "fsr_L1.mkv").write_bytes(first.read_bytes())
+    results.append(init(capsys, renders, "--out", tmp_path / "study"))
+    (code, out, _), (code2, out2, _) = results
     assert code == 2
     row = next(line for line in out.splitlines() if "same reference" in line)
     assert "scene02/reference.mkv" in row and "the reference of scene 'scene01'" in row
-    write_video(renders / "scene02" / "reference.mkv", clip(4), FPS)
-    (renders / "scene02" / "fsr_L1.mkv").write_bytes(
-        (renders / "scene01" / "reference.mkv").read_bytes())
-    code, out, _ = init(capsys, renders, "--out", tmp_path / "study")
-    assert code == 0
+    assert code2 == 0
+    out = out2
     warned = next(line for line in out.splitlines() if "reference of scene 'scene01'" in line)
     assert warned.startswith("  warning: the same file as") and "(scene02/fsr_L1.mkv)" in warned
 

@@ -121,6 +121,9 @@ class RatingSet:
     # on their own scale; empty where the input does not say (a CSV without a manifest).
     scale_direction: str = "higher_is_better"
     scale_labels: tuple[tuple[float, str], ...] = ()
+    # How the player showed the stimuli (analysis.presentation_text.presentation); None
+    # without a manifest (a SUREAL dataset)
+    presentation: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         self.scores = np.asarray(self.scores, dtype=float)

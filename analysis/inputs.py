@@ -22,6 +22,7 @@ from .csv_inputs import frame_from_csvs
 from .data import Exclusion, InputProblem, PanelAnswers, RatingSet, rater_order
 from .errors import AnalysisError
 from .panel import panel_from_sessions
+from .presentation_text import presentation
 from .quality import facts_from_rows, facts_from_sessions
 from .sessions import SESSION_SUFFIXES, read_one, select_sessions, session_files
 
@@ -254,6 +255,7 @@ def ratings_from_frame(
         source=source, problems=problems, exclusions=list(exclusions), rater_info=info,
         allocation=policy, allocation_settings=settings, scale_direction=scale.direction,
         scale_labels=tuple((float(lb.position), lb.text) for lb in scale.labels),
+        presentation=presentation(manifest),
     )
 
 

@@ -11,6 +11,7 @@ from typing import Any
 
 from .metrics import CEILING_ROW
 from .pipeline import MODEL_REJECTION, Analysis
+from .presentation_text import presentation_paragraph
 
 SCREENING_PROSE = {
     "p913": "Raters were screened one at a time for ratings that did not follow the others "
@@ -310,4 +311,6 @@ def _metrics(s: dict[str, Any]) -> str:
 def methods_paragraphs(a: Analysis, s: dict[str, Any]) -> list[str]:
     """The paragraphs, from the analysis ``a`` and its summary ``s``
     (:func:`analysis.report.summary`)."""
-    return [p for p in (_panel(a, s), _scores(a, s), _reliability(a, s), _metrics(s)) if p]
+    shown = presentation_paragraph(a.ratings, a.quality, list(a.screened.raters))
+    return [p for p in (_panel(a, s), shown, _scores(a, s), _reliability(a, s), _metrics(s))
+            if p]

@@ -19,7 +19,59 @@ def presentation(manifest: Any) -> dict[str, Any]:
     return {"blank_seconds": float(p.blank_seconds), "loop": bool(p.loop),
             "min_view_seconds": p.min_view_seconds, "min_width": int(d.min_width),
             "min_height": int(d.min_height), "min_refresh_hz": float(d.min_refresh_hz),
-            "hidden_reference": bool(p.hidden_reference)}
+            "hidden_reference": bool(p.hidden_reference),
+            "viewing_distance_cm": p.viewing_distance_cm}
+
+
+def _column(quality: pd.DataFrame, raters: list[str], name: str) -> pd.Series:
+    if name not in quality.columns:
+        return pd.Series(dtype=float)
+    return quality.reindex(raters)[name]
+
+
+def _displays(quality: pd.DataFrame | None, raters: list[str]) -> str:
+    """The participants' screens (pixels, refresh) as their pre-flights measured them."""
+    if quality is None:
+        return ""
+    sizes = [tuple(int(v) for v in size.split("x"))
+             for cell in _column(quality, raters, "screen").dropna().astype(str)
+             for size in cell.split(", ") if size.count("x") == 1]
+    if not sizes:
+        return ""
+    sizes.sort(key=lambda wh: (wh[0] * wh[1], wh))
+    name = [f"{w}x{h}" for w, h in sizes]
+    common = pd.Series(name).value_counts()
+    text = (f" The participants' screens had {name[0]} pixels" if name[0] == name[-1] else
+            f" The participants' screens had {name[0]} to {name[-1]} pixels"
+            + (f" ({common.index[0]} most often)" if common.iloc[0] > 1 and
+               (len(common) == 1 or common.iloc[0] > common.iloc[1]) else ""))
+    hz = pd.to_numeric(_column(quality, raters, "refresh_hz"), errors="coerce").dropna()
+    if len(hz):
+        lo, hi = f"{hz.min():.0f}", f"{hz.max():.0f}"
+        text += f" and refreshed at {lo} Hz" if lo == hi else f" and refreshed at {lo}-{hi} Hz"
+    return text + "."
+
+
+def _seating(p: dict[str, Any], quality: pd.DataFrame | None, raters: list[str]) -> str:
+    """The instructed viewing distance and, where the card calibration measured the screen,
+    the pixels per visual degree it gave."""
+    cm = p.get("viewing_distance_cm")
+    if cm is None:
+        return ""
+    text = (f" Participants were asked to sit with their eyes about {cm:g} cm from the screen "
+            "while they rated (the player said so before the trials and after each break; the "
+            "distance itself was not measured).")
+    if quality is None:
+        return text
+    ppd = pd.to_numeric(_column(quality, raters, "px_per_degree"), errors="coerce").dropna()
+    if len(ppd):
+        of = f"all {len(raters)}" if len(ppd) == len(raters) else f"{len(ppd)} of the {len(raters)}"
+        spread = (f"{ppd.iloc[0]:.0f} pixels per visual degree" if len(ppd) == 1 else
+                  f"{ppd.min():.0f}-{ppd.max():.0f} pixels per visual degree (median "
+                  f"{ppd.median():.0f})")
+        text += (f" At that distance the screens of {of} participants, whose pixel size the "
+                 f"vision screening measured with a bank card, showed {spread}.")
+    return text
 
 
 def _sessions(quality: pd.DataFrame | None, raters: list[str]) -> str:
@@ -59,4 +111,4 @@ def presentation_paragraph(rs: RatingSet, quality: pd.DataFrame | None,
                if p["hidden_reference"] else "")
             + f". A pre-flight check before the session required a display of at least "
             f"{p['min_width']}x{p['min_height']} pixels at {p['min_refresh_hz']:g} Hz or more.")
-    return text + _sessions(quality, used)
+    return text + _displays(quality, used) + _seating(p, quality, used) + _sessions(quality, used)

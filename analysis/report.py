@@ -36,8 +36,9 @@ SUMMARY_FORMAT = "cgvq-analysis-summary/2"
 _QUALITY_COLUMNS = ("status", "sessions", "n_ratings", "n_planned", "completeness",
                     "timing_mode", "vsync", "preflight_skipped", "presentations",
                     "dropped_frames", "trials_with_drops", "requeued", "median_viewing_s",
-                    "median_toggles", "hidden_ref_mean_share", "loo_r", "repeat_r", "vision",
-                    "flags")
+                    "median_toggles", "screen", "refresh_hz", "viewing_distance_cm",
+                    "px_per_mm", "px_per_degree",
+                    "hidden_ref_mean_share", "loo_r", "repeat_r", "vision", "flags")
 #: The overall pairwise metric tests in summary.json (each on the stimuli both scored).
 _PAIRWISE_COLUMNS = ("metric_a", "metric_b", "n", "plcc_a", "plcc_b", "boot_p", "boot_n",
                      "williams_p")

@@ -313,6 +313,7 @@ def write_html(a: Analysis, out: Path, figures: dict[str, tuple[Path, str]],
         "figures": figures,
         "from_sessions": bool(info is not None and "files" in info.columns
                               and info["files"].notna().any()),
+        "seated": bool((a.ratings.presentation or {}).get("viewing_distance_cm")),
         "near": [r for r in summary["screening"]
                  if str(r.get("reason") or "").startswith("near-miss")],
         "flagged": [r for r in summary["data_quality"]

@@ -93,6 +93,10 @@ class Protocol(_Strict):
     min_view_seconds: float | None = Field(
         default=None, ge=0.0, description="minimum viewing time before submit; None = one loop"
     )
+    viewing_distance_cm: float | None = Field(
+        default=None, ge=30.0, le=200.0,
+        description="how far from the screen participants are asked to sit while they rate "
+        "(told before the trials and after each break); None = no instruction")
     allocation: AllocationPolicy = Field(
         default="full", description="full: every stimulus `repetitions` times; adaptive: "
         "blocks planned by the study server")

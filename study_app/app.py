@@ -390,6 +390,9 @@ class App:
         self.store.mark_started(display=d.info(geom))
         try:
             self._panel("before")
+            distance = self.m.protocol.viewing_distance_cm
+            if distance is not None:
+                self._screen(content.seating(distance, self._name_keys, again=resume))
             if not resume and self.opts.practice > 0:
                 self._practice()
             return self._main_loop()
@@ -658,7 +661,8 @@ class App:
                 since_break = 0
                 answered, total = store.progress()
                 store.log_event("break", answered=answered)
-                self._pause_menu(content.break_screen(answered, total, self._name_keys))
+                self._pause_menu(content.break_screen(
+                    answered, total, self._name_keys, self.m.protocol.viewing_distance_cm))
         self._panel("after")
         store.finish()
         answered, total = store.progress()

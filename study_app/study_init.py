@@ -23,7 +23,13 @@ from session_store.study_folder import (
     SERVER_STATE_FILE,
     SESSIONS_DIR,
 )
-from stimuli_manifests import DisplayRequirements, Manifest, StimuliError, load_manifest
+from stimuli_manifests import (
+    DisplayRequirements,
+    Manifest,
+    Protocol,
+    StimuliError,
+    load_manifest,
+)
 from stimuli_manifests.from_folder.build import (
     StudyChanges,
     build_manifest,
@@ -75,6 +81,8 @@ class InitOptions:
     """Replaces the minimum screen size of the previous manifest (else of the defaults)."""
     min_refresh_hz: float | None = None
     """Replaces the minimum refresh rate of the previous manifest (else of the defaults)."""
+    viewing_distance_cm: float | None = None
+    """Replaces the seating instruction of the previous manifest; 0 removes it."""
     force: bool = False
     progress: bool = False
 
@@ -172,7 +180,7 @@ def init_study(opts: InitOptions) -> InitResult:
         _remove_created(created)
         return result
     manifest = build_manifest(placements, shas, study_id=study_id, previous=previous,
-                              display=display)
+                              display=display, protocol=_protocol(opts, previous))
     result.changes = compare(previous, manifest)
     result.changes.files_written = written
     result.changes.files_deleted = delete_stale(previous, manifest, out)
@@ -203,6 +211,16 @@ def _display(opts: InitOptions, previous: Manifest | None) -> DisplayRequirement
     if opts.min_refresh_hz is not None:
         update["min_refresh_hz"] = opts.min_refresh_hz
     return DisplayRequirements(**{**base.model_dump(), **update})
+
+
+def _protocol(opts: InitOptions, previous: Manifest | None) -> Protocol | None:
+    """The protocol with the seating distance asked for; None when none was asked for (the
+    study keeps its protocol, or gets the defaults)."""
+    if opts.viewing_distance_cm is None:
+        return None
+    base = previous.protocol if previous else Protocol()
+    seat = opts.viewing_distance_cm or None  # 0 removes the instruction
+    return Protocol(**{**base.model_dump(), "viewing_distance_cm": seat})
 
 
 def _previous_manifest(out: Path) -> Manifest | None:

@@ -54,6 +54,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--min-refresh-hz", type=float, metavar="HZ",
                         help="the participants' minimum refresh rate (default: the manifest's, "
                              "else 59)")
+    parser.add_argument("--viewing-distance", type=float, metavar="CM",
+                        help="ask participants to sit this far from the screen while they "
+                             "rate (30-200 cm; told before the trials and after breaks; "
+                             "0 removes the instruction; default: the manifest's, else none)")
     parser.add_argument("--force", action="store_true",
                         help="change stimuli even when the study already holds sessions, "
                              "or replace them from another renders folder")
@@ -76,6 +80,16 @@ def _display(args: argparse.Namespace) -> tuple[tuple[int, int] | None, float | 
     if hz is not None and not 1 <= hz <= 1000:
         raise StudyError(f"--min-refresh-hz must be between 1 and 1000, got {hz:g}")
     return size, hz
+
+
+def _viewing_distance(args: argparse.Namespace) -> float | None:
+    from session_store.errors import StudyError
+
+    cm = args.viewing_distance
+    if cm is not None and cm != 0 and not 30 <= cm <= 200:
+        raise StudyError(f"--viewing-distance must be 30 to 200 cm (or 0 to remove the "
+                         f"instruction), got {cm:g}")
+    return cm
 
 
 def _with_last_choices(args: argparse.Namespace, patterns_given: bool
@@ -139,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
                        reference_pattern=reference_pattern or DEFAULT_REFERENCE_PATTERN,
                        study_id=args.study_id, transcode=transcode,
                        min_display=min_display, min_refresh_hz=min_refresh_hz,
-                       force=args.force,
+                       viewing_distance_cm=_viewing_distance(args), force=args.force,
                        progress=sys.stderr.isatty())  # no bar in the one-line error of a pipe
     result = init_study(opts)
     print_probe_table(result, opts.folder)

@@ -75,6 +75,12 @@ def print_changes(result: InitResult, out: Path) -> None:
         d = manifest.display
         print(f"  the participant's display now needs at least {d.min_width}x{d.min_height} "
               f"pixels at {d.min_refresh_hz:g} Hz or more")
+    seat = manifest.protocol.viewing_distance_cm
+    if seat is not None and result.manifest_written:
+        print(f"  participants are told to sit about {seat:g} cm from the screen while they "
+              "rate (before the trials and after each break)")
+    elif seat is None and "protocol" in changes.settings:
+        print("  participants are not told where to sit")
     if changes.restored:
         print(f"  copied again (the study's copy was missing or edited): "
               f"{', '.join(changes.restored)}")

@@ -18,7 +18,7 @@ from tqdm import tqdm
 
 from ..checksums import sha256_file
 from ..lossless import LosslessCodec, codec_spec
-from ..model import Condition, DisplayRequirements, Manifest, Reference
+from ..model import Condition, DisplayRequirements, Manifest, Protocol, Reference
 from ..video import VideoSource, write_video
 from .mapping import MappedVideo, Problem
 from .probe import ProbedVideo
@@ -147,10 +147,10 @@ def materialise(placements: list[Placement], study: Path, previous: Manifest | N
 
 
 def build_manifest(placements: list[Placement], shas: dict[str, str], *, study_id: str,
-                   previous: Manifest | None, display: DisplayRequirements | None
-                   ) -> Manifest:
+                   previous: Manifest | None, display: DisplayRequirements | None,
+                   protocol: Protocol | None = None) -> Manifest:
     """The manifest of the placed videos; settings come from ``previous`` when there is one,
-    ``display`` overrides the display requirements."""
+    ``display`` and ``protocol`` override the display requirements and the protocol."""
     refs, conds = [], []
     for pl in placements:
         v, sid = pl.video, pl.video.stimulus_id
@@ -172,6 +172,8 @@ def build_manifest(placements: list[Placement], shas: dict[str, str], *, study_i
         settings["study_id"] = study_id
     if display is not None:
         settings["display"] = display
+    if protocol is not None:
+        settings["protocol"] = protocol
     return Manifest(**settings, references=refs, conditions=conds)
 
 

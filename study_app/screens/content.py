@@ -138,6 +138,25 @@ def practice_done(name_keys: NameKeys) -> ScreenSpec:
                  [("go", "Start the study")], name_keys, primary="go")
 
 
+def _card_widths(distance_cm: float) -> str:
+    """The distance in bank-card widths (8.56 cm), which everyone has at hand to measure."""
+    arm = "; roughly an arm's length" if 50 <= distance_cm <= 80 else ""
+    return f"about {distance_cm / 8.56:.0f} bank-card widths{arm}"
+
+
+def seating(distance_cm: float, name_keys: NameKeys, *, again: bool = False) -> ScreenSpec:
+    """Before the trials (and on a return): where to sit while rating."""
+    lead = "Before you go on: " if again else ""
+    body = (f"{lead}**sit with your eyes about {distance_cm:g} cm from the screen** "
+            f"({_card_widths(distance_cm)}), facing its centre, "
+            "and keep that distance while you rate the videos.\n\n"
+            "The experimenter chose this distance so that everyone sees the videos at the "
+            "same size. Wear your glasses or contact lenses if you wear them to watch "
+            "videos.")
+    return _spec("seating", "Where to sit", body, CONTINUE, [("go", "Continue")],
+                 name_keys, primary="go")
+
+
 def welcome_back(answered: int, total: int, name_keys: NameKeys) -> ScreenSpec:
     body = (f"Your answers so far are saved ({answered} of {total} trials done). You "
             f"continue with trial {answered + 1}.")
@@ -161,10 +180,13 @@ def pause(answered: int, total: int, name_keys: NameKeys) -> ScreenSpec:
                   ("resume", "Continue")], name_keys, primary="resume")
 
 
-def break_screen(answered: int, total: int, name_keys: NameKeys) -> ScreenSpec:
+def break_screen(answered: int, total: int, name_keys: NameKeys,
+                 distance_cm: float | None = None) -> ScreenSpec:
     body = (f"{answered} of {total} trials done, and your answers are saved. Rest your eyes "
             "for a moment: look away from the screen, into the distance.\n\n"
-            "The next trial starts when you continue.")
+            "The next trial starts when you continue."
+            + (f" Sit about {distance_cm:g} cm from the screen again before you do."
+               if distance_cm else ""))
     return _spec("break", "Time for a break", body, PAUSE_KEYS,
                  [("withdraw", "Withdraw from the study"), ("quit", "Stop and continue later"),
                   ("resume", "Continue")], name_keys, primary="resume")
@@ -227,14 +249,13 @@ def ended_by_server(answered: int, why: str, name_keys: NameKeys) -> ScreenSpec:
 
 
 def acuity_check_intro(distance_cm: float, name_keys: NameKeys) -> ScreenSpec:
-    cards = distance_cm / 8.56
     body = ("Next, a short check of how sharp and how faint a shape you can see on this screen."
             "\n\n"
             "**First, the size of your screen.** Have a bank card at hand (or any card of that "
             "size: an ID card, a driving licence). Hold it against the screen and make the "
             "rectangle on the next screen exactly as wide as the card.\n\n"
-            f"**Then sit with your eyes about {distance_cm:g} cm from the screen** (about "
-            f"{cards:.0f} card widths; roughly an arm's length) and stay there during the check. "
+            f"**Then sit with your eyes about {distance_cm:g} cm from the screen** "
+            f"({_card_widths(distance_cm)}) and stay there during the check. "
             "Wear your glasses or contact lenses if you wear them to watch videos.\n\n"
             "A result only tells the experimenter what you could see on this screen. It is not "
             "a medical test.")

@@ -53,3 +53,65 @@ def test_the_session_timing_is_counted_from_the_quality_table():
     assert _sessions(quality, ["P1", "P2"]).startswith(" All 2 sessions ran with vsync; 1 of 80")
     simulated = quality.assign(timing_mode="simulated")
     assert "simulated" in _sessions(simulated, ["P1", "P2", "P3"])
+
+
+def _session(path, loaded, participant, *, screen, hz, card_px=None, seed=1):
+    """A participant's finished session as the player writes it: the protocol in force, the
+    display the pre-flight measured and, with ``card_px``, the acuity check's card geometry
+    (measured at the check's 60 cm, not at the seating distance)."""
+    from support.sessions import plain_result
+
+    from session_store import SessionStore
+    from session_store.schedule import make_schedule, schedule_items
+    from study_app.vision.acuity import card_calibration
+
+    m = loaded.manifest
+    plan = make_schedule(schedule_items(m), m.protocol.repetitions, seed)
+    settings = {"protocol": m.protocol.model_dump(mode="json"), "timing_mode": "vsync"}
+    with SessionStore.create(path / f"{participant}.sqlite", participant=participant,
+                             study_id=m.study_id, manifest_sha256=loaded.sha256, seed=seed,
+                             app_version="t", plan=plan, settings=settings) as store:
+        store.mark_started(display={"screen": list(screen), "refresh_hz": hz, "vsync": True})
+        if card_px is not None:
+            store.record_screening("acuity", "passed",
+                                   {"geometry": card_calibration(card_px, 60).to_dict()})
+        for k, trial in enumerate(plan):
+            store.record(trial.index, plain_result(20.0 + 30 * (k % 3)))
+        store.finish()
+
+
+def test_the_seating_distance_screens_and_pixels_per_degree_are_the_sessions(tmp_path):
+    from stimuli_manifests import load_manifest
+
+    refs = [{"id": "R0", "path": "r0.mkv"}]
+    conds = [{"id": f"R0_blur_L{lv}", "reference": "R0", "path": f"r0_{lv}.mkv",
+              "method": "blur", "level": lv} for lv in (1, 2)]
+    path = save_manifest(parse_manifest({
+        "study_id": "seated", "references": refs, "conditions": conds,
+        "protocol": {"repetitions": 1, "viewing_distance_cm": 90}}), tmp_path / "manifest.json")
+    loaded = load_manifest(path)
+    sessions = tmp_path / "sessions"
+    sessions.mkdir()
+    _session(sessions, loaded, "P1", screen=(1920, 1080), hz=60.0, card_px=300)
+    _session(sessions, loaded, "P2", screen=(2560, 1440), hz=143.9, card_px=420)
+    _session(sessions, loaded, "P3", screen=(2560, 1440), hz=59.94)
+    rs = load_ratings(path, sessions=[sessions])
+    from analysis.quality import quality_table
+
+    text = presentation_paragraph(rs, quality_table(rs), ["P1", "P2", "P3"])
+    assert ("The participants' screens had 1920x1080 to 2560x1440 pixels (2560x1440 most "
+            "often) and refreshed at 60-144 Hz.") in text
+    assert "asked to sit with their eyes about 90 cm from the screen" in text
+    # the check measured at 60 cm; at the 90 cm seating distance a degree spans 1.5x the
+    # pixels: the acuity module's own geometry at 90 cm is the independent value
+    from study_app.vision.acuity import card_calibration
+
+    lo, hi = (card_calibration(px, 90).px_per_degree for px in (300, 420))
+    assert (f"the screens of 2 of the 3 participants, whose pixel size the vision screening "
+            f"measured with a bank card, showed {lo:.0f}-{hi:.0f} pixels per visual degree "
+            f"(median {(lo + hi) / 2:.0f})") in text
+    # without the instruction: neither the distance nor pixels per degree
+    rs.presentation = {**rs.presentation, "viewing_distance_cm": None}
+    text = presentation_paragraph(rs, quality_table(rs), ["P1", "P2", "P3"])
+    assert "sit" not in text and "per visual degree" not in text
+    assert "1920x1080 to 2560x1440" in text

@@ -292,3 +292,23 @@ def test_a_scene_whose_reference_is_missing_is_not_split_without_a_word(tmp_path
         "sponza_atrium_dlss_L1.mp4: read as method 'atrium_dlss' of scene 'sponza'; if "
         "'sponza_atrium' is a scene of its own, its reference is missing (if not, a "
         "--mapping CSV confirms this reading)"]
+
+
+def test_the_seating_distance_is_set_kept_and_removed(tmp_path, capsys):
+    renders, study = tmp_path / "renders", tmp_path / "study"
+    write_video(renders / "a" / "reference.mkv", clip(10), FPS)
+    write_video(renders / "a" / "m_L1.mkv", clip(11), FPS)
+
+    def seat() -> float | None:
+        return load_manifest(study / "manifest.json").manifest.protocol.viewing_distance_cm
+
+    code, out, _ = init(capsys, renders, "--out", study, "--viewing-distance", "75")
+    assert code == 0 and seat() == 75
+    assert "participants are told to sit about 75 cm from the screen" in out
+    assert init(capsys, renders, "--out", study, "--min-refresh-hz", "120")[0] == 0
+    assert seat() == 75  # another option keeps it
+    code, out, _ = init(capsys, renders, "--out", study, "--viewing-distance", "0")
+    assert code == 0 and seat() is None and "participants are not told where to sit" in out
+    for bad in ("20", "nan", "500"):
+        code, _, err = init(capsys, renders, "--out", study, "--viewing-distance", bad)
+        assert code == 2 and "--viewing-distance must be 30 to 200 cm" in err, err

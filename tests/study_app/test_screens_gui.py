@@ -38,7 +38,7 @@ PILOT = "--pilot-no-vsync"
 # Flat video colours that no text, label or button uses.
 COLOURS = {"ref0.mkv": (41, 103, 231), "c1.mkv": (231, 29, 201), "c2.mkv": (29, 201, 129)}
 SIZES = {(800, 600): (480, 360), (1920, 1080): (1024, 1024)}
-SCREENS = ["preflight-passed", "preflight-failed", "welcome", "consent", "practice",
+SCREENS = ["preflight-passed", "preflight-failed", "welcome", "consent", "seating", "practice",
            "practice-trial", "practice-end", "test", "blank", "reference",
            "rating-before-click", "rating-after-click", "pause", "confirm-withdraw",
            "confirm-quit", "break", "welcome-back", "end"]
@@ -70,7 +70,7 @@ def _make_study(folder: Path, video: tuple[int, int], min_display: tuple[int, in
     (folder / "consent.md").write_text(CONSENT, encoding="utf-8")
     manifest = parse_manifest({
         "study_id": "screens", "root": "videos",
-        "protocol": {"repetitions": 1, "blank_seconds": 0.5},
+        "protocol": {"repetitions": 1, "blank_seconds": 0.5, "viewing_distance_cm": 70},
         "display": {"min_width": min_display[0], "min_height": min_display[1],
                     "min_refresh_hz": 59},
         "references": [{"path": "ref0.mkv", "width": w, "height": h, "fps": 10,
@@ -133,6 +133,8 @@ def test_every_screen_fits_and_never_draws_on_the_video(tmp_path, xvfb_factory, 
         app.key("a")
         app.wait("consent-scroll")
     app.key("End", "a")
+    app.wait("seating")
+    app.key("space")
     app.wait("practice")
     app.key("space")
     app.wait("viewing trial=-1 practice=1")
@@ -161,6 +163,8 @@ def test_every_screen_fits_and_never_draws_on_the_video(tmp_path, xvfb_factory, 
     # -- resume to the end ---------------------------------------------------------------
     app = app_driver(env, base)
     app.resume()
+    app.wait("seating")  # where to sit, again, before the first trial of a return
+    app.key("space")
     app.wait("viewing trial=1")
     _rate(app)
     app.wait("break")

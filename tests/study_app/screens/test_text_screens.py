@@ -44,6 +44,9 @@ def _all_specs(tmp_path: Path):
         content.welcome_back(3, 10, names),
         content.pause(3, 10, names),
         content.break_screen(40, 240, names),
+        content.break_screen(40, 240, names, 70.0),
+        content.seating(70.0, names),
+        content.seating(120.0, names, again=True),
         content.confirm_quit(3, 10, names),
         content.confirm_withdraw(names),
         content.end(tmp_path / "sessions" / "P01.sqlite", 240, False, names),
@@ -137,3 +140,14 @@ def test_the_failed_check_is_titled_by_what_failed():
     assert content.preflight_failed([display, files], names).title == \
         "This computer needs a change"
     assert "display" not in content.preflight_failed([files], names).body.split("\n")[0]
+
+
+def test_the_seating_screen_gives_the_distance_in_centimetres_and_card_widths():
+    first = content.seating(70.0, names).body
+    assert "about 70 cm from the screen" in first and "about 8 bank-card widths" in first
+    assert "arm's length" in first  # 70 cm is about an arm's length; 120 cm is not
+    again = content.seating(120.0, names, again=True).body
+    assert again.startswith("Before you go on") and "about 14 bank-card widths" in again
+    assert "arm's length" not in again
+    assert "Sit about 70 cm" in content.break_screen(1, 2, names, 70.0).body
+    assert "Sit about" not in content.break_screen(1, 2, names).body

@@ -11,7 +11,7 @@ from typing import Any
 
 from .metrics import CEILING_ROW
 from .pipeline import MODEL_REJECTION, Analysis
-from .presentation_text import presentation_paragraph
+from .presentation_text import metric_viewing_text, presentation_paragraph
 
 SCREENING_PROSE = {
     "p913": "Raters were screened one at a time for ratings that did not follow the others "
@@ -305,7 +305,8 @@ def _metrics(s: dict[str, Any]) -> str:
             + "; ".join(_metric_line(m, n_max) for m in rows) + ".")
     if len(rows) > 1:
         text += _significance(s, rows)
-    return text
+    viewing, _ = metric_viewing_text(s.get("viewing"))
+    return text + (" " + viewing if viewing else "")
 
 
 def methods_paragraphs(a: Analysis, s: dict[str, Any]) -> list[str]:

@@ -75,6 +75,9 @@ class MetricScores:
     flags: dict[str, str] = field(default_factory=dict)
     #: metric -> why it gave no score (rows with an empty score and the scorer's note)
     not_applicable: dict[str, str] = field(default_factory=dict)
+    #: metric -> the pixels per visual degree its scores were computed at (FLIP,
+    #: ColorVideoVDP: the ``ppd`` of the scores' settings), for the panel's comparison
+    ppd: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         f = self.frame
@@ -88,6 +91,8 @@ class MetricScores:
                 f[col] = default
         if not self.flags:
             self.flags = provenance_flags(f)
+        if not self.ppd:
+            self.ppd = computed_ppd(f)
 
     @property
     def metrics(self) -> list[str]:
@@ -121,6 +126,28 @@ def _settings_flags(text: object) -> list[str]:
             out.append("random backbone")
         if str(settings.get("weights", "")).lower() == "uniform":
             out.append("uniform weights")
+    return out
+
+
+def _settings_ppd(text: object) -> float | None:
+    if not isinstance(text, str) or not text.strip().startswith("{"):
+        return None
+    try:
+        ppd = json.loads(text).get("ppd")
+    except (json.JSONDecodeError, AttributeError):
+        return None
+    return float(ppd) if isinstance(ppd, int | float) and np.isfinite(ppd) else None
+
+
+def computed_ppd(frame: pd.DataFrame) -> dict[str, float]:
+    """Metric -> the pixels per degree its settings name, where every row names the same."""
+    if "settings" not in frame.columns:
+        return {}
+    out = {}
+    for metric, rows in frame.groupby("metric", sort=False):
+        values = {_settings_ppd(t) for t in rows["settings"]}
+        if len(values) == 1 and None not in values:
+            out[str(metric)] = float(values.pop())  # type: ignore[arg-type]
     return out
 
 
@@ -397,6 +424,7 @@ class MetricValidation:
     boot: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     boot_ref: dict[str, dict[str, float]] = field(default_factory=dict)  # bootstrap world
     not_applicable: dict[str, str] = field(default_factory=dict)  # metric -> why no score
+    ppd: dict[str, float] = field(default_factory=dict)  # metric -> its pixels per degree
 
 
 @dataclass
@@ -537,7 +565,7 @@ def validate_metrics(
                             {n: f.mapping for n, f in fitted.items()}, data, problems,
                             dict(scores.flags), alpha, comparisons, williams,
                             {n: f.boot for n, f in fitted.items()}, refs,
-                            dict(scores.not_applicable))
+                            dict(scores.not_applicable), dict(scores.ppd))
 
 
 def no_dmos_problems(dmos: pd.DataFrame, bad: np.ndarray) -> list[InputProblem]:

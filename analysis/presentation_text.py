@@ -112,3 +112,46 @@ def presentation_paragraph(rs: RatingSet, quality: pd.DataFrame | None,
             + f". A pre-flight check before the session required a display of at least "
             f"{p['min_width']}x{p['min_height']} pixels at {p['min_refresh_hz']:g} Hz or more.")
     return text + _displays(quality, used) + _seating(p, quality, used) + _sessions(quality, used)
+
+
+def viewing_summary(rs: RatingSet, quality: pd.DataFrame | None, raters: list[str],
+                    metric_ppd: dict[str, float]) -> dict[str, Any]:
+    """summary.json's ``viewing``: the seating distance, the used raters' pixels per degree at
+    it (where measured), and the pixels per degree each metric's scores were computed at."""
+    ppd = pd.Series(dtype=float)
+    if quality is not None:
+        ppd = pd.to_numeric(_column(quality, raters, "px_per_degree"), errors="coerce").dropna()
+    return {"seating_cm": (rs.presentation or {}).get("viewing_distance_cm"),
+            "panel_ppd": ({"n": len(ppd), "min": float(ppd.min()),
+                           "median": float(ppd.median()), "max": float(ppd.max())}
+                          if len(ppd) else None),
+            "metric_ppd": dict(metric_ppd)}
+
+
+def metric_viewing_text(viewing: dict[str, Any] | None) -> tuple[str, str]:
+    """At what pixels per degree the metrics were computed, against the panel's (a sentence
+    for the paper); and advice when a metric was computed outside the panel's range, so that
+    no participant saw the stimuli like it ("" when none was)."""
+    if not viewing or not viewing.get("metric_ppd"):
+        return "", ""
+    by_value: dict[float, list[str]] = {}
+    for metric, ppd in viewing["metric_ppd"].items():
+        by_value.setdefault(round(float(ppd), 1), []).append(metric)
+    text = "Viewing condition: " + "; ".join(
+        f"{', '.join(ms)} {'was' if len(ms) == 1 else 'were'} computed at {v:g} pixels per "
+        "visual degree" for v, ms in by_value.items())
+    panel = viewing.get("panel_ppd")
+    if not panel:
+        return text + (". The participants' pixels per degree were not measured (a seating "
+                       "distance and the vision screening's acuity check measure them)."), ""
+    spread = (f"{panel['median']:.0f}" if panel["n"] == 1 else
+              f"{panel['min']:.0f}-{panel['max']:.0f} (median {panel['median']:.0f})")
+    who = ("the participant whose screen the card calibration measured saw" if panel["n"] == 1
+           else f"the {panel['n']} participants whose screens the card calibration measured saw")
+    text += f"; at the instructed {viewing['seating_cm']:g} cm, {who} {spread}."
+    off = [m for m, v in viewing["metric_ppd"].items()
+           if not panel["min"] - 0.5 <= v <= panel["max"] + 0.5]
+    advice = (f"No measured participant saw the stimuli at the pixels per degree of "
+              f"{', '.join(off)}: rescore with --ppd {panel['median']:.0f} to compare under the "
+              "panel's viewing condition." if off else "")
+    return text, advice

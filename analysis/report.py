@@ -22,6 +22,7 @@ from .figures import FIGURES, draw_all
 from .methods_text import methods_paragraphs
 from .panel import panel_json
 from .pipeline import Analysis
+from .presentation_text import viewing_summary
 from .quality import THRESHOLDS
 from .reliability import Reliability
 from .report_html import write_html
@@ -222,6 +223,7 @@ def summary(a: Analysis) -> dict[str, Any]:
         out["metrics_per_method"] = _records(m.per_method)
         out["untrained_backbone"] = dict(m.untrained)
         out["not_applicable"] = dict(m.not_applicable)
+        out["viewing"] = viewing_summary(a.ratings, a.quality, list(a.screened.raters), m.ppd)
         out["significance_p"] = {
             r: {c: _num(m.significance.loc[r, c]) for c in m.significance.columns}
             for r in m.significance.index}

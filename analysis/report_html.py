@@ -20,6 +20,7 @@ from markupsafe import Markup
 from .methods_text import fixed, methods_paragraphs, percent
 from .panel import answer_counts_rows
 from .pipeline import Analysis
+from .presentation_text import metric_viewing_text
 from .quality import THRESHOLDS
 from .version import __version__
 
@@ -314,6 +315,7 @@ def write_html(a: Analysis, out: Path, figures: dict[str, tuple[Path, str]],
         "from_sessions": bool(info is not None and "files" in info.columns
                               and info["files"].notna().any()),
         "seated": bool((a.ratings.presentation or {}).get("viewing_distance_cm")),
+        "metric_viewing": metric_viewing_text(summary.get("viewing")),
         "near": [r for r in summary["screening"]
                  if str(r.get("reason") or "").startswith("near-miss")],
         "flagged": [r for r in summary["data_quality"]

@@ -115,3 +115,54 @@ def test_the_seating_distance_screens_and_pixels_per_degree_are_the_sessions(tmp
     text = presentation_paragraph(rs, quality_table(rs), ["P1", "P2", "P3"])
     assert "sit" not in text and "per visual degree" not in text
     assert "1920x1080 to 2560x1440" in text
+
+
+def test_the_metrics_pixels_per_degree_are_set_against_the_panels(tmp_path):
+    """FLIP's and ColorVideoVDP's scores name their pixels per degree in their settings; the
+    report compares them with what the measured participants' screens showed at the seating
+    distance, and names a metric no participant saw the stimuli like."""
+    from analysis.metrics import load_metric_scores
+    from analysis.presentation_text import metric_viewing_text, viewing_summary
+    from analysis.quality import quality_table
+    from stimuli_manifests import load_manifest
+    from study_app.vision.acuity import card_calibration
+
+    refs = [{"id": "R0", "path": "r0.mkv"}]
+    conds = [{"id": f"R0_blur_L{lv}", "reference": "R0", "path": f"r0_{lv}.mkv",
+              "method": "blur", "level": lv} for lv in (1, 2)]
+    path = save_manifest(parse_manifest({
+        "study_id": "seated", "references": refs, "conditions": conds,
+        "protocol": {"repetitions": 1, "viewing_distance_cm": 90}}), tmp_path / "manifest.json")
+    sessions = tmp_path / "sessions"
+    sessions.mkdir()
+    for k, card in enumerate((300, 360, 420)):
+        _session(sessions, load_manifest(path), f"P{k}", screen=(1920, 1080), hz=60.0,
+                 card_px=card, seed=k + 1)
+    rs = load_ratings(path, sessions=[sessions])
+    settings = {"flip": '{"frames": "mean", "ppd": 100.0, "range": "LDR"}',
+                "cvvdp": '{"display": "standard_4k", "ppd": 62.0}', "psnr": "{}"}
+    rows = [{"stimulus": c["id"], "reference": "R0", "metric": m, "score": 1.0 + i,
+             "direction": "higher-better", "settings": s}
+            for m, s in settings.items() for i, c in enumerate(conds)]
+    pd.DataFrame(rows).to_csv(tmp_path / "scores.csv", index=False)
+    scores = load_metric_scores([tmp_path / "scores.csv"])
+    assert scores.ppd == {"flip": 100.0, "cvvdp": 62.0}  # psnr takes no viewing condition
+
+    viewing = viewing_summary(rs, quality_table(rs), list(rs.raters), scores.ppd)
+    lo, mid, hi = (card_calibration(px, 90).px_per_degree for px in (300, 360, 420))
+    assert viewing["seating_cm"] == 90 and viewing["panel_ppd"]["n"] == 3
+    assert np.allclose([viewing["panel_ppd"][k] for k in ("min", "median", "max")],
+                       [lo, mid, hi])
+    text, advice = metric_viewing_text(viewing)
+    assert "flip was computed at 100 pixels per visual degree" in text
+    assert "cvvdp was computed at 62 pixels per visual degree" in text
+    assert ("at the instructed 90 cm, the 3 participants whose screens the card calibration "
+            f"measured saw {lo:.0f}-{hi:.0f} (median {mid:.0f}).") in text
+    # 100 ppd is beyond every participant's; 62 is within
+    assert advice.startswith("No measured participant saw the stimuli at the pixels per "
+                             "degree of flip:") and f"rescore with --ppd {mid:.0f}" in advice
+    assert "--ppd" not in text  # the paper's sentence states facts
+    # nothing measured: said so, no advice
+    text, advice = metric_viewing_text({**viewing, "panel_ppd": None})
+    assert advice == "" and "were not measured" in text
+    assert metric_viewing_text({**viewing, "metric_ppd": {}}) == ("", "")

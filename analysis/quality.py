@@ -20,6 +20,7 @@ import pandas as pd
 from session_store.mutations import BLOCK_EVENT
 
 from .data import Exclusion, RatingSet, balanced_subset, drop_unrated, rater_order
+from .display_facts import display_facts
 from .errors import AnalysisError
 from .reliability import repetition_correlation
 
@@ -61,58 +62,6 @@ def _toggles(p: dict[str, Any]) -> float | None:
     return float(len(times)) if isinstance(times, list) else None
 
 
-def _screens(recs: list) -> str:
-    """The participant's screen(s) in pixels as the pre-flight measured them ("" if none)."""
-    sizes = []
-    for r in recs:
-        screen = (r.info.display or {}).get("screen")
-        if isinstance(screen, list) and len(screen) == 2:
-            sizes.append(f"{int(screen[0])}x{int(screen[1])}")
-    return ", ".join(dict.fromkeys(sizes))
-
-
-def _refresh_hz(recs: list) -> float:
-    """The refresh rate of the participant's last session that measured one (NaN if none)."""
-    rates = [float(d["refresh_hz"]) for d in (r.info.display or {} for r in recs)
-             if isinstance(d.get("refresh_hz"), int | float)]
-    return rates[-1] if rates else float("nan")
-
-
-def _card_geometry(recs: list) -> dict[str, Any]:
-    """The geometry the vision screening's card calibration measured ({} if none)."""
-    for r in reversed(recs):
-        for s in reversed(r.screenings):
-            geometry = (s.get("result") or {}).get("geometry") or {}
-            if all(isinstance(geometry.get(k), int | float) for k in GEOMETRY_KEYS):
-                return geometry
-    return {}
-
-
-GEOMETRY_KEYS = ("px_per_mm", "px_per_degree", "viewing_distance_cm")
-
-
-def _seating_cm(recs: list) -> float:
-    """The distance the session told the participant to sit at while rating (NaN if none)."""
-    for r in reversed(recs):
-        cm = ((r.info.settings or {}).get("protocol") or {}).get("viewing_distance_cm")
-        if isinstance(cm, int | float):
-            return float(cm)
-    return float("nan")
-
-
-def _display_facts(recs: list) -> dict[str, Any]:
-    """Screen, refresh rate, seating distance, and the pixel density and pixels per degree
-    (at the seating distance) where the card calibration measured them."""
-    geometry = _card_geometry(recs)
-    seat = _seating_cm(recs)
-    ppd = float("nan")
-    if geometry and np.isfinite(seat):  # px per degree grows with the distance
-        ppd = geometry["px_per_degree"] * seat / geometry["viewing_distance_cm"]
-    return {"screen": _screens(recs), "refresh_hz": _refresh_hz(recs),
-            "viewing_distance_cm": seat, "px_per_mm": geometry.get("px_per_mm", float("nan")),
-            "px_per_degree": ppd}
-
-
 def facts_from_sessions(records: list) -> pd.DataFrame:
     """One row per participant from their session records (see :mod:`analysis.sessions`)."""
     rows = []
@@ -145,7 +94,7 @@ def facts_from_sessions(records: list) -> pd.DataFrame:
             "requeued": int(sum(p.get("outcome") == "requeued" for p in pres)),
             "median_viewing_s": _median(_viewing_ms(p) for p in rated) / 1000.0,
             "median_toggles": _median(_toggles(p) for p in rated),
-            **_display_facts(recs),
+            **display_facts(recs),
         })
     return pd.DataFrame(rows).set_index("rater") if rows else pd.DataFrame()
 

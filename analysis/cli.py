@@ -40,6 +40,10 @@ def _inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-completeness", type=float, default=DEFAULT_MIN_COMPLETENESS,
                    metavar="F", help="leave out raters who answered less than this share of "
                    f"their planned trials ({DEFAULT_MIN_COMPLETENESS}; 0 keeps everyone)")
+    p.add_argument("--include-pilots", action="store_true",
+                   help="keep sessions paced without vsync (--pilot-no-vsync: pilots) beside "
+                        "participants' sessions (default: leave them out; a pilot alone is "
+                        "analysed as it is)")
     p.add_argument("--exclude-failed-vision", action="store_true",
                    help="leave out raters who failed a vision check of the study's panel "
                         "(reported like any other exclusion; default: flag them only)")
@@ -91,7 +95,8 @@ def _load(args: argparse.Namespace):
         return load_sureal(args.sureal)
     if not args.manifest:
         raise AnalysisError("--sessions and --ratings need --manifest (the study manifest)")
-    return load_ratings(args.manifest, ratings_csv=args.ratings, sessions=args.sessions)
+    return load_ratings(args.manifest, ratings_csv=args.ratings, sessions=args.sessions,
+                        include_pilots=args.include_pilots)
 
 
 def _refuse_unread(args: argparse.Namespace) -> None:
@@ -112,6 +117,9 @@ def _refuse_unread(args: argparse.Namespace) -> None:
                             f"{'/'.join(uses)} and of the metric comparisons (--metric); "
                             f"{args.command} with --outliers {args.outliers} runs no test "
                             "that uses it: drop it")
+    if args.include_pilots and not args.sessions:
+        raise AnalysisError("--include-pilots needs session files (--sessions): ratings CSVs "
+                            "and SUREAL datasets do not say how a rating was shown")
     if args.exclude_failed_vision and not args.sessions:
         raise AnalysisError("--exclude-failed-vision needs session files (--sessions): "
                             "ratings CSVs and SUREAL datasets carry no vision checks")
@@ -202,9 +210,15 @@ def _run(args: argparse.Namespace) -> int:
             print(f"warning: {res.fallback}", file=sys.stderr)
         if args.command == "dmos":
             path = write_dmos_csv(kept, res, args.out)
-            removed = ", ".join(screen.removed_names) or "none"
-            print(f"{kept.n_stimuli} stimuli, {kept.n_raters} raters (screened out: "
-                  f"{removed}); model {res.model_name}; wrote {path}")
+            from .screening import rules
+
+            rule = rules().get(screen.method)
+            removed = (f"not screened: {screen.method} needs at least {rule.min_raters} "
+                       "raters" if rule is not None and kept.n_raters + len(
+                           screen.removed_names) < rule.min_raters else
+                       "screened out: " + (", ".join(screen.removed_names) or "none"))
+            print(f"{kept.n_stimuli} stimuli, {kept.n_raters} raters ({removed}); "
+                  f"model {res.model_name}; wrote {path}")
             return 0
         for kind, path in write_exports(kept, res, args.out, raw=rs).items():
             print(f"{kind}: {path}")

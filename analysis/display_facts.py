@@ -23,9 +23,10 @@ def _screens(recs: list) -> str:
 
 
 def _refresh_hz(recs: list) -> float:
-    """The refresh rate of the participant's last session that measured one (NaN if none)."""
+    """The refresh rate of the participant's last session that measured one with vsync (NaN
+    if none: a paced session's rate is the clock's, not the display's)."""
     rates = [float(d["refresh_hz"]) for d in (r.info.display or {} for r in recs)
-             if isinstance(d.get("refresh_hz"), int | float)]
+             if isinstance(d.get("refresh_hz"), int | float) and d.get("vsync") is True]
     return rates[-1] if rates else float("nan")
 
 

@@ -39,7 +39,7 @@ def read_manifest(path: str | Path) -> LoadedManifest:
 
 
 def _frame_from_sessions(
-    paths: Sequence[str | Path], loaded: LoadedManifest
+    paths: Sequence[str | Path], loaded: LoadedManifest, include_pilots: bool = False
 ) -> tuple[pd.DataFrame, list[InputProblem], list[Exclusion], pd.DataFrame, PanelAnswers]:
     records = []
     with session_files(paths) as (sources, problems):
@@ -50,7 +50,8 @@ def _frame_from_sessions(
             except AnalysisError as exc:
                 problems.append(InputProblem(source.origin, None,
                                              str(exc).removeprefix(f"{source.origin}: ")))
-    selection = select_sessions(records, loaded.manifest.study_id, loaded.sha256)
+    selection = select_sessions(records, loaded.manifest.study_id, loaded.sha256,
+                                include_pilots=include_pilots)
     for exc in selection.exclusions:
         log.warning("%s", exc)
     problems += selection.problems
@@ -81,11 +82,12 @@ def _simulated_among_real(facts: pd.DataFrame) -> list[InputProblem]:
     simulated = facts["timing_mode"].astype(str).str.contains("simulated")
     if not simulated.any() or simulated.all():
         return []
-    names = ", ".join(map(str, facts.index[simulated][:5]))
+    sim = [str(r) for r in facts.index[simulated]]
+    names = ", ".join(sim[:5]) + (f" and {len(sim) - 5} more" if len(sim) > 5 else "")
     return [InputProblem("<sessions>", None,
                          f"{int(simulated.sum())} simulated rater(s) ({names}) are mixed with "
-                         f"{int((~simulated).sum())} real one(s); simulated sessions are not "
-                         "participant data: analyse them apart")]
+                         f"{int((~simulated).sum())} from the player; simulated sessions are "
+                         "not participant data: analyse them apart")]
 
 
 def _cell_text(value: object) -> str:
@@ -345,8 +347,10 @@ def load_ratings(
     *,
     ratings_csv: str | Path | Sequence[str | Path] | None = None,
     sessions: Sequence[str | Path] | None = None,
+    include_pilots: bool = False,
 ) -> RatingSet:
-    """Ratings of a study from the tidy CSV(s) or session files, checked against the manifest."""
+    """Ratings of a study from the tidy CSV(s) or session files, checked against the manifest
+    (``include_pilots``: keep paced pilot sessions beside participants' ones)."""
     loaded = read_manifest(manifest)
     if (ratings_csv is None) == (sessions is None):
         raise AnalysisError("give the ratings either as a CSV (--ratings) or as session "
@@ -363,7 +367,8 @@ def load_ratings(
             log.warning("%s", exc)
         source = ", ".join(str(p) for p in paths)
     else:
-        frame, problems, exclusions, facts, panel = _frame_from_sessions(sessions or [], loaded)
+        frame, problems, exclusions, facts, panel = _frame_from_sessions(
+            sessions or [], loaded, include_pilots)
         source = ", ".join(str(p) for p in sessions or [])
     rs = ratings_from_frame(frame, loaded, problems=problems, source=source,
                             exclusions=exclusions, facts=facts)

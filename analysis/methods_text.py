@@ -118,6 +118,9 @@ def _screening(a: Analysis, s: dict[str, Any]) -> str:
     removed = [str(r["rater"]) for r in s["removed_raters"]]
     if s["outlier_method"] == "none":
         return " No rater screening was applied."
+    if not s.get("screening_applied", True):
+        return (f" The rater screening ({s['outlier_method']}) needs at least 3 raters and "
+                "was not applied: no rater was removed.")
     prose = SCREENING_PROSE.get(s["outlier_method"], f"Raters were screened "
                                                      f"({s['outlier_method']})")
     if s["outlier_method"] == "p913":
@@ -313,5 +316,9 @@ def methods_paragraphs(a: Analysis, s: dict[str, Any]) -> list[str]:
     """The paragraphs, from the analysis ``a`` and its summary ``s``
     (:func:`analysis.report.summary`)."""
     shown = presentation_paragraph(a.ratings, a.quality, list(a.screened.raters))
-    return [p for p in (_panel(a, s), shown, _scores(a, s), _reliability(a, s), _metrics(s))
-            if p]
+    pilots = s.get("pilot_raters_used") or []
+    warning = (f"[Not for a paper as it stands: {len(pilots)} of the {s['n_raters_used']} "
+               f"raters ran pilots, paced without vsync ({_names(pilots)}); they are not "
+               "participant data.]" if pilots else "")
+    return [p for p in (warning, _panel(a, s), shown, _scores(a, s), _reliability(a, s),
+                        _metrics(s)) if p]

@@ -74,15 +74,27 @@ def _seating(p: dict[str, Any], quality: pd.DataFrame | None, raters: list[str])
     return text
 
 
+def pilot_raters(quality: pd.DataFrame | None, raters: list[str]) -> list[str]:
+    """The raters among ``raters`` whose sessions were paced without vsync (pilots)."""
+    if quality is None or "timing_mode" not in quality.columns:
+        return []
+    modes = quality.reindex(raters)["timing_mode"].fillna("").astype(str)
+    return [str(r) for r in modes.index[modes.str.contains("paced")]]
+
+
 def _sessions(quality: pd.DataFrame | None, raters: list[str]) -> str:
-    """What the used raters' session files say about timing, in one sentence."""
+    """What the used raters' session files say about timing, in one sentence (simulated
+    sessions, which had no display, are not counted)."""
     if quality is None or not raters or "timing_mode" not in quality.columns:
         return ""
     q = quality.reindex(raters)
-    modes = q["timing_mode"].fillna("").astype(str)
-    if modes.str.contains("simulated").all():
+    simulated = q["timing_mode"].fillna("").astype(str).str.contains("simulated")
+    if simulated.all():
         return " These sessions were simulated (no display was involved)."
-    n = len(raters)
+    aside = (f" ({int(simulated.sum())} simulated sessions, which had no display, are not "
+             "counted)" if simulated.any() else "")
+    q = q[~simulated]
+    n = len(q)
     vsync = int((q["vsync"] == True).sum()) if "vsync" in q.columns else 0  # noqa: E712
     text = (f" All {n} sessions ran with vsync" if vsync == n else
             f" {vsync} of the {n} sessions ran with vsync")
@@ -91,7 +103,11 @@ def _sessions(quality: pd.DataFrame | None, raters: list[str]) -> str:
     if shown and math.isfinite(shown):
         text += (f"; {int(dropped)} of {int(shown)} presentations ({dropped / shown:.1%}) "
                  "dropped a frame or more")
-    return text + "."
+    pilots = pilot_raters(q, list(q.index))
+    if pilots:
+        text += (f"; {len(pilots)} of them ran paced on the clock without vsync (pilots: "
+                 f"{', '.join(pilots)})")
+    return text + aside + "."
 
 
 def presentation_paragraph(rs: RatingSet, quality: pd.DataFrame | None,

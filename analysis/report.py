@@ -22,10 +22,11 @@ from .figures import FIGURES, draw_all
 from .methods_text import methods_paragraphs
 from .panel import panel_json
 from .pipeline import Analysis
-from .presentation_text import viewing_summary
+from .presentation_text import pilot_raters, viewing_summary
 from .quality import THRESHOLDS
 from .reliability import Reliability
 from .report_html import write_html
+from .screening import rules as screening_rules
 from .screening.result import RemovedRater
 from .sureal_io import write_sureal_json
 from .version import __version__
@@ -168,6 +169,8 @@ def summary(a: Analysis) -> dict[str, Any]:
         "model_name": sc.model_name,
         "model_fallback": sc.fallback,
         "outlier_method": a.outliers.method,
+        "screening_applied": used.n_raters >= screening_rules()[a.outliers.method].min_raters
+        if a.outliers.method in screening_rules() else True,
         "screening_subset": a.outliers.subset or None,
         "allocation": allocation_summary(a),
         "min_completeness": a.config.min_completeness,
@@ -192,6 +195,7 @@ def summary(a: Analysis) -> dict[str, Any]:
         ],
         "screening": _records(a.outliers.table, index="rater"),
         "model_rejected_raters": list(sc.rejected),
+        "pilot_raters_used": pilot_raters(a.quality, list(rs.raters)),
         "data_quality": _records(a.quality.reindex(columns=list(_QUALITY_COLUMNS))
                                  if a.quality is not None else None, index="rater"),
         "flag_thresholds": THRESHOLDS,
@@ -259,10 +263,21 @@ def summary_text(a: Analysis) -> str:
     if s["partial_kept"]:
         lines.append("partial raters kept: " + ", ".join(
             f"{p['rater']} ({p['completeness']:.0%})" for p in s["partial_kept"]))
-    lines.append(f"removed raters ({s['outlier_method']}): "
-                 + (", ".join(r["rater"] for r in s["removed_raters"]) or "none")
-                 + (f"; screened on the {s['screening_subset']}" if s["screening_subset"]
-                    else ""))
+    pilots = [x for x in s["exclusions"] if x["kind"] == "pilot session"]
+    if pilots:
+        lines.append("pilot sessions left out (paced without vsync; --include-pilots keeps "
+                     "them): " + ", ".join(Path(x["who"]).name for x in pilots))
+    if s["pilot_raters_used"]:
+        lines.append("pilots used (paced without vsync, not participant data): "
+                     + ", ".join(s["pilot_raters_used"]))
+    if not s["screening_applied"]:
+        lines.append(f"rater screening ({s['outlier_method']}): not applied, it needs at "
+                     "least 3 raters")
+    else:
+        lines.append(f"removed raters ({s['outlier_method']}): "
+                     + (", ".join(r["rater"] for r in s["removed_raters"]) or "none")
+                     + (f"; screened on the {s['screening_subset']}"
+                        if s["screening_subset"] else ""))
     if s["model_rejected_raters"]:
         lines.append(f"rejected by the score model (--model {s['model']}), left out of every "
                      "number: " + ", ".join(map(str, s["model_rejected_raters"])))

@@ -177,9 +177,27 @@ def _refusal(rec: Session, study_id: str, manifest_sha256: str | None,
     return None
 
 
+def is_pilot(rec: Session) -> bool:
+    """A session the player paced on the clock (``--pilot-no-vsync``, ``--no-vsync``,
+    ``--skip-preflight`` on a display without vsync): the experimenter's pilot or a test."""
+    return "paced" in rec.timing_mode
+
+
+def _pilot_exclusion(rec: Session) -> Exclusion:
+    return Exclusion(
+        "pilot session", rec.path,
+        f"{rec.info.participant} ran without vsync, flips paced on the clock (timing mode "
+        f"{rec.timing_mode}): an experimenter's pilot, not participant data",
+        "paced sessions are left out when participant sessions are there too; "
+        "--include-pilots keeps them")
+
+
 def select_sessions(records: list[Session], study_id: str,
-                    manifest_sha256: str | None) -> SessionSelection:
-    """Refuse withdrawn and foreign sessions, collapse copies of one session."""
+                    manifest_sha256: str | None, *,
+                    include_pilots: bool = False) -> SessionSelection:
+    """Refuse withdrawn and foreign sessions, collapse copies of one session, and leave out
+    pilots (paced, no vsync) when participant sessions are there too (unless
+    ``include_pilots``): a pilot alone, or with simulated raters, is analysed as it is."""
     exclusions: list[Exclusion] = []
     problems: list[InputProblem] = []
     kept: list[Session] = []
@@ -207,6 +225,10 @@ def select_sessions(records: list[Session], study_id: str,
                 f"{other.info.participant}); the copy with the most ratings, {copies[0].path}, "
                 "is used", "one file per session id: most ratings, then file name"))
     used.sort(key=lambda r: r.order_key)
+    if not include_pilots and any(not is_pilot(r) and r.timing_mode != "simulated"
+                                  for r in used):
+        exclusions += [_pilot_exclusion(r) for r in used if is_pilot(r)]
+        used = [r for r in used if not is_pilot(r)]
     for rec in used:
         problems += rec.problems
     exclusions += [_ended_exclusion(rec) for rec in used if rec.ended_by]

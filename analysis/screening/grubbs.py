@@ -102,4 +102,4 @@ def grubbs_screen(rs: RatingSet, alpha: float = 0.05) -> OutlierResult:
 
 RULE = ScreeningRule(
     name="grubbs", order=1, summary="the CGVQM+D paper's rule: Grubbs' test on rater deviation",
-    screen=grubbs_screen, uses_alpha=True)
+    screen=grubbs_screen, uses_alpha=True, min_raters=3)

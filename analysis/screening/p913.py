@@ -214,4 +214,4 @@ RULE = ScreeningRule(
     name="p913", order=0,
     summary=("ITU-T P.913 correlation with the leave-one-out panel, iterated, confirmed by the "
              "MLE inconsistency"),
-    screen=p913_screen)
+    screen=p913_screen, min_raters=3)

@@ -20,6 +20,8 @@ class ScreeningRule:
     screen: Callable[..., OutlierResult]
     """``screen(rs)``, or ``screen(rs, alpha)`` when ``uses_alpha``."""
     uses_alpha: bool = False
+    min_raters: int = 2
+    """Below this many raters the rule cannot test anyone (and removes no one)."""
 
     def run(self, rs: RatingSet, alpha: float) -> OutlierResult:
         return self.screen(rs, alpha) if self.uses_alpha else self.screen(rs)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+from support.sessions import player_session
 
 from analysis.inputs import load_ratings
 from analysis.presentation_text import _sessions, presentation_paragraph
@@ -49,35 +50,10 @@ def test_the_session_timing_is_counted_from_the_quality_table():
                             "trials_with_drops": [1, 0, 3]}, index=["P1", "P2", "P3"])
     assert _sessions(quality, ["P1", "P2", "P3"]) == (
         " 2 of the 3 sessions ran with vsync; 4 of 100 presentations (4.0%) dropped a frame "
-        "or more.")
+        "or more; 1 of them ran paced on the clock without vsync (pilots: P3).")
     assert _sessions(quality, ["P1", "P2"]).startswith(" All 2 sessions ran with vsync; 1 of 80")
     simulated = quality.assign(timing_mode="simulated")
     assert "simulated" in _sessions(simulated, ["P1", "P2", "P3"])
-
-
-def _session(path, loaded, participant, *, screen, hz, card_px=None, seed=1):
-    """A participant's finished session as the player writes it: the protocol in force, the
-    display the pre-flight measured and, with ``card_px``, the acuity check's card geometry
-    (measured at the check's 60 cm, not at the seating distance)."""
-    from support.sessions import plain_result
-
-    from session_store import SessionStore
-    from session_store.schedule import make_schedule, schedule_items
-    from study_app.vision.acuity import card_calibration
-
-    m = loaded.manifest
-    plan = make_schedule(schedule_items(m), m.protocol.repetitions, seed)
-    settings = {"protocol": m.protocol.model_dump(mode="json"), "timing_mode": "vsync"}
-    with SessionStore.create(path / f"{participant}.sqlite", participant=participant,
-                             study_id=m.study_id, manifest_sha256=loaded.sha256, seed=seed,
-                             app_version="t", plan=plan, settings=settings) as store:
-        store.mark_started(display={"screen": list(screen), "refresh_hz": hz, "vsync": True})
-        if card_px is not None:
-            store.record_screening("acuity", "passed",
-                                   {"geometry": card_calibration(card_px, 60).to_dict()})
-        for k, trial in enumerate(plan):
-            store.record(trial.index, plain_result(20.0 + 30 * (k % 3)))
-        store.finish()
 
 
 def test_the_seating_distance_screens_and_pixels_per_degree_are_the_sessions(tmp_path):
@@ -92,9 +68,9 @@ def test_the_seating_distance_screens_and_pixels_per_degree_are_the_sessions(tmp
     loaded = load_manifest(path)
     sessions = tmp_path / "sessions"
     sessions.mkdir()
-    _session(sessions, loaded, "P1", screen=(1920, 1080), hz=60.0, card_px=300)
-    _session(sessions, loaded, "P2", screen=(2560, 1440), hz=143.9, card_px=420)
-    _session(sessions, loaded, "P3", screen=(2560, 1440), hz=59.94)
+    player_session(sessions, loaded, "P1", screen=(1920, 1080), hz=60.0, card_px=300)
+    player_session(sessions, loaded, "P2", screen=(2560, 1440), hz=143.9, card_px=420)
+    player_session(sessions, loaded, "P3", screen=(2560, 1440), hz=59.94)
     rs = load_ratings(path, sessions=[sessions])
     from analysis.quality import quality_table
 
@@ -136,7 +112,7 @@ def test_the_metrics_pixels_per_degree_are_set_against_the_panels(tmp_path):
     sessions = tmp_path / "sessions"
     sessions.mkdir()
     for k, card in enumerate((300, 360, 420)):
-        _session(sessions, load_manifest(path), f"P{k}", screen=(1920, 1080), hz=60.0,
+        player_session(sessions, load_manifest(path), f"P{k}", screen=(1920, 1080), hz=60.0,
                  card_px=card, seed=k + 1)
     rs = load_ratings(path, sessions=[sessions])
     settings = {"flip": '{"frames": "mean", "ppd": 100.0, "range": "LDR"}',

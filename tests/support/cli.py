@@ -10,3 +10,12 @@ def study_init(capsys, *args: object) -> tuple[int, str, str]:
     code = study_main(["init", *map(str, args)])
     out, err = capsys.readouterr()
     return code, out, err
+
+
+def analyze(capsys, *args: object) -> tuple[int, str, str]:
+    """``cgvq-analyze ARGS``: (exit code, stdout, stderr)."""
+    from analysis.cli import main as analyze_main
+
+    code = analyze_main(list(map(str, args)))
+    out, err = capsys.readouterr()
+    return code, out, err

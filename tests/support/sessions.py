@@ -49,3 +49,31 @@ def bare_session(path: Path, participant: str = "P01", n: int = 6) -> SessionSto
     """A new session file of study "s" (no manifest) with ``n`` planned trials, open."""
     return SessionStore.create(path, participant=participant, study_id="s", manifest_sha256=None,
                                seed=1, app_version="t", plan=bare_plan(n))
+
+
+def player_session(folder: Path, loaded, participant: str, *, screen=(1920, 1080),
+                   hz: float = 60.0, card_px: float | None = None, seed: int = 1,
+                   timing: str = "vsync") -> Path:
+    """A participant's finished session as the player writes it: the protocol in force, the
+    display the pre-flight measured (``timing``: vsync, or paced-pilot for an experimenter's
+    pilot) and, with ``card_px``, the acuity check's card geometry (measured at the check's
+    60 cm, not at the seating distance). Ratings: 20, 50, 80 in turn over the trials."""
+    from session_store.schedule import make_schedule, schedule_items
+    from study_app.vision.acuity import card_calibration
+
+    m = loaded.manifest
+    plan = make_schedule(schedule_items(m), m.protocol.repetitions, seed)
+    settings = {"protocol": m.protocol.model_dump(mode="json"), "timing_mode": timing}
+    path = folder / f"{participant}.sqlite"
+    with SessionStore.create(path, participant=participant, study_id=m.study_id,
+                             manifest_sha256=loaded.sha256, seed=seed, app_version="t",
+                             plan=plan, settings=settings) as store:
+        store.mark_started(display={"screen": list(screen), "refresh_hz": hz,
+                                    "vsync": timing == "vsync"})
+        if card_px is not None:
+            store.record_screening("acuity", "passed",
+                                   {"geometry": card_calibration(card_px, 60).to_dict()})
+        for k, trial in enumerate(plan):
+            store.record(trial.index, plain_result(20.0 + 30 * (k % 3)))
+        store.finish()
+    return path

@@ -227,7 +227,8 @@ def _validate_texts(loaded: LoadedManifest, report: ValidationReport, verify: bo
         if not verify:
             continue
         if expected is None:
-            report.warnings.append(f"{name}: no sha256 recorded in the manifest")
+            report.warnings.append(f"{name}: no sha256 recorded in the manifest (record it "
+                                   "with: python -m stimuli_manifests hash MANIFEST)")
             continue
         actual = _sha256(path, known)
         if actual != expected:

@@ -11,11 +11,12 @@ import logging
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal
 
 from tqdm import tqdm
 
-from session_store.study_folder import Study
+from session_store.study_folder import SESSIONS_DIR, Study
 from stimuli_manifests import (
     DisplayRequirements,
     StimuliError,
@@ -79,11 +80,25 @@ def check_study(study: Study, *, progress: bool = False) -> StudyCheck:
         out.warnings += warnings
     if (problem := label_room_problem(out.videos.values(), m.display)) is not None:
         out.errors.append(problem)
+    out.warnings += _session_files_warning(study.folder)
     fps_set = {round(v.fps, 3) for v in out.videos.values()}
     if len(fps_set) > 1:
         out.warnings.append("stimuli use several frame rates: " +
                             ", ".join(f"{f:g}" for f in sorted(fps_set)))
     return out
+
+
+def _session_files_warning(folder: Path) -> list[str]:
+    """Session files in the study's own sessions folder (a pilot run without
+    ``--sessions-dir``) travel with the folder to every participant."""
+    found = sorted((folder / SESSIONS_DIR).glob("*.sqlite"))
+    if not found:
+        return []
+    names = ", ".join(p.stem for p in found[:5]) + (f" and {len(found) - 5} more"
+                                                     if len(found) > 5 else "")
+    return [f"{SESSIONS_DIR}/ holds {len(found)} session file(s) ({names}): sent with the "
+            "study folder, they reach every participant; move pilots out (run --sessions-dir "
+            "puts them elsewhere)"]
 
 
 # How to raise the display requirements: in the manifest of a study, with init's options

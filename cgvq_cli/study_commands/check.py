@@ -14,6 +14,24 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("study", type=Path, help="study folder (holds manifest.json)")
 
 
+def grouped_warnings(warnings: list[str], ids: set[str]) -> list[str]:
+    """One line for a warning that three or more videos share ("15 videos (a, b, c and 12
+    more): H.264 ... is lossy"), the others as they are, in their first order."""
+    groups: dict[str, list[str]] = {}
+    for w in warnings:
+        sid, sep, rest = w.partition(": ")
+        groups.setdefault(rest if sep and sid in ids else w, []).append(
+            sid if sep and sid in ids else "")
+    out = []
+    for text, who in groups.items():
+        if len(who) >= 3 and all(who):
+            names = ", ".join(who[:3]) + (f" and {len(who) - 3} more" if len(who) > 3 else "")
+            out.append(f"{len(who)} videos ({names}): {text}")
+        else:
+            out += [f"{sid}: {text}" if sid else text for sid in who]
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from session_store.errors import StudyError
     from session_store.study_folder import load_study
@@ -42,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"panel: {len(m.panel.questionnaires)} questionnaire(s), {len(questions)} "
               f"question(s); vision checks: {', '.join(checks) or 'none'} "
               "(see: cgvq-study panel STUDY)")
-    for w in result.warnings:
+    ids = {str(s.id) for s in [*m.references, *m.conditions]}
+    for w in grouped_warnings(result.warnings, ids):
         print(f"  warning: {w}")
     for e in result.errors:
         print(f"  error: {e}")

@@ -44,6 +44,10 @@ def run(args: argparse.Namespace) -> int:
                       "session finished" if report.finished else "session open")
             print(f"{report.path}: intact but {report.state.upper()} ({who}): "
                   f"{report.n_ratings} of {report.n_planned} ratings, {status}")
+        timing = str((info.settings or {}).get("timing_mode") or "") if info else ""
+        if "paced" in timing:
+            print(f"  a pilot: paced on the clock without vsync (timing mode {timing}); the "
+                  "analysis leaves it out beside participants' sessions")
         for problem in report.problems:
             print(f"  {problem.message if problem.path == report.path else problem}")
         for warning in report.warnings:

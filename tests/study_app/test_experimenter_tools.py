@@ -129,3 +129,40 @@ def test_run_refuses_another_seed_for_a_resumed_session(tiny_study, capsys):
     assert code == 2 and err.count("\n") == 1, err
     assert "--seed 4: this session was started with seed 3" in err
     assert session.read_bytes() == before
+
+
+def test_check_names_session_files_that_would_travel_and_groups_shared_warnings(
+        tiny_study, capsys):
+    from cgvq_cli.study_commands.check import grouped_warnings
+
+    assert main(["check", str(tiny_study)]) == 0
+    assert "session file" not in capsys.readouterr().out
+    (tiny_study / "sessions").mkdir()
+    _session(tiny_study, 3)  # P07, as a pilot run without --sessions-dir leaves it
+    assert main(["check", str(tiny_study)]) == 0  # a warning, not an error
+    out = capsys.readouterr().out
+    assert "warning: sessions/ holds 1 session file(s) (P07): sent with the study folder, " \
+           "they reach every participant" in out
+    ids = {"a", "b", "c", "d"}
+    assert grouped_warnings(["a: lossy", "b: lossy", "c: lossy", "d: short", "x: other",
+                             "several frame rates"], ids) == [
+        "3 videos (a, b, c): lossy", "d: short", "x: other", "several frame rates"]
+    assert grouped_warnings([f"{s}: lossy" for s in "abcd"], ids) == [
+        "4 videos (a, b, c and 1 more): lossy"]
+
+
+def test_verify_names_a_pilot(tiny_study, capsys):
+    from support.sessions import player_session
+
+    from stimuli_manifests import load_manifest
+
+    folder = tiny_study.parent / "pilots"
+    folder.mkdir()
+    loaded = load_manifest(tiny_study / "manifest.json")
+    path = player_session(folder, loaded, "PILOT01", timing="paced-pilot")
+    assert main(["verify", str(path)]) == 0
+    assert "a pilot: paced on the clock without vsync (timing mode paced-pilot)" in \
+        capsys.readouterr().out
+    participant = player_session(folder, loaded, "P01")
+    assert main(["verify", str(participant)]) == 0
+    assert "a pilot" not in capsys.readouterr().out

@@ -9,7 +9,7 @@ repeats (a multiset with counts ``c`` and ``R`` items left can follow item ``las
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -105,13 +105,32 @@ def order_trials(items: Sequence[ScheduleItem], counts: dict[str, int], seed: in
     return order
 
 
-def pick_practice(items: Sequence[ScheduleItem], n: int, seed: int) -> list[ScheduleItem]:
-    """``n`` distinct stimuli for practice trials (not recorded), drawn with the seed."""
+def pick_practice(items: Sequence[ScheduleItem], n: int, seed: int,
+                  levels: Mapping[str, int] | None = None) -> list[ScheduleItem]:
+    """``n`` distinct stimuli for practice trials (not recorded), drawn with the seed: test
+    videos before hidden references (a practice should show a distortion), and with
+    ``levels`` (test id -> distortion level) one of the highest level and one of the lowest
+    first, so that the practice spans the range the participant will rate."""
     if n <= 0:
         return []
     rng = np.random.default_rng([seed, 0x5EED])
-    picks = rng.choice(len(items), size=min(n, len(items)), replace=False)
-    return [items[int(i)] for i in picks]
+    tests = [it for it in items if not it.is_hidden_reference]
+    refs = [it for it in items if it.is_hidden_reference]
+    picks: list[ScheduleItem] = []
+    known = {int(levels[it.id]) for it in tests if it.id in levels} if levels else set()
+    if n >= 2 and len(known) >= 2:
+        assert levels is not None
+        for level in (max(known), min(known)):
+            at = [it for it in tests if levels.get(it.id) == level and it not in picks]
+            other_scene = [it for it in at if all(it.reference != p.reference for p in picks)]
+            pool = other_scene or at
+            picks.append(pool[int(rng.integers(len(pool)))])
+    for pool in (tests, refs):
+        rest = [it for it in pool if it not in picks]
+        take = min(n - len(picks), len(rest))
+        if take > 0:
+            picks += [rest[int(i)] for i in rng.choice(len(rest), size=take, replace=False)]
+    return picks
 
 
 def block_seed(session_seed: int, block: int) -> int:

@@ -569,7 +569,9 @@ class App:
     # -- practice and main loop -------------------------------------------------------
     def _practice(self) -> None:
         items = pick_practice(schedule_items(self.m), self.opts.practice,
-                              self.store.info.seed)
+                              self.store.info.seed,
+                              levels={str(c.id): c.level for c in self.m.conditions})
+        self.store.log_event("practice", stimuli=[it.id for it in items])
         min_view = self._min_view()
         self._screen(content.practice_intro(len(items), VIEWING, RATING, min_view,
                                             self._name_keys))

@@ -50,6 +50,24 @@ def test_practice_picks_distinct():
     assert pick_practice(items(10), 0, 5) == []
 
 
+def test_practice_spans_the_levels_and_shows_distortions_first():
+    """Two practice trials: one of the strongest and one of the weakest distortion, from two
+    scenes where possible, never a hidden reference while test videos are left."""
+    tests = [ScheduleItem(f"R{r}_L{lv}", f"R{r}", False) for r in range(3) for lv in (1, 2, 3)]
+    stim = [*tests, *(ScheduleItem(f"R{r}", f"R{r}", True) for r in range(3))]
+    levels = {t.id: int(t.id[-1]) for t in tests}
+    for seed in range(40):
+        a, b = pick_practice(stim, 2, seed, levels)
+        assert (levels[a.id], levels[b.id]) == (3, 1) and a.reference != b.reference
+        four = pick_practice(stim, 4, seed, levels)
+        assert len({p.id for p in four}) == 4 and not any(p.is_hidden_reference for p in four)
+    # without levels: still test videos before hidden references
+    assert not any(p.is_hidden_reference for s in range(40) for p in pick_practice(stim, 2, s))
+    # more practice than test videos: the hidden references fill up
+    assert len(pick_practice(stim, 12, 1, levels)) == 12
+    assert len(pick_practice(stim, 20, 1, levels)) == 12
+
+
 def test_requeue_policy():
     from session_store import PlannedTrial
     from study_app.app import needs_requeue

@@ -148,6 +148,12 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory, app_driver):
     assert consent["briefing_sha256"] == texts["briefing.md"]
     assert kinds.index("preflight") < kinds.index("consent") < kinds.index("start")
     assert "pause" in kinds and "quit" in kinds
+    # the practice trial is recorded as what was practised (a test video: the study_factory's
+    # hidden references are never picked while test videos are left)
+    practice = next(e for e in events if e["kind"] == "practice")
+    assert len(practice["stimuli"]) == 1
+    assert practice["stimuli"][0] in {str(c.id) for c in load_manifest(
+        study / "manifest.json").manifest.conditions}
     assert cli_main(["verify", str(session)]) == 1  # intact but incomplete
 
     # -- run 2: resume; a second run of the same participant is refused; SIGKILL ----------

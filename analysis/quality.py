@@ -23,6 +23,7 @@ from .data import Exclusion, RatingSet, balanced_subset, drop_unrated, rater_ord
 from .display_facts import display_facts
 from .errors import AnalysisError
 from .reliability import repetition_correlation
+from .session_time import study_minutes
 
 # Flag thresholds (documented in the report's methods section and the README).
 THRESHOLDS: dict[str, float] = {
@@ -37,8 +38,8 @@ THRESHOLDS: dict[str, float] = {
 FACT_COLUMNS = ("sessions", "files", "n_ratings", "n_planned", "completeness", "timing_mode",
                 "blocks_planned_by", "vsync", "preflight_skipped", "finished", "presentations",
                 "dropped_frames", "trials_with_drops", "requeued", "median_viewing_s",
-                "median_toggles", "screen", "refresh_hz", "viewing_distance_cm",
-                "px_per_mm", "px_per_degree")
+                "median_toggles", "minutes", "sittings", "screen", "refresh_hz",
+                "viewing_distance_cm", "px_per_mm", "px_per_degree")
 
 
 def _median(values: Iterable[Any]) -> float:
@@ -94,6 +95,7 @@ def facts_from_sessions(records: list) -> pd.DataFrame:
             "requeued": int(sum(p.get("outcome") == "requeued" for p in pres)),
             "median_viewing_s": _median(_viewing_ms(p) for p in rated) / 1000.0,
             "median_toggles": _median(_toggles(p) for p in rated),
+            **dict(zip(("minutes", "sittings"), study_minutes(recs), strict=True)),
             **display_facts(recs),
         })
     return pd.DataFrame(rows).set_index("rater") if rows else pd.DataFrame()

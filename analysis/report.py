@@ -38,7 +38,8 @@ SUMMARY_FORMAT = "cgvq-analysis-summary/2"
 _QUALITY_COLUMNS = ("status", "sessions", "n_ratings", "n_planned", "completeness",
                     "timing_mode", "vsync", "preflight_skipped", "presentations",
                     "dropped_frames", "trials_with_drops", "requeued", "median_viewing_s",
-                    "median_toggles", "screen", "refresh_hz", "viewing_distance_cm",
+                    "median_toggles", "minutes", "sittings", "screen", "refresh_hz",
+                    "viewing_distance_cm",
                     "px_per_mm", "px_per_degree",
                     "hidden_ref_mean_share", "loo_r", "repeat_r", "vision", "flags")
 #: The overall pairwise metric tests in summary.json (each on the stimuli both scored).
@@ -157,6 +158,17 @@ def _reliability_summary(rel: Reliability) -> dict[str, Any]:
     return out
 
 
+def _minutes(quality: pd.DataFrame | None, raters: list[str]) -> dict[str, Any] | None:
+    """The used raters' minutes in the study (session files only): median and range."""
+    if quality is None or "minutes" not in quality.columns:
+        return None
+    m = pd.to_numeric(quality.reindex(raters)["minutes"], errors="coerce").dropna()
+    if not len(m):
+        return None
+    return {"n": len(m), "median": float(m.median()), "min": float(m.min()),
+            "max": float(m.max())}
+
+
 def summary(a: Analysis) -> dict[str, Any]:
     """Machine-readable results (the demo and scripts read ``summary.json``)."""
     rs, sc = a.screened, a.scores
@@ -196,6 +208,7 @@ def summary(a: Analysis) -> dict[str, Any]:
         "screening": _records(a.outliers.table, index="rater"),
         "model_rejected_raters": list(sc.rejected),
         "pilot_raters_used": pilot_raters(a.quality, list(rs.raters)),
+        "minutes": _minutes(a.quality, list(rs.raters)),
         "data_quality": _records(a.quality.reindex(columns=list(_QUALITY_COLUMNS))
                                  if a.quality is not None else None, index="rater"),
         "flag_thresholds": THRESHOLDS,
@@ -267,6 +280,10 @@ def summary_text(a: Analysis) -> str:
     if pilots:
         lines.append("pilot sessions left out (paced without vsync; --include-pilots keeps "
                      "them): " + ", ".join(Path(x["who"]).name for x in pilots))
+    if s["minutes"]:
+        m = s["minutes"]
+        lines.append(f"time in the study: median {m['median']:.1f} min ({m['min']:.1f}-"
+                     f"{m['max']:.1f}) over {m['n']} rater(s)")
     if s["pilot_raters_used"]:
         lines.append("pilots used (paced without vsync, not participant data): "
                      + ", ".join(s["pilot_raters_used"]))

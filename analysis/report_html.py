@@ -123,6 +123,7 @@ def quality_display(q: pd.DataFrame) -> pd.DataFrame:
             "pre-flight": "skipped" if r.get("preflight_skipped") is True
             or str(r.get("preflight_skipped")) == "True" else "",
             "frames": frames,
+            "min": num(r.get("minutes")),
             "view s": num(r.get("median_viewing_s")), "toggles": num(r.get("median_toggles")),
             "hidden ref": num(r.get("hidden_ref_mean_share")),
             "r others": num(r.get("loo_r")), "repeat r": num(r.get("repeat_r")),
@@ -141,6 +142,9 @@ QUALITY_COLUMNS = {
               "allowed no vsync; simulated for simulated raters, who have no pre-flight) and "
               "whether vsync was on",
     "frames": "frames = dropped frames in presentations with drops / all presentations",
+    "min": "min = minutes in the study: from each start (or return) to the last thing "
+           "recorded before the next, summed (pauses count; the time away between sittings "
+           "does not)",
     "view s": "view s = median viewing time per trial",
     "toggles": "toggles = median switches between test and reference per trial",
     "hidden ref": "hidden ref = mean hidden-reference rating as a share of the scale",

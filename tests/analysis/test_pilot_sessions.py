@@ -63,6 +63,8 @@ def test_a_pilots_report_says_so_and_that_two_raters_are_not_screened(tmp_path, 
     summary = json.loads((out / "summary.json").read_text())
     assert summary["pilot_raters_used"] == ["ME", "YOU"]
     assert summary["screening_applied"] is False
+    assert summary["minutes"]["n"] == 2 and summary["minutes"]["median"] < 1  # written at once
+    assert "time in the study: median" in stdout
     text = (out / "methods.txt").read_text()
     assert text.startswith("[Not for a paper as it stands: 2 of the 2 raters ran pilots")
     assert "needs at least 3 raters and was not applied" in text

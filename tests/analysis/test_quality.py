@@ -37,7 +37,8 @@ def analysed(tmp_path_factory):
     for rater, rows in st.ratings.groupby("participant"):
         write_session(folder / f"{rater}.sqlite", rows, study_id="synthetic",
                       manifest_sha256=sha, **special.get(rater, {}))
-    rs = load_ratings(mpath, sessions=[folder])
+    # P02's pilot is kept (it would be left out beside the participants): its flags are read
+    rs = load_ratings(mpath, sessions=[folder], include_pilots=True)
     a = run_analysis(rs, AnalysisConfig(model="mos", n_boot=50, n_splits=50), progress=False)
     return st, rs, a, tmp
 

@@ -70,7 +70,7 @@ def test_a_pilots_report_says_so_and_that_two_raters_are_not_screened(tmp_path, 
     assert "needs at least 3 raters and was not applied" in text
     assert "r2 on per-HRC means, needs 4 HRCs" not in text
     html = (out / "report.html").read_text()
-    assert "this report is a pilot&#39;s" in html or "this report is a pilot's" in html
+    assert "2 of the 2 raters used are pilots, paced without vsync (ME, YOU)" in html
     assert "No rater screening: p913 needs at least 3 raters." in html
     # the paced sessions' 60 Hz is the clock's: no refresh rate is claimed for them
     assert "refreshed at" not in text

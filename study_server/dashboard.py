@@ -69,6 +69,12 @@ def _duration(hours: float | None) -> str:
     return f"{hours / 24:.1f} days"
 
 
+FETCHED = "seen, no session yet"
+"""A participant whose app reached the server (the study fetched, files downloaded, a
+handshake) but whose session has not: still downloading, stuck, stopped at the pre-flight,
+or reading the consent. "last seen" says when."""
+
+
 def attention(row: dict[str, Any], partial: bool, limits: CellLimits) -> list[str]:
     """Why one participant's row needs a look, in words: the cells the table marks (with the
     report's thresholds, ``limits``), plus their flags. Empty for a participant who withdrew
@@ -138,7 +144,7 @@ class Pages:
         for p in listing["participants"]:
             s = p["session"]
             ps = snap.participants.get(p["participant"])
-            state = "invited"
+            state = "invited" if not p["last_seen"] else FETCHED
             if s is not None:
                 state = {"finish": "finished", "withdrawn": "withdrew in app"}.get(
                     s["closed_as"] or "", "running")
@@ -148,8 +154,8 @@ class Pages:
                     max(s["n_planned"], snap.planned_per_participant)
             rows.append({"p": p, "s": s, "ps": ps, "state": state, "planned": planned,
                          "progress": (s["n_ratings"] / planned) if s and planned else 0.0,
-                         "stalled": state == "running" and _older_than(p["last_seen"],
-                                                                       STALLED_AFTER_S)})
+                         "stalled": state in ("running", FETCHED) and _older_than(
+                             p["last_seen"], STALLED_AFTER_S)})
         per_stim = sorted(snap.per_stimulus.items(), key=lambda kv: kv[1])
         counts = [n for _, n in per_stim]
         scenes = None
@@ -176,7 +182,7 @@ class Pages:
         if order == "look":  # the rows to look at first, the most reasons first (stable)
             rows.sort(key=lambda r: -len(r["attention"]))
         finished = sum(1 for r in rows if r["state"] == "finished")
-        pending = sum(1 for r in rows if r["state"] in ("invited", "running"))
+        pending = sum(1 for r in rows if r["state"] in ("invited", FETCHED, "running"))
         rate = self.stats.rate_per_hour()
         return {
             "study_id": self.study_id, "listing": listing, "rows": rows, "snap": snap,

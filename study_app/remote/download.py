@@ -28,11 +28,14 @@ from session_store.errors import StudyError
 from session_store.protocol import participant_path
 from stimuli_manifests.paths import portable_part_problem
 
-from .http import ServerClient, ServerUnavailable
+from .http import ServerClient, ServerUnavailable, plain_reason
 
 log = logging.getLogger(__name__)
 
 CHUNK = 1 << 20
+NET_CHUNK = 1 << 16
+"""Network reads: at most 64 KiB, handed on as soon as they arrive, so that the progress bar
+moves (and a stall loses little) on a slow line."""
 DISK_MARGIN_BYTES = 200 * 1024 * 1024
 """Free space kept beyond the download (session file, decoded frames spilled by the OS)."""
 
@@ -206,13 +209,14 @@ def _fetch(client: ServerClient, participant: str, f: RemoteFile, dest: Path,
                 mode = "ab"
             else:  # the server sent the whole file: start over
                 mode, have = "wb", 0
+            read = getattr(resp, "read1", resp.read)  # read1: whatever has arrived
             with open(part, mode) as out:
                 while True:
                     try:
-                        chunk = resp.read(CHUNK)
+                        chunk = read(NET_CHUNK)
                     except OSError as exc:
-                        raise ServerUnavailable(f"the download of {f.path} was cut off ({exc}); "
-                                                "start again to resume") from None
+                        raise ServerUnavailable(f"the download of {f.path} was cut off "
+                                                f"({plain_reason(exc)})") from None
                     if not chunk:
                         break
                     if have + len(chunk) > f.size:
@@ -223,8 +227,8 @@ def _fetch(client: ServerClient, participant: str, f: RemoteFile, dest: Path,
                     if progress is not None:
                         progress(done_before + have, total, f.path)
     if have != f.size:
-        raise ServerUnavailable(f"the download of {f.path} stopped at {have} of {f.size} bytes; "
-                                "start again to resume")
+        raise ServerUnavailable(f"the download of {f.path} stopped at {have} of {f.size} "
+                                "bytes")
     actual = _sha256(part)
     if actual != f.sha256:
         part.unlink()
@@ -241,11 +245,12 @@ retry resumes with a Range request."""
 
 def download_study(client: ServerClient, participant: str, plan: DownloadPlan, *,
                    progress: Progress | None = None,
-                   sleep: Callable[[float], None] = time.sleep) -> Path:
+                   sleep: Callable[[float], None] = time.sleep,
+                   notice: Callable[[str], None] = log.info) -> Path:
     """Fetch every missing file of ``plan``; returns the local study folder. A file cut off
-    or rate-limited is retried (resuming) a few times with backoff; then
-    :class:`ServerUnavailable` (call again to resume). :class:`StudyError` when a file does
-    not match its checksum."""
+    or rate-limited is retried (resuming) a few times with backoff, each retry told to
+    ``notice`` in the participant's words; then :class:`ServerUnavailable` (call again to
+    resume). :class:`StudyError` when a file does not match its checksum."""
     plan.folder.mkdir(parents=True, exist_ok=True)
     missing = plan.missing()
     total = plan.missing_bytes()
@@ -263,10 +268,16 @@ def download_study(client: ServerClient, participant: str, plan: DownloadPlan, *
                 break
             except ServerUnavailable as exc:
                 if attempt == RETRIES:
-                    raise
-                wait = exc.retry_after if exc.retry_after is not None else 2.0 ** attempt
-                log.info("download of %s paused %.0f s: %s", f.path, wait, exc)
-                sleep(min(wait, 60.0))
+                    kept = sum(1 for g in plan.files if plan.local(g).is_file())
+                    raise ServerUnavailable(
+                        f"{exc}; {kept} of the {len(plan.files)} files are downloaded and "
+                        "kept: start again later to download the rest", exc.retry_after
+                    ) from None
+                wait = min(exc.retry_after if exc.retry_after is not None
+                           else 2.0 ** attempt, 60.0)
+                notice(f"The download paused ({exc}); trying again in {wait:.0f} s "
+                       f"(try {attempt + 1} of {RETRIES}).")
+                sleep(wait)
         done += before
     manifest = plan.folder / "manifest.json"
     if _sha256(manifest) != plan.manifest_sha256:

@@ -115,6 +115,19 @@ class SameOriginRedirects(urllib.request.HTTPRedirectHandler):
         return super().redirect_request(req, fp, code, msg, headers, newurl)
 
 
+def plain_reason(exc: BaseException) -> str:
+    """Why a connection failed, in words and without an errno ("connection reset by peer",
+    "no answer in time", not "[Errno 104] Connection reset by peer")."""
+    reason = getattr(exc, "reason", None)
+    if isinstance(reason, BaseException) and reason is not exc:
+        return plain_reason(reason)
+    if isinstance(exc, TimeoutError) or "timed out" in str(exc):
+        return "no answer in time"
+    text = getattr(exc, "strerror", None) or (reason if isinstance(reason, str) else None) \
+        or str(exc) or type(exc).__name__
+    return str(text)[:1].lower() + str(text)[1:]
+
+
 class ServerClient:
     """Requests to one study server with one bearer token (a participant's or the admin's)."""
 
@@ -152,9 +165,8 @@ class ServerClient:
                 f"the study server refused the request ({exc.code})"
                 + (f": {detail}" if detail else ""), exc.code, detail) from None
         except (urllib.error.URLError, OSError, HTTPException) as exc:
-            reason = getattr(exc, "reason", exc)
-            raise ServerUnavailable(f"cannot reach the study server {self.server} ({reason})"
-                                    ) from None
+            raise ServerUnavailable(f"cannot reach the study server {self.server} "
+                                    f"({plain_reason(exc)})") from None
         try:
             yield resp
         finally:
@@ -171,8 +183,8 @@ class ServerClient:
             try:
                 raw = resp.read()
             except (OSError, HTTPException) as exc:
-                raise ServerUnavailable(f"the study server's answer was cut off ({exc})"
-                                        ) from None
+                raise ServerUnavailable(f"the study server's answer was cut off "
+                                        f"({plain_reason(exc)})") from None
         try:
             return json.loads(raw)
         except (ValueError, UnicodeDecodeError):

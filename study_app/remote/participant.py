@@ -66,6 +66,7 @@ def fetch_study(invite: Invite, data_dir: str | Path | None = None, *,
     data_dir = Path(data_dir) if data_dir is not None else default_data_dir()
     client = ServerClient(invite.server, invite.token)
     last = _last_path(data_dir, invite)
+    say(f"Connecting to the study server {invite.server} ...")
     try:
         plan = study_plan(client, invite.participant, data_dir)
     except ServerUnavailable as exc:
@@ -74,8 +75,9 @@ def fetch_study(invite: Invite, data_dir: str | Path | None = None, *,
             say(f"The study server cannot be reached ({exc}); continuing with the study "
                 "downloaded before. Your answers are sent once the server is back.")
             return found
-        raise ServerUnavailable(f"{exc}: check this computer's internet connection and try "
-                                "again later; if it keeps failing, tell the experimenter",
+        raise ServerUnavailable(f"{exc}: the server may be down or this computer offline; "
+                                "try again later (anything downloaded so far is kept); if "
+                                "it keeps failing, tell the experimenter",
                                 exc.retry_after) from None
     except ServerRefused as exc:
         if exc.status not in (401, 403):
@@ -97,7 +99,13 @@ def fetch_study(invite: Invite, data_dir: str | Path | None = None, *,
             def step(done: int, _total: int, _name: str) -> None:
                 bar.update(done - bar.n)
 
-            download_study(client, invite.participant, plan, progress=step)
+            def told(text: str) -> None:  # on its own line, not glued to the bar
+                if progress:
+                    bar.write(text, file=sys.stderr)
+                else:
+                    say(text)
+
+            download_study(client, invite.participant, plan, progress=step, notice=told)
     else:
         say(f"Study {plan.study_id}: all {len(plan.files)} files ({human_bytes(total)}) are "
             "already on this computer.")

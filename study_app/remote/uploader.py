@@ -199,9 +199,13 @@ class UploadStatus:
         if self.state == "refused":
             return (f"The study server refused the upload ({self.error}). Please contact the "
                     "experimenter and send your session file with 'cgvq-study export'.")
-        why = self.error or "in progress"
-        return (f"{missing} change(s) have not reached the study server yet ({why}). They are "
-                "kept on this computer: run the same command again later to send them.")
+        why = self.error or "sending"
+        what = ("1 recorded step of your session (an answer or your progress) has" if
+                missing == 1 else f"{missing} recorded steps of your session (answers and "
+                "progress) have")
+        return (f"{what} not reached the study server yet ({why}). They are kept on this "
+                "computer and sent the next time you start the study the same way (your "
+                "invitation, or the command the experimenter gave you).")
 
 
 class Uploader:

@@ -57,11 +57,24 @@ def participant_of(request: Request, *, starting: bool = False) -> str:
     return pid
 
 
+def _seen(request: Request, pid: str) -> None:
+    """A download is contact: the dashboard shows who fetched the study (and when last),
+    before their session file exists (a download stuck halfway, a failed pre-flight)."""
+    server_of(request).store.touch(pid, _now(), client_address(request))
+
+
+def _now() -> str:
+    from session_store.records import utc_now
+
+    return utc_now()
+
+
 async def study(request: Request) -> Response:
     """The file list of the study version the participant's session is pinned to (fetching
     it is starting: refused once a study closed at its target)."""
     async def work() -> Response:
         pid = await run_in_threadpool(partial(participant_of, request, starting=True))
+        await run_in_threadpool(_seen, request, pid)
         version = await run_in_threadpool(server_of(request).version_for, pid)
         return JSONResponse(version.listing(), headers=SECURITY_HEADERS)
     return await guarded(work)
@@ -71,6 +84,7 @@ async def files(request: Request) -> Response:
     """One file of the participant's study version (the manifest from the database)."""
     async def work() -> Response:
         pid = await run_in_threadpool(participant_of, request)
+        await run_in_threadpool(_seen, request, pid)
         version = await run_in_threadpool(server_of(request).version_for, pid)
         f = version.by_path().get(request.path_params["path"])
         if f is None:

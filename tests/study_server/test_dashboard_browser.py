@@ -110,7 +110,7 @@ def test_dashboard_in_a_real_browser(browser, tmp_path, invites, server_factory)
     assert len(rows) == 8
     text = {r.get_attribute("data-participant"): r.text for r in rows}
     assert "finished" in text["P01"] and "32 / 32" in text["P01"]
-    assert "invited" in text["P08"] and "clock_skew" in text["P08"]
+    assert "seen, no session yet" in text["P08"] and "clock_skew" in text["P08"]
     flags = browser.find_element(By.ID, "flags").text
     assert "7 min behind the server's" in flags and "edited outside the app" in flags
     outlier = next(p for p, t in text.items() if "remove" in t)

@@ -126,3 +126,39 @@ def test_the_marks_use_the_report_thresholds_on_the_study_scale(served_study):
     manifest["scale"] = {"min": 1, "max": 5, "direction": "lower_is_better", "labels": []}
     plan = stats.study_plan(SimpleNamespace(manifest_bytes=json.dumps(manifest).encode()))
     assert plan.limits.hidden_reference == 3.0 and not plan.limits.higher_is_better
+
+
+def test_a_participant_who_fetched_the_study_is_seen_before_any_session(
+        served_study, tmp_path, invites, server_factory, monkeypatch):
+    """A download stuck halfway or a pre-flight that failed leaves no session on the server;
+    the download itself says the participant was there, and when last."""
+    from study_app.remote.download import study_plan
+
+    monkeypatch.setenv("CGVQ_ADMIN_TOKEN", ADMIN)
+    p01, _ = invites(2)
+    srv = server_factory(served_study)
+    client = ServerClient(srv.url, p01.token)
+    plan = study_plan(client, "P01", tmp_path / "data")  # GET /study
+    with client.open("GET", f"/api/v1/participants/P01/files/{plan.files[0].path}") as resp:
+        resp.read()
+    srv.stop()
+    st = ServerState.open(ServerConfig(served_study, stats_in_background=False))
+    try:
+        rows = {r["p"]["participant"]: r for r in st.pages.context()["rows"]}
+        html = _text(st.pages.dashboard())
+
+        class Later(stats.datetime):
+            @classmethod
+            def now(cls, tz=None):
+                return super().now(tz) + timedelta(hours=1)
+
+        monkeypatch.setattr(dashboard, "datetime", Later)  # an hour later, still no session
+        later = {r["p"]["participant"]: r for r in st.pages.context()["rows"]}
+    finally:
+        st.stop()
+    assert rows["P01"]["state"] == dashboard.FETCHED and rows["P01"]["p"]["last_seen"]
+    assert rows["P02"]["state"] == "invited" and not rows["P02"]["p"]["last_seen"]
+    assert "seen, no session yet" in html
+    assert later["P01"]["stalled"] and not later["P02"]["stalled"]
+    assert any(w.startswith("no contact for") for w in later["P01"]["attention"])
+    assert later["P02"]["attention"] == []

@@ -4,6 +4,7 @@ cut, cache, sha256 refusal."""
 from __future__ import annotations
 
 import hashlib
+import itertools
 import re
 import shutil
 import socket
@@ -86,9 +87,16 @@ def test_size_first_then_cut_download_resumes_with_range(big_study, tmp_path, in
     proxy = CuttingProxy(srv.port, 200_000)
     cut = ServerClient(f"http://127.0.0.1:{proxy.port}", inv.token)
     first_video = next(f for f in plan.files if f.path.startswith("videos/"))
-    with pytest.raises(ServerUnavailable, match="start again to resume"):
-        download_study(cut, "P01", plan, sleep=lambda s: None)
+    notices: list[str] = []
+    with pytest.raises(ServerUnavailable, match="start again later to download the rest") as e:
+        download_study(cut, "P01", plan, sleep=lambda s: None, notice=notices.append)
     proxy.close()
+    # manifest, briefing and consent came whole: the message says they are kept
+    assert f"3 of the {len(plan.files)} files are downloaded and kept" in str(e.value)
+    # each retry is told in the participant's words, with no errno and no "start again"
+    assert [n.rsplit("(", 1)[1] for n in notices] == [f"try {k} of 6)." for k in range(2, 7)]
+    assert all(n.startswith("The download paused (the download of videos/") and
+               "Errno" not in n and "start again" not in n for n in notices), notices
     part = plan.local(first_video).with_name(plan.local(first_video).name + ".part")
     got = part.stat().st_size
     video_ranges = proxy.ranges[3:]  # after manifest, briefing and consent
@@ -103,6 +111,9 @@ def test_size_first_then_cut_download_resumes_with_range(big_study, tmp_path, in
     folder = download_study(client, "P01", plan,
                             progress=lambda d, t, n: progress.append((d, t)))
     assert progress[-1] == (remaining, remaining)  # only what was missing moved
+    # the bar moves at least every 64 KiB (on a slow line: every second or two)
+    steps = [b[0] - a[0] for a, b in itertools.pairwise(progress)]
+    assert max(steps) <= 1 << 16
     for f in plan.files:
         data = (folder / f.path).read_bytes()
         assert hashlib.sha256(data).hexdigest() == f.sha256
@@ -169,7 +180,8 @@ def test_fetch_study_shows_the_size_and_falls_back_to_the_downloaded_copy(
     first = fetch_study(inv.__class__(srv.url, "P01", inv.token), tmp_path / "data",
                         say=said.append, progress=False)
     assert not first.offline and (first.folder / "manifest.json").is_file()
-    assert "to download" in said[0] and "free on this disk" in said[0]
+    assert said[0] == f"Connecting to the study server {srv.url} ..."  # at once, before any wait
+    assert "to download" in said[1] and "free on this disk" in said[1]
     assert first.sessions_dir == first.folder.parent / "sessions"
     again = fetch_study(inv.__class__(srv.url, "P01", inv.token), tmp_path / "data",
                         say=said.append, progress=False)
@@ -179,9 +191,11 @@ def test_fetch_study_shows_the_size_and_falls_back_to_the_downloaded_copy(
                           say=said.append, progress=False)
     assert offline.offline and offline.folder == first.folder
     assert "cannot be reached" in said[-1]
-    with pytest.raises(ServerUnavailable, match="check this computer's internet connection"):
+    with pytest.raises(ServerUnavailable, match="the server may be down or this computer "
+                       r"offline; try again later \(anything downloaded so far is kept\)") as e:
         fetch_study(inv.__class__(srv.url, "P01", inv.token), tmp_path / "other",
                     say=said.append, progress=False)  # nothing downloaded before: no start
+    assert "Errno" not in str(e.value) and "connection refused" in str(e.value)
 
 
 def test_a_rate_limited_download_waits_and_completes(tmp_path, invites, server_factory):
@@ -220,8 +234,8 @@ def test_a_downloaded_file_damaged_since_is_fetched_again(served_study, tmp_path
     said.clear()
     again = fetch_study(invite, tmp_path / "data", say=said.append, progress=False)
     assert again.folder == first.folder
-    assert "checking the files already on this computer" in said[0]
-    assert "to download" in said[1], said
+    assert "checking the files already on this computer" in said[1]
+    assert "to download" in said[2], said
     assert hashlib.sha256(video.read_bytes()).digest() == hashlib.sha256(good).digest()
 
 

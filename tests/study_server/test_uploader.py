@@ -39,7 +39,8 @@ def test_uploader_waits_for_the_file_and_follows_it_without_notify(
             time.sleep(0.1)
         status = up.flush(0.5)
         assert status.state == "offline" and not status.all_arrived
-        assert "1 change(s) have not reached the study server" in status.describe()
+        assert "1 recorded step of your session (an answer or your progress) has not " \
+               "reached the study server" in status.describe()
         store.close()
     finally:
         up.stop()
@@ -56,8 +57,10 @@ def test_end_screen_sentences():
         "All your answers have arrived at the study server.")
     refused = UploadStatus("refused", 3, 12, "409: entry 4 differs").describe()
     assert "refused the upload" in refused and "cgvq-study export" in refused
-    assert UploadStatus("offline", 3, 12, "cannot reach").describe().startswith(
-        "9 change(s) have not reached")
+    offline = UploadStatus("offline", 3, 12, "cannot reach").describe()
+    assert offline.startswith("9 recorded steps of your session (answers and progress) have "
+                              "not reached")
+    assert "sent the next time you start the study the same way" in offline
 
 
 def test_end_screen_text_with_and_without_everything_arrived(tmp_path):

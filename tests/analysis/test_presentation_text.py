@@ -56,15 +56,21 @@ def test_the_session_timing_is_counted_from_the_quality_table():
     assert "simulated" in _sessions(simulated, ["P1", "P2", "P3"])
 
 
-def test_the_seating_distance_screens_and_pixels_per_degree_are_the_sessions(tmp_path):
-    from stimuli_manifests import load_manifest
-
+def _seated_study(folder):
+    """A study whose player tells participants to sit 90 cm away: (manifest path, tests)."""
     refs = [{"id": "R0", "path": "r0.mkv"}]
     conds = [{"id": f"R0_blur_L{lv}", "reference": "R0", "path": f"r0_{lv}.mkv",
               "method": "blur", "level": lv} for lv in (1, 2)]
     path = save_manifest(parse_manifest({
         "study_id": "seated", "references": refs, "conditions": conds,
-        "protocol": {"repetitions": 1, "viewing_distance_cm": 90}}), tmp_path / "manifest.json")
+        "protocol": {"repetitions": 1, "viewing_distance_cm": 90}}), folder / "manifest.json")
+    return path, conds
+
+
+def test_the_seating_distance_screens_and_pixels_per_degree_are_the_sessions(tmp_path):
+    from stimuli_manifests import load_manifest
+
+    path, _ = _seated_study(tmp_path)
     loaded = load_manifest(path)
     sessions = tmp_path / "sessions"
     sessions.mkdir()
@@ -103,12 +109,7 @@ def test_the_metrics_pixels_per_degree_are_set_against_the_panels(tmp_path):
     from stimuli_manifests import load_manifest
     from study_app.vision.acuity import card_calibration
 
-    refs = [{"id": "R0", "path": "r0.mkv"}]
-    conds = [{"id": f"R0_blur_L{lv}", "reference": "R0", "path": f"r0_{lv}.mkv",
-              "method": "blur", "level": lv} for lv in (1, 2)]
-    path = save_manifest(parse_manifest({
-        "study_id": "seated", "references": refs, "conditions": conds,
-        "protocol": {"repetitions": 1, "viewing_distance_cm": 90}}), tmp_path / "manifest.json")
+    path, conds = _seated_study(tmp_path)
     sessions = tmp_path / "sessions"
     sessions.mkdir()
     for k, card in enumerate((300, 360, 420)):

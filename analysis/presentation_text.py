@@ -74,11 +74,16 @@ def _seating(p: dict[str, Any], quality: pd.DataFrame | None, raters: list[str])
     return text
 
 
+def _text(column: pd.Series) -> pd.Series:
+    """A column as text, "" for a gap (a column of NaN is float: no "" fill)."""
+    return column.map(lambda v: "" if pd.isna(v) else str(v))
+
+
 def pilot_raters(quality: pd.DataFrame | None, raters: list[str]) -> list[str]:
     """The raters among ``raters`` whose sessions were paced without vsync (pilots)."""
     if quality is None or "timing_mode" not in quality.columns:
         return []
-    modes = quality.reindex(raters)["timing_mode"].fillna("").astype(str)
+    modes = _text(quality.reindex(raters)["timing_mode"])
     return [str(r) for r in modes.index[modes.str.contains("paced")]]
 
 
@@ -88,7 +93,7 @@ def _sessions(quality: pd.DataFrame | None, raters: list[str]) -> str:
     if quality is None or not raters or "timing_mode" not in quality.columns:
         return ""
     q = quality.reindex(raters)
-    simulated = q["timing_mode"].fillna("").astype(str).str.contains("simulated")
+    simulated = _text(q["timing_mode"]).str.contains("simulated")
     if simulated.all():
         return " These sessions were simulated (no display was involved)."
     aside = (f" ({int(simulated.sum())} simulated sessions, which had no display, are not "

@@ -158,6 +158,16 @@ def _reliability_summary(rel: Reliability) -> dict[str, Any]:
     return out
 
 
+def _sessions_facts(a: Analysis, n_screened: int) -> dict[str, Any]:
+    """Whether the screening could run on ``n_screened`` raters, the pilots among the raters
+    used, and their minutes in the study."""
+    rule = screening_rules().get(a.outliers.method)
+    raters = list(a.screened.raters)
+    return {"screening_applied": rule is None or n_screened >= rule.min_raters,
+            "pilot_raters_used": pilot_raters(a.quality, raters),
+            "minutes": _minutes(a.quality, raters)}
+
+
 def _minutes(quality: pd.DataFrame | None, raters: list[str]) -> dict[str, Any] | None:
     """The used raters' minutes in the study (session files only): median and range."""
     if quality is None or "minutes" not in quality.columns:
@@ -181,8 +191,6 @@ def summary(a: Analysis) -> dict[str, Any]:
         "model_name": sc.model_name,
         "model_fallback": sc.fallback,
         "outlier_method": a.outliers.method,
-        "screening_applied": used.n_raters >= screening_rules()[a.outliers.method].min_raters
-        if a.outliers.method in screening_rules() else True,
         "screening_subset": a.outliers.subset or None,
         "allocation": allocation_summary(a),
         "min_completeness": a.config.min_completeness,
@@ -207,8 +215,7 @@ def summary(a: Analysis) -> dict[str, Any]:
         ],
         "screening": _records(a.outliers.table, index="rater"),
         "model_rejected_raters": list(sc.rejected),
-        "pilot_raters_used": pilot_raters(a.quality, list(rs.raters)),
-        "minutes": _minutes(a.quality, list(rs.raters)),
+        **_sessions_facts(a, used.n_raters),
         "data_quality": _records(a.quality.reindex(columns=list(_QUALITY_COLUMNS))
                                  if a.quality is not None else None, index="rater"),
         "flag_thresholds": THRESHOLDS,

@@ -124,6 +124,8 @@ def _report(files: dict, out: Path, *extra: str) -> int:
                  "none", "--out", str(out), *extra])
 
 
+# about 15 s: CI runs it after `make test` (.ci/run), as `make test-slow` does
+@pytest.mark.slow
 def test_a_rerun_leaves_nothing_of_the_last_and_figures_come_as_pdf(study_files, tmp_path):
     out = tmp_path / "report"
     assert _report(study_files, out, "--metric", str(study_files["scores"])) == 0

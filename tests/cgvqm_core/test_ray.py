@@ -154,6 +154,8 @@ def _settings():
     return RaySettings(cpus_per_unit=1)
 
 
+# about 12 s: CI runs it after `make test` (.ci/run), as `make test-slow` does
+@pytest.mark.slow
 @needs_ray
 def test_ray_batch_gives_the_local_numbers(study, local_scores, cluster, tmp_path, capsys):
     out = tmp_path / "ray.csv"

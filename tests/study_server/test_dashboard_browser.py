@@ -151,6 +151,8 @@ def test_dashboard_in_a_real_browser(browser, tmp_path, invites, server_factory)
     shutil.copy(shot, tmp_path / "dashboard.png")
 
 
+# about 9 s: CI runs it after `make test` (.ci/run), as `make test-slow` does
+@pytest.mark.slow
 def test_the_dashboard_after_a_new_version_counts_only_its_sessions(
         browser, tmp_path, invites, server_factory):
     """Two participants rate version 1, two more the version served after ``--new-version``:

@@ -74,6 +74,8 @@ def _change_manifest(study):
                   study / "manifest.json")
 
 
+# about 10 s: CI runs it after `make test` (.ci/run), as `make test-slow` does
+@pytest.mark.slow
 def test_sessions_stay_on_their_version(served_study, tmp_path, invites, server_factory):
     inv = invites(2)
     srv = server_factory(served_study)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 from support.sessions import session_entries
 
 from analysis.inputs import load_ratings
@@ -68,6 +69,8 @@ def test_the_dashboard_counts_only_the_version_now_served(tmp_path):
     assert "3 participant(s) rated an earlier version" in html
 
 
+# about 10 s: CI runs it after `make test` (.ci/run), as `make test-slow` does
+@pytest.mark.slow
 def test_pull_saves_each_versions_manifest_to_analyse_its_sessions_with(
         tmp_path, served_study, invites, server_factory):
     import hashlib

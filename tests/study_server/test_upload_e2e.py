@@ -98,6 +98,8 @@ def _run_in_thread(study, out, inv, url, pace, opts=None):
     return t, box
 
 
+# about 11 s: CI runs it after `make test` (.ci/run), as `make test-slow` does
+@pytest.mark.slow
 def test_sigkill_mid_study_then_restart_loses_nothing(tmp_path, invites, server_factory):
     study, inv, srv = _paced_panel(tmp_path, invites, server_factory, 4)
     t, box = _run_in_thread(study, tmp_path / "local", inv, srv.url, pace=0.15)

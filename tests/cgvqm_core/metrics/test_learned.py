@@ -568,6 +568,8 @@ def test_cli_score_with_local_weights(capsys, tmp_path, wfiles):
     assert rc == 0 and out.startswith("pieapp = "), err
 
 
+# about 10 s: CI runs it after `make test` (.ci/run), as `make test-slow` does
+@pytest.mark.slow
 def test_batch_rows_carry_weights_hashes_and_resume(capsys, tmp_path, wfiles, monkeypatch):
     root = tmp_path / "videos"
     ref = real_video(3, 72, 72, image="chelsea")

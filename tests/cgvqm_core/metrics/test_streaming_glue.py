@@ -32,6 +32,8 @@ def files(tmp_path_factory):
     return r, ts
 
 
+# about 10 s: CI runs it after `make test` (.ci/run), as `make test-slow` does
+@pytest.mark.slow
 def test_piq_family_streamed_equals_piq_on_whole_videos(files):
     piq = load_piq()
     ref_path, test_paths = files
@@ -82,6 +84,8 @@ def test_cvvdp_streamed_equals_cvvdp_predict(files):
     assert 0 < results[0][0].score < 10
 
 
+# about 9 s: CI runs it after `make test` (.ci/run), as `make test-slow` does
+@pytest.mark.slow
 def test_cgvqm_entry_equals_cgvqm(files):
     from cgvqm_core import CGVQM
 

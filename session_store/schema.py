@@ -156,10 +156,52 @@ def _tolerant_text(data: bytes) -> str:
     return data.decode("utf-8", "replace")
 
 
+def _sidecars(path: Path) -> tuple[Path, Path]:
+    return Path(f"{path}-wal"), Path(f"{path}-shm")
+
+
+def _remove_empty_sidecars(path: Path) -> None:
+    """Remove the empty ``-wal`` and ``-shm`` a read-only reader made beside a file that had
+    none, so reading a folder of returned sessions leaves it as it was. SQLite removes them
+    itself when the last connection that may write closes: a brief such connection does
+    it (``query_only``: nothing is written, the main file keeps its bytes). A writer that
+    has the file open keeps them, and one that wrote meanwhile is left alone."""
+    wal, _ = _sidecars(path)
+    try:
+        if wal.stat().st_size != 0:
+            return
+        con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=rw", uri=True,
+                              isolation_level=None)
+        try:
+            con.execute("PRAGMA query_only=ON")
+            con.execute("SELECT count(*) FROM sqlite_master").fetchone()
+        finally:
+            con.close()
+    except (OSError, sqlite3.Error):
+        pass
+
+
+class _TidyReader(sqlite3.Connection):
+    """A read-only connection that, on close, removes the sidecar files it made."""
+
+    tidy_path: Path | None = None
+
+    def close(self) -> None:
+        super().close()
+        path, self.tidy_path = self.tidy_path, None
+        if path is not None:
+            _remove_empty_sidecars(path)
+
+
 def _open_read_only(path: Path) -> sqlite3.Connection:
     """A read-only connection that sees the WAL; raises OperationalError where the folder
-    cannot be written (SQLite then cannot make the ``-shm`` it needs to read the WAL)."""
-    con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, isolation_level=None)
+    cannot be written (SQLite then cannot make the ``-shm`` it needs to read the WAL).
+    Sidecar files it has to make are removed again when it closes."""
+    had_sidecars = any(side.exists() for side in _sidecars(path))
+    con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, isolation_level=None,
+                          factory=_TidyReader)
+    if not had_sidecars:
+        con.tidy_path = path
     try:
         con.execute("SELECT count(*) FROM sqlite_master").fetchone()
     except BaseException:

@@ -48,7 +48,7 @@ from .acuity_check_screen import AcuityCheckScreen, optotype_room
 from .colour_check_screen import ColourCheckScreen, plate_size
 from .decode import DecodedPair, Prefetcher, decode_pair, pair_bytes
 from .display import MIN_WINDOW, PACED_PILOT, Display
-from .duration import describe_duration
+from .duration import describe_duration, later_block_trials
 from .form_screen import FormScreen
 from .keys import RATING, VIEWING, Keymap
 from .panel_progress import QUESTIONNAIRE_EVENT, panel_progress
@@ -690,11 +690,7 @@ class App:
     # -- adaptive allocation: the blocks after the first -------------------------------
     def _later_blocks(self, done: int) -> int:
         """Trials in the blocks still to come after ``done`` blocks (0 in a full design)."""
-        settings = self.m.protocol.adaptive_settings()
-        if settings is None:
-            return 0
-        per_block = settings.trials_per_block(len(schedule_items(self.m)))
-        return max(settings.blocks - done, 0) * per_block
+        return later_block_trials(self.m, done)
 
     def _progress(self) -> tuple[int, int]:
         """(answered, trials of the whole session, blocks to come included)."""

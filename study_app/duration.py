@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import math
 
+from session_store.schedule import schedule_items
+from stimuli_manifests import Manifest
+
 # Per trial, a participant watches the test video about 1-2 times and the reference about
 # 1-2 times (each switch adds a blank), then rates and the next pair loads. The range below
 # brackets that: the CGVQM+D design (240 trials of 3 s loops) gives about 50-90 minutes,
@@ -31,3 +34,21 @@ def describe_duration(n_trials: int, loop_s: float, blank_s: float) -> str:
     unit = "minute" if high == 1 else "minutes"
     trials = "trial" if n_trials == 1 else "trials"
     return f"about {span} {unit} ({n_trials} {trials}), plus the breaks you take"
+
+
+def later_block_trials(manifest: Manifest, done: int) -> int:
+    """Trials in the blocks still to come after ``done`` blocks (0 in a full design)."""
+    settings = manifest.protocol.adaptive_settings()
+    if settings is None:
+        return 0
+    per_block = settings.trials_per_block(len(schedule_items(manifest)))
+    return max(settings.blocks - done, 0) * per_block
+
+
+def session_trials(manifest: Manifest) -> int:
+    """Rated trials in a participant's whole session (practice aside): every stimulus
+    ``repetitions`` times, or, in an adaptive study, every block."""
+    items = len(schedule_items(manifest))
+    if manifest.protocol.allocation == "adaptive":
+        return items + later_block_trials(manifest, 1)
+    return items * manifest.protocol.repetitions

@@ -34,6 +34,7 @@ from .app import RunOptions
 from .clock import FlipStats
 from .decode import DecodedPair, Prefetcher, decode_pair, pair_bytes
 from .display import MIN_WINDOW, PACED_PILOT, Display
+from .duration import estimate_minutes, session_trials
 from .keys import Keymap
 from .layout import GAP, Rect, ViewingLayout, ui_px
 from .preflight import (
@@ -103,6 +104,8 @@ class PreviewRow:
     participant's run re-queues a trial by."""
     max_interval_ms: float = 0.0
     rating: float | None = None
+    seconds: float = 0.0
+    """From the stimulus's start to its rating (pauses aside): the experimenter's pace."""
 
     def add(self, stats: FlipStats) -> None:
         self.frames_presented += stats.frames_presented
@@ -138,6 +141,10 @@ class PreviewResult:
     overlay_note: str | None = None
     failure: str | None = None
     """Why the preview stopped before its end (a video that would not decode), if it did."""
+    session_trials: int = 0
+    """Rated trials in a participant's whole session, for the pace line."""
+    told: str = ""
+    """The duration a participant is told before the session starts."""
 
     @property
     def dropped(self) -> int:
@@ -175,6 +182,22 @@ class PreviewResult:
         return (f"verdict: no dropped frames with vsync at {self.refresh_hz:.2f} Hz: this "
                 "computer shows the study cleanly")
 
+    def pace(self) -> str | None:
+        """The experimenter's time per stimulus, and what a whole session takes at it next to
+        what a participant is told: a first check of the duration in the invitation."""
+        times = sorted(r.seconds for r in self.rows if r.rating is not None)
+        if not times:
+            return None
+        mid = len(times) // 2
+        median = times[mid] if len(times) % 2 else (times[mid - 1] + times[mid]) / 2
+        minutes = self.session_trials * median / 60
+        took = f"about {round(minutes)} min" if minutes >= 1 else "under a minute"
+        whole = (f"; a participant's session of {self.session_trials} trials takes {took} "
+                 f"at this pace, breaks aside (participants are "
+                 f"told {self.told})" if self.session_trials and self.told else "")
+        return (f"pace: median {median:.1f} s per stimulus from its start to the rating "
+                f"({len(times)} rated){whole}")
+
     def lines(self) -> list[str]:
         rated = sum(1 for r in self.rows if r.rating is not None)
         stopped = len(self.rows) - rated
@@ -183,7 +206,8 @@ class PreviewResult:
                 f"{self.dropped} dropped frame(s) in all")
         checks = [f"pre-flight {c.name}: {_check_state(c)}: {c.message}" for c in self.checks]
         note = [self.overlay_note] if self.overlay_note else []
-        return [head, *(r.line() for r in self.rows), *checks, *note, self.verdict()]
+        pace = [p] if (p := self.pace()) else []
+        return [head, *(r.line() for r in self.rows), *pace, *checks, *note, self.verdict()]
 
 
 def _check_state(c: Check) -> str:
@@ -396,7 +420,8 @@ class Preview:
             self._state("checking-display")
             d.measure_refresh(draw=lambda i: draw_checking_display(d, i))
             d.set_timing(pilot_allowed=True)  # a preview paces flips where vsync is missing
-            result = PreviewResult(d.timing_mode, d.refresh_hz, total=len(self.trials))
+            result = PreviewResult(d.timing_mode, d.refresh_hz, total=len(self.trials),
+                                   session_trials=session_trials(self.m))
             try:
                 self._first, checksums = wait_for(d, lambda: (
                     decode_pair(self.trials[0].stimulus, *self._paths(self.trials[0])),
@@ -496,9 +521,15 @@ class Preview:
                                      lambda v=min_view: v, overlay)
                 row = PreviewRow(trial.stimulus)
                 result.rows.append(row)
+                if not result.told:
+                    low, high = estimate_minutes(result.session_trials, gpu.frames / gpu.fps,
+                                                 self.m.protocol.blank_seconds)
+                    result.told = f"about {low}-{high} min" if low != high else f"about {low} min"
                 try:
                     while True:
+                        started = time.perf_counter()
                         outcome = screen.run(trial, gpu, i + 1, n)
+                        row.seconds += time.perf_counter() - started
                         if screen.machine is not None:
                             row.add(screen.machine.stats)
                         if isinstance(outcome, TrialResult):

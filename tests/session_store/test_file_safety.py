@@ -142,6 +142,46 @@ def test_reading_while_the_app_writes_never_reports_tampering(tmp_path):
     assert seen == sorted(seen)
 
 
+def _listing(folder: Path) -> dict[str, str]:
+    return {f.name: hashlib.sha256(f.read_bytes()).hexdigest() for f in sorted(folder.iterdir())}
+
+
+def test_reading_returned_sessions_leaves_their_folder_as_it_was(tmp_path, capsys):
+    """Reading, verifying and exporting leave no empty -wal/-shm beside the files (before:
+    every read left two) and change no byte of them."""
+    returned = tmp_path / "returned"
+    returned.mkdir()
+    for who in ("P01", "P02"):
+        with bare_session(returned / f"{who}.sqlite", participant=who, n=3) as store:
+            for i in range(3):
+                store.record(i, plain_result(10.0 * i))
+            store.finish()
+    before = _listing(returned)
+    assert sorted(before) == ["P01.sqlite", "P02.sqlite"]
+    for path in sorted(returned.iterdir()):
+        assert len(read_session(path).ratings) == 3
+        assert verify_session(path).problems == []
+        export_session(path, tmp_path / "out")
+    assert main(["verify", str(returned)]) == 0
+    capsys.readouterr()
+    assert _listing(returned) == before
+
+
+def test_a_reader_beside_the_writer_leaves_its_side_files(tmp_path):
+    """A read while the app has the file open keeps the app's -wal and -shm: the app goes on
+    writing and every rating is in the file."""
+    path = tmp_path / "P01.sqlite"
+    bare_session(path, n=4).close()
+    with SessionStore.open(path) as store:
+        store.record(0, plain_result(1.0))
+        assert read_session(path).ratings[0]["rating"] == 1.0
+        assert Path(f"{path}-wal").exists() and Path(f"{path}-shm").exists()
+        for i in range(1, 4):
+            store.record(i, plain_result(float(i + 1)))
+    assert [r["rating"] for r in read_session(path).ratings] == [1.0, 2.0, 3.0, 4.0]
+    assert not Path(f"{path}-wal").exists()
+
+
 # -- exported zips damaged in transit ------------------------------------------------------
 def _overwrite_inside(archive: Path, member: str, where: float) -> None:
     """Overwrite 16 bytes of ``member``'s compressed data, ``where`` (0..1) into it."""

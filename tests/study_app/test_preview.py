@@ -55,6 +55,7 @@ def test_preview_shows_the_pair_and_slider_and_records_nothing(tmp_path, xdispla
     before = tree_digest(study)
     shots = ARTIFACTS
     shutil.rmtree(shots, ignore_errors=True)
+    started = time.monotonic()
     app = app_driver(xdisplay, [str(study), "--timing-overlay", "--screenshots", str(shots),
                                 "--windowed", "--window-size", "1024x768"],
                      subcommand="preview")
@@ -84,6 +85,11 @@ def test_preview_shows_the_pair_and_slider_and_records_nothing(tmp_path, xdispla
         f"  pre-flight {c}" for c in ("screen_size", "refresh_rate", "pixel_mapping", "memory",
                                       "decode_speed", "checksums")}
     assert "  pre-flight checksums: ok" in "\n".join(checks)
+    pace = re.search(r"  pace: median ([\d.]+) s per stimulus from its start to the rating "
+                     rf"\({n} rated\); a participant's session of (\d+) trials", out)
+    assert pace, out
+    assert 1.0 < float(pace.group(1)) < time.monotonic() - started  # at least the min view
+    assert int(pace.group(2)) == n  # every stimulus once: 1 repetition
     assert "verdict: " in verdict
     # nothing written into the study folder: no sessions/, no lock, same bytes
     assert tree_digest(study) == before
@@ -212,12 +218,29 @@ def test_summary_adds_up_restarts_and_says_what_it_means():
     assert lines[1] == ("SRC01_HRC01: 18 frames shown, 1 dropped (1 refresh missed), worst "
                         "interval 40.0 ms; rated 42.0 (not stored)")
     assert lines[2].endswith("stopped before rating")
-    assert lines[3] == "pre-flight screen_size: not met (reported only): too small"
+    assert lines[3].startswith("pace: ")
+    assert lines[4] == "pre-flight screen_size: not met (reported only): too small"
     assert lines[-1].startswith("verdict: 1 dropped frame(s) in 1 of 2 stimuli")
     clean = PreviewResult("vsync", 60.0, [other], total=1)
     assert "shows the study cleanly" in clean.verdict()
     assert "needs vsync" in PreviewResult("paced-pilot", 60.0, [other], total=1).verdict()
     assert PreviewResult("vsync", 60.0, [], total=1).verdict() == "verdict: no stimulus was shown"
+
+
+def test_the_pace_tells_how_long_a_whole_session_takes():
+    """Rated in 10, 30 and 20 s (one stopped unrated after 90 s): median 20 s, so a
+    session of 240 trials takes 80 min, told beside what participants are told."""
+    rows = [PreviewRow(f"S{i}", rating=50.0, seconds=s) for i, s in enumerate((10, 30, 20))]
+    rows.append(PreviewRow("S9", seconds=90.0))
+    res = PreviewResult("vsync", 60.0, rows, total=4, session_trials=240,
+                        told="about 50-90 min")
+    assert res.pace() == ("pace: median 20.0 s per stimulus from its start to the rating "
+                          "(3 rated); a participant's session of 240 trials takes about 80 min "
+                          "at this pace, breaks aside (participants are told about 50-90 min)")
+    assert res.pace() in res.lines()
+    rows[3].rating = 1.0
+    assert "median 25.0 s" in res.pace()  # even count: the mean of the middle two
+    assert PreviewResult("vsync", 60.0, [PreviewRow("S0")], total=1).pace() is None
 
 
 def test_a_freeze_counts_the_refreshes_it_hid_as_a_run_does():

@@ -45,6 +45,7 @@ from stimuli_manifests import StimuliError, probe_video
 
 from . import __version__, realtime
 from .acuity_check_screen import AcuityCheckScreen, optotype_room
+from .breaks import break_due
 from .colour_check_screen import ColourCheckScreen, plate_size
 from .decode import DecodedPair, Prefetcher, decode_pair, pair_bytes
 from .display import MIN_WINDOW, PACED_PILOT, Display
@@ -658,10 +659,9 @@ class App:
                 store.record(trial.index, result)
                 self._state("recorded", trial=trial.index, rating=f"{result.rating:.3f}")
             since_break += 1
-            if (self.opts.break_every > 0 and since_break >= self.opts.break_every
-                    and store.next_trial() is not None):
+            answered, total = self._progress()
+            if break_due(since_break, self.opts.break_every, total - answered):
                 since_break = 0
-                answered, total = store.progress()
                 store.log_event("break", answered=answered)
                 self._pause_menu(content.break_screen(
                     answered, total, self._name_keys, self.m.protocol.viewing_distance_cm))

@@ -63,7 +63,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "without a new frame (a 1 s freeze at 60 Hz: 59; default 10; -1 "
                              "never re-queues)")
     parser.add_argument("--break-every", type=int, default=40, metavar="N",
-                        help="offer a break every N trials (default 40; 0 never)")
+                        help="offer a break every N trials (default 40; 0 never), except when "
+                             "fewer than N/4 are left")
     parser.add_argument("--window-size", default=None, metavar="WxH",
                         help="run in a window of this size (at least 800x600)")
     parser.add_argument("--screenshots", type=Path, default=None, metavar="DIR",

@@ -83,6 +83,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export", help="dmos.csv, SUREAL dataset JSON, P.910 rating matrix")
     _inputs(p)
     p.add_argument("--out", required=True, metavar="DIR")
+    p = sub.add_parser("pilot", help="a pilot's ratings by distortion level, one rater or "
+                                     "more: levels numbered the wrong way round, levels rated "
+                                     "alike, a level nobody saw, the use of the scale")
+    src = p.add_argument_group("ratings (one of)")
+    src.add_argument("--sessions", nargs="+", metavar="DIR|FILE|ZIP",
+                     help="the pilots' session files, folders or zips (pilots included)")
+    src.add_argument("--ratings", nargs="+", metavar="CSV", help="tidy ratings CSV file(s)")
+    p.add_argument("--manifest", required=True, metavar="M", help="study manifest")
+    p.add_argument("--out", metavar="CSV", help="also write the per-stimulus table here")
+    p.add_argument("-v", "--verbose", action="store_true", help="log progress details")
     return parser
 
 
@@ -186,7 +196,36 @@ def _read_notes(path: str | None) -> str | None:
             from None
 
 
+def _pilot(args: argparse.Namespace) -> int:
+    """``pilot``: the ratings by level, with no panel statistics (one rater is enough)."""
+    from .pilot_view import pilot_lines, pilot_view
+
+    if (args.sessions is None) == (args.ratings is None):
+        raise AnalysisError("give the ratings with exactly one of --sessions, --ratings")
+    if args.out and Path(args.out).is_dir():
+        raise AnalysisError(f"--out {args.out} is a folder; give the CSV file to write")
+    rs = load_ratings(args.manifest, ratings_csv=args.ratings, sessions=args.sessions,
+                      include_pilots=args.sessions is not None)
+    _say([str(x) for x in rs.exclusions], "excluded")
+    _say([str(p) for p in rs.problems], "input problem")
+    if rs.n_raters == 0:
+        raise AnalysisError("no ratings to look at in these inputs")
+    view = pilot_view(rs)
+    raters = f"{rs.n_raters} rater{'s' if rs.n_raters != 1 else ''}"
+    print(f"pilot of study {rs.study}: {raters}, {rs.n_ratings} ratings "
+          "(hints for the study's design, not results)")
+    for line in pilot_lines(view, rs):
+        print(f"  {line}")
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        view.stimuli.to_csv(args.out, float_format="%.4g")
+        print(f"wrote {args.out}")
+    return 0
+
+
 def _run(args: argparse.Namespace) -> int:
+    if args.command == "pilot":
+        return _pilot(args)
     check_resamples(args.bootstrap, "--bootstrap")
     check_resamples(args.splits, "--splits")
     notes = _read_notes(getattr(args, "notes", None))

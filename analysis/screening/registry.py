@@ -69,9 +69,8 @@ def screen_raters(rs: RatingSet, method: str = DEFAULT_METHOD, *,
         who = f" ({rs.raters[0]})" if rs.n_raters == 1 else ""
         raise AnalysisError(f"only {rs.n_raters} rater{who} in the ratings to analyse; DMOS, "
                             "reliability and screening need at least 2 raters: add the other "
-                            "participants' session files or ratings (a pilot: have a second "
-                            "person run it, or read one session's ratings with 'cgvq-study "
-                            "export SESSION --csv OUT')")
+                            "participants' session files or ratings (a pilot: 'cgvq-analyze "
+                            "pilot' shows one person's ratings by level)")
     sub, text = balanced_subset(rs)
     result = rule.run(sub, alpha)
     result.subset = text

@@ -165,8 +165,11 @@ def pilot_lines(view: PilotView, rs: RatingSet) -> list[str]:
             if drops:
                 facts.append(f"{drops} trial(s) with dropped frames")
         out.append(f"{rater}: " + ", ".join(facts))
+    mirrored = (f" (ratings mirrored to higher-is-better: {_num(rs.scale_min)} + "
+                f"{_num(rs.scale_max)} - rating)" if rs.scale_direction == "lower_is_better"
+                else "")
     out.append("mean rating (and its reference's minus it) per method and level; level 1 is "
-               "the strongest:")
+               f"the strongest{mirrored}:")
     refs = view.stimuli.loc[view.stimuli["is_hidden_reference"].astype(bool), "mean"]
     for method, rows in view.levels.groupby("method", sort=True):
         cells = [f"L{int(r.level)} {_num(r.mean)} ({_num(r.differential)})"

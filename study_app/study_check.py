@@ -23,6 +23,8 @@ from stimuli_manifests import (
     VideoInfo,
     validate_manifest,
 )
+from stimuli_manifests.from_folder.level_order import LevelSample, level_order_warnings
+from stimuli_manifests.from_folder.pixel_sample import PixelSample
 from stimuli_manifests.from_folder.probe import decode_findings
 from stimuli_manifests.lossless import LOSSLESS_DECODER_NAMES
 from stimuli_manifests.pairs import pair_mismatches
@@ -43,6 +45,7 @@ class StudyCheck:
     n_stimuli: int = 0
     n_trials: int = 0
     videos: dict[str, VideoInfo] = field(default_factory=dict)
+    samples: dict[str, PixelSample] = field(default_factory=dict, repr=False)
 
     @property
     def ok(self) -> bool:
@@ -80,6 +83,10 @@ def check_study(study: Study, *, progress: bool = False) -> StudyCheck:
         out.warnings += warnings
     if (problem := label_room_problem(out.videos.values(), m.display)) is not None:
         out.errors.append(problem)
+    out.warnings += level_order_warnings(
+        [LevelSample(c.method, c.reference, c.level, out.samples.get(str(c.id)))
+         for c in m.conditions], {str(r.id): out.samples.get(str(r.id)) for r in m.references})
+    out.samples.clear()  # a few MB per video: not kept with the result
     out.warnings += _session_files_warning(study.folder)
     fps_set = {round(v.fps, 3) for v in out.videos.values()}
     if len(fps_set) > 1:
@@ -205,4 +212,6 @@ def _probe(study: Study, sid: str, rel: str, out: StudyCheck) -> None:
         return
     assert found.info is not None
     out.videos[sid] = found.info
+    if found.sample is not None:
+        out.samples[sid] = found.sample
     out.warnings += [f"{sid}: {w}" for w in found.warnings]

@@ -39,6 +39,7 @@ from stimuli_manifests.from_folder.build import (
     place,
     shared_paths,
 )
+from stimuli_manifests.from_folder.level_order import LevelSample, level_order_warnings
 from stimuli_manifests.from_folder.mapping import (
     DEFAULT_REFERENCE_PATTERN,
     DEFAULT_TEST_PATTERN,
@@ -154,6 +155,7 @@ def init_study(opts: InitOptions) -> InitResult:
     paths = [folder / v.path for v in result.mapping.videos]
     result.probes = probe_files(paths, progress=opts.progress)
     result.warnings += _naming_warnings(result.mapping, result.probes, folder)
+    result.warnings += _level_order(result.mapping, result.probes, folder)
     result.problems += _shared_references(result.mapping, result.probes, folder)
     _video_problems(result, folder, display, transcoding=opts.transcode is not None)
     placements = place(result.mapping.videos, result.probes, folder, opts.transcode)
@@ -315,6 +317,15 @@ def _naming_warnings(mapping: FolderMapping, probes: dict[Path, ProbedVideo],
             out.append(f"{v.path}: the same file as {first[sha].path} (byte for byte)")
         first.setdefault(sha, v)
     return out
+
+
+def _level_order(mapping: FolderMapping, probes: dict[Path, ProbedVideo],
+                 folder: Path) -> list[str]:
+    """Methods whose level 1 looks the mildest in pixels (see `level_order`)."""
+    refs = {scene: probes[folder / v.path].sample for scene, v in mapping.references().items()}
+    tests = [LevelSample(str(v.method), v.scene, int(v.level), probes[folder / v.path].sample)
+             for v in mapping.videos if v.role == "test" and v.level is not None]
+    return level_order_warnings(tests, refs)
 
 
 def _shared_references(mapping: FolderMapping, probes: dict[Path, ProbedVideo],

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import av
@@ -18,6 +18,7 @@ from tqdm import tqdm
 from ..checksums import sha256_file
 from ..errors import StimuliError, UnshowableVideoError
 from ..video import VideoInfo, VideoSource
+from .pixel_sample import PixelSample, SampleCollector
 from .timing import decoder_errors, uneven_timing
 
 # FFmpeg's color_trc values of the HDR transfer functions
@@ -64,6 +65,8 @@ class ProbedVideo:
     skipped_slots: int = 0
     """Frame slots its timestamps skip (a dropped frame): a test that skips where its
     reference does not is out of step with it."""
+    sample: PixelSample | None = field(default=None, compare=False, repr=False)
+    """A few of its pixels, to compare a test with its reference (:mod:`.pixel_sample`)."""
 
     @property
     def decode_fps(self) -> float:
@@ -86,6 +89,7 @@ class DecodeFindings:
     """What ``error`` is: 'undecodable', or 'not as stored' (it decodes, but media players
     show it otherwise than the toolkit would)."""
     skipped_slots: int = 0
+    sample: PixelSample | None = field(default=None, compare=False, repr=False)
 
 
 def decode_findings(path: Path) -> DecodeFindings:
@@ -98,8 +102,12 @@ def decode_findings(path: Path) -> DecodeFindings:
     try:
         source = VideoSource(path, on_conversion="quiet")  # init's table reports it
         with decoder_errors() as errors:
+            collector = SampleCollector(source.info.frame_count)
             start = time.perf_counter()
-            count = sum(1 for _ in source.frames())
+            count = 0
+            for frame in source.frames():
+                collector.add(count, frame)
+                count += 1
             seconds = time.perf_counter() - start
     except UnshowableVideoError as exc:
         return DecodeFindings(None, error=str(exc).removeprefix(f"{path}: "),
@@ -121,7 +129,8 @@ def decode_findings(path: Path) -> DecodeFindings:
             + (f" and {len(errors) - 1} more error(s)" if len(errors) > 1 else "")
             + "; frames may show wrong pixels: re-export or re-encode it"))
     warnings, skipped = container_warnings(path, info.fps) if info.kind == "video" else ([], 0)
-    return DecodeFindings(info, seconds, warnings=tuple(warnings), skipped_slots=skipped)
+    return DecodeFindings(info, seconds, warnings=tuple(warnings), skipped_slots=skipped,
+                          sample=collector.sample())
 
 
 def probe_file(path: Path) -> ProbedVideo:
@@ -130,7 +139,7 @@ def probe_file(path: Path) -> ProbedVideo:
     size = path.stat().st_size
     found = decode_findings(path)
     return ProbedVideo(path, sha, size, found.info, found.decode_seconds, found.error,
-                       found.warnings, found.error_kind, found.skipped_slots)
+                       found.warnings, found.error_kind, found.skipped_slots, found.sample)
 
 
 def probe_files(paths: Iterable[Path], *, progress: bool = False,

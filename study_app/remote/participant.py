@@ -24,6 +24,7 @@ from session_store.invite import Invite
 
 from .download import check_disk_space, download_study, human_bytes, study_plan
 from .http import ServerClient, ServerRefused, ServerUnavailable
+from .stall_note import StallNote
 from .uploader import WITHDRAWN, Uploader
 
 log = logging.getLogger(__name__)
@@ -95,8 +96,9 @@ def fetch_study(invite: Invite, data_dir: str | Path | None = None, *,
         from tqdm.auto import tqdm
 
         with tqdm(total=need, unit="B", unit_scale=True, desc="download",
-                  disable=not progress) as bar:
+                  disable=not progress) as bar, StallNote(bar) as stall:
             def step(done: int, _total: int, _name: str) -> None:
+                stall.moved()
                 bar.update(done - bar.n)
 
             def told(text: str) -> None:  # on its own line, not glued to the bar

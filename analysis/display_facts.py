@@ -23,11 +23,13 @@ def _screens(recs: list) -> str:
 
 
 def _refresh_hz(recs: list) -> float:
-    """The refresh rate of the participant's last session that measured one with vsync (NaN
-    if none: a paced session's rate is the clock's, not the display's)."""
-    rates = [float(d["refresh_hz"]) for d in (r.info.display or {} for r in recs)
+    """The refresh rate of the participant's session that holds the most ratings among
+    those that measured one with vsync (NaN if none: a paced session's rate is the clock's,
+    not the display's); on a tie, the first."""
+    rates = [(len(r.ratings), -k, float(d["refresh_hz"]))
+             for k, (r, d) in enumerate((r, r.info.display or {}) for r in recs)
              if isinstance(d.get("refresh_hz"), int | float) and d.get("vsync") is True]
-    return rates[-1] if rates else float("nan")
+    return max(rates)[2] if rates else float("nan")
 
 
 def _card_geometry(recs: list) -> dict[str, Any]:

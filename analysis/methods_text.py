@@ -14,9 +14,9 @@ from .pipeline import MODEL_REJECTION, Analysis
 from .presentation_text import metric_viewing_text, presentation_paragraph
 
 SCREENING_PROSE = {
-    "p913": "Raters were screened one at a time for ratings that did not follow the others "
-            "({rule}; ITU-T P.913) together with a P.910 MLE inconsistency that was an outlier "
-            "(robust z > 3.5)",
+    "p913": "Raters were screened one at a time (ITU-T P.913, iterated): a rater was removed "
+            "only when both tests failed, their ratings did not follow the others ({rule}) "
+            "and their P.910 MLE inconsistency was an outlier (robust z > 3.5)",
     "grubbs": "Raters were screened with an iterative Grubbs test on each rater's mean "
               "absolute deviation from the panel, as in the CGVQM+D paper",
     "bt500": "Raters were screened with the kurtosis-based procedure of ITU-R BT.500 (a vote "
@@ -30,7 +30,7 @@ P913_RULES = {True: "correlation with the leave-one-out panel r1 < 0.75 and, on 
                      "r2 on per-HRC means, needs 4 HRCs and could not be applied, so r1 "
                      "decided alone"}
 MODEL_PROSE = {
-    "mle": "SUREAL's maximum-likelihood subject model (Li & Bampis 2020), which estimates "
+    "mle": "SUREAL's maximum-likelihood subject model (Li et al. 2020), which estimates "
            "each stimulus's quality together with each rater's bias and inconsistency and each "
            "content's ambiguity",
     "p910": "the ITU-T P.910 subject model (SUREAL's MLE_CO_AP2), which estimates each "
@@ -80,11 +80,18 @@ def _design(a: Analysis) -> str:
                           _count(len(dist), "distorted version"),
                           _count(int(hidden.sum()), "hidden reference")])
     hrcs = dist[["method", "level"]].drop_duplicates()
-    methods = list(dict.fromkeys(dist["method"].astype(str)))
-    parts = [_count(st["reference"].nunique(), "source content"),
+    methods = [m.replace("_", " ") for m in dict.fromkeys(dist["method"].astype(str))]
+    n_src = st["reference"].nunique()
+    parts = [_count(n_src, "source content"),
              _count(len(hrcs), "distortion condition") + (
                  f": {_names(methods)} at {_count(dist['level'].nunique(), 'level')}"
                  if len(methods) else "")]
+    sources = dist.groupby(["method", "level"])["reference"].nunique()
+    crossed = ("" if len(dist) >= len(hrcs) * n_src else
+               f", each condition applied to {int(sources.min())}" + (
+                   "" if sources.min() == sources.max() else f"-{int(sources.max())}")
+               + f" of the {n_src} source contents")
+    parts.append(_count(len(dist), "processed sequence") + crossed)
     parts.append(_count(int(hidden.sum()), "hidden reference") if hidden.any() else
                  "no hidden reference")
     return "; ".join(parts)
@@ -142,9 +149,14 @@ def _panel(a: Analysis, s: dict[str, Any]) -> str:
     kinds: dict[str, list[str]] = {}
     for x in s["exclusions"]:
         kinds.setdefault(x["kind"], []).append(str(x["who"]))
-    text = (f"{_count(s['n_raters_input'], 'participant')} gave valid ratings of "
-            f"{_count(s['n_stimuli'], 'stimulus', 'stimuli')} ({_design(a)}) on "
-            f"{_scale(a)}; {s['allocation']['sentence']}.{_mirror_note(a)}")
+    n_in, withdrawn = s["n_raters_input"], s.get("withdrawn") or []
+    start = (f"{_count(n_in + len(withdrawn), 'participant')} took part and "
+             f"{len(withdrawn)} withdrew (none of their ratings or answers was used); the "
+             f"other {n_in} gave valid ratings" if withdrawn else
+             f"{_count(n_in, 'participant')} gave valid ratings")
+    text = (f"{start}. The study had {_count(s['n_stimuli'], 'stimulus', 'stimuli')} "
+            f"({_design(a)}), rated on {_scale(a)}; {s['allocation']['sentence']}."
+            f"{_mirror_note(a)}")
     left = []
     if n := len(kinds.get("ended by vision check", [])) + len(kinds.get("failed vision check",
                                                                        [])):

@@ -38,6 +38,7 @@ NOT_ANSWERED = "(no answer)"
 PREFERRED_NOT = "Prefer not to say"
 # Question ids of the demographics template that the paper's sentence is made from.
 AGE, GENDER, VISION = "age", "gender", "vision"
+BACKGROUND = "graphics_background"
 CORRECTED_VALUES = ("normal", "corrected")
 
 
@@ -232,8 +233,12 @@ def panel_sentence(panel: Panel, data: PanelAnswers, participants: list[str],
         if ages:
             lo, hi = min(ages), max(ages)
             parts[0] += f" aged {lo:g}" if lo == hi else f" aged {lo:g}-{hi:g}"
+            notes = ([f"mean {np.mean(ages):.1f}, SD {np.std(ages, ddof=1):.1f}"]
+                     if len(ages) >= 2 and lo != hi else [])
             if len(ages) < n:
-                parts[0] += f" ({n - len(ages)} did not give their age)"
+                notes.append(f"{n - len(ages)} did not give their age")
+            if notes:
+                parts[0] += f" ({'; '.join(notes)})"
     if GENDER in ids:
         gender = _gender_part(panel.question(GENDER), answers)
         if gender.startswith("("):
@@ -244,14 +249,20 @@ def panel_sentence(panel: Panel, data: PanelAnswers, participants: list[str],
         good = sum(a.get(VISION) in CORRECTED_VALUES for a in answers)
         silent = sum(a.get(VISION) is None for a in answers)
         said = n - silent
+        unsaid = f"; {silent} did not say how they see" if silent else ""
         if said and good == said:
-            parts.append("with normal or corrected-to-normal vision")
+            parts.append(f"with normal or corrected-to-normal vision (self-reported{unsaid})")
         elif said:
-            parts.append(f"{good} of {said} with normal or corrected-to-normal vision")
-        if silent and said:
-            parts[-1] += f" ({silent} did not say how they see)"
+            parts.append(f"{good} of {said} with normal or corrected-to-normal vision "
+                         f"(self-reported{unsaid})")
         elif silent:
             parts.append(f"{silent} did not say how they see")
+    if BACKGROUND in ids:
+        said = [a.get(BACKGROUND) for a in answers if a.get(BACKGROUND) in ("yes", "no")]
+        if said:
+            experts = sum(v == "yes" for v in said)
+            parts.append(f"{experts} of {len(said)} working or studying in computer "
+                         "graphics, vision or video")
     sentence = ", ".join(parts)
     after = panel.questionnaires_at("after")
     clauses = []
@@ -287,9 +298,8 @@ def _screening_clauses(panel: Panel, data: PanelAnswers, participants: list[str]
     clauses = []
     screened = [p for p in participants if p in data.screenings]
     if screened:
-        failed = sum(_failed(data, p) for p in screened)
-        clauses.append(f"{len(screened)} took the remote vision screening and {failed} "
-                       f"failed it")
+        clauses.append(_screened_clause(data, screened).replace(
+            "the remote vision screening", f"the remote vision screening{_tests(panel)}", 1))
     others = rater_order(p for p in everyone if p not in participants and _failed(data, p))
     if others:
         k = len(others)
@@ -299,6 +309,48 @@ def _screening_clauses(panel: Panel, data: PanelAnswers, participants: list[str]
             f"{were} left out of the analysis"
         clauses.append(f"{k} further participant{'s' if k != 1 else ''} failed it and {how}")
     return clauses
+
+
+OPTOTYPES = {"landolt_c": "Landolt C", "tumbling_e": "tumbling E"}
+
+
+def _tests(panel: Panel) -> str:
+    """" (colour: generated pseudo-isochromatic plates; acuity: Landolt C, passed at logMAR
+    0.3 and Weber contrast 0.063; at 60 cm on uncalibrated screens, not a diagnosis)"."""
+    vs = panel.vision_screening
+    if vs is None:
+        return ""
+    tests = (["colour: generated pseudo-isochromatic plates"] if vs.colour else []) + (
+        [f"acuity: {OPTOTYPES.get(vs.optotype, vs.optotype)}, passed at logMAR "
+         f"{vs.acuity_logmar:g} and Weber contrast {vs.contrast_weber:g}"] if vs.acuity else [])
+    if not tests:
+        return ""
+    return (f" ({'; '.join(tests)}; at {vs.viewing_distance_cm:g} cm on the participants' "
+            "own uncalibrated screens, a screening, not a diagnosis)")
+
+
+def _screened_clause(data: PanelAnswers, screened: list[str]) -> str:
+    """"16 took the remote vision screening: 13 passed, 2 failed it (colour 1, acuity 1) and
+    1 was inconclusive; the ratings of the 2 who failed were kept (flagged, not excluded)"."""
+    failed = [p for p in screened if _failed(data, p)]
+    unsure = [p for p in screened if p not in failed
+              and "inconclusive" in data.screenings.get(p, {}).values()]
+    passed = len(screened) - len(failed) - len(unsure)
+    if not failed and not unsure:
+        return f"{len(screened)} took the remote vision screening and all passed it"
+    tests = Counter(t for p in failed for t, o in data.screenings.get(p, {}).items()
+                    if o == "failed")
+    outcomes = [f"{passed} passed"]
+    if failed:
+        outcomes.append(f"{len(failed)} failed it (" + ", ".join(
+            f"{t} {c}" for t, c in sorted(tests.items())) + ")")
+    if unsure:
+        outcomes.append(f"{len(unsure)} {'was' if len(unsure) == 1 else 'were'} inconclusive")
+    text = f"{len(screened)} took the remote vision screening: {_join(outcomes)}"
+    if failed:
+        who = "the one who failed" if len(failed) == 1 else f"the {len(failed)} who failed"
+        text += f"; the ratings of {who} were kept (flagged, not excluded)"
+    return text
 
 
 def _failed(data: PanelAnswers, participant: str) -> bool:

@@ -87,4 +87,5 @@ def draw_survey(summary: PanelSummary, definition: Panel, path: Path) -> Path | 
                  "agree)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
+    fig.savefig(path.with_suffix(".pdf"))  # vector, for papers, as every report figure
     return path

@@ -20,7 +20,9 @@ def presentation(manifest: Any) -> dict[str, Any]:
             "min_view_seconds": p.min_view_seconds, "min_width": int(d.min_width),
             "min_height": int(d.min_height), "min_refresh_hz": float(d.min_refresh_hz),
             "hidden_reference": bool(p.hidden_reference),
-            "viewing_distance_cm": p.viewing_distance_cm}
+            "viewing_distance_cm": p.viewing_distance_cm,
+            "videos": [{"width": r.width, "height": r.height, "fps": r.fps, "frames": r.frames}
+                       for r in manifest.references]}
 
 
 def _column(quality: pd.DataFrame, raters: list[str], name: str) -> pd.Series:
@@ -74,6 +76,97 @@ def _seating(p: dict[str, Any], quality: pd.DataFrame | None, raters: list[str])
     return text
 
 
+def _videos(p: dict[str, Any]) -> str:
+    """The references' size, length and frame rate (the test videos match them)."""
+    videos = [v for v in p.get("videos") or [] if v.get("width") and v.get("fps")
+              and v.get("frames")]
+    if not videos:
+        return ""
+    sizes = list(dict.fromkeys(f"{v['width']}x{v['height']}" for v in videos))
+    seconds = sorted({round(v["frames"] / v["fps"], 2) for v in videos})
+    rates = sorted({float(v["fps"]) for v in videos})
+    length = (f"{seconds[0]:g} s" if len(seconds) == 1 else
+              f"{seconds[0]:g}-{seconds[-1]:g} s")
+    return (f" The videos were {_join(sizes)} pixels and {length} long, at "
+            f"{_join([f'{r:g}' for r in rates])} frames per second.")
+
+
+def _join(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def uneven_refresh(hz: float, rates: list[float]) -> bool:
+    """Whether a display at ``hz`` holds some frame of a ``rates`` video for more refreshes
+    than another (a refresh rate that is not a whole multiple of the frame rate, within 1%:
+    59.94 Hz shows 60 fps evenly but for one repeat every 17 s)."""
+    return any(abs(hz / fps - round(hz / fps)) > 0.01 * (hz / fps) or round(hz / fps) < 1
+               for fps in rates if fps > 0)
+
+
+def _cadence(p: dict[str, Any], quality: pd.DataFrame | None, raters: list[str]) -> str:
+    """How many participants' refresh rates could not show the videos' frame rates evenly."""
+    rates = sorted({float(v["fps"]) for v in p.get("videos") or [] if v.get("fps")})
+    if quality is None or not rates:
+        return ""
+    hz = pd.to_numeric(_column(quality, raters, "refresh_hz"), errors="coerce").dropna()
+    if not len(hz):
+        return ""
+    uneven = hz[[uneven_refresh(float(h), rates) for h in hz]]
+    fps = _join([f"{r:g}" for r in rates]) + " fps"
+    if not len(uneven):
+        return (f" Every measured refresh rate was a whole multiple of {fps}, so each video "
+                "frame was shown for the same number of refreshes.")
+    span = (f"{uneven.min():.0f} Hz" if round(uneven.min()) == round(uneven.max()) else
+            f"{uneven.min():.0f}-{uneven.max():.0f} Hz")
+    return (f" On the screens of {len(uneven)} of the {len(hz)} participants whose refresh "
+            f"rate was measured ({span}) it was not a whole multiple of the videos' {fps}: "
+            "video frames were held for unequal numbers of refreshes there (uneven motion).")
+
+
+def _angle(p: dict[str, Any], quality: pd.DataFrame | None, raters: list[str]) -> str:
+    """The widest video's width in visual degrees at the instructed distance, on the
+    screens whose pixel size the card calibration measured."""
+    widths = [int(v["width"]) for v in p.get("videos") or [] if v.get("width")]
+    if quality is None or not widths or p.get("viewing_distance_cm") is None:
+        return ""
+    ppd = pd.to_numeric(_column(quality, raters, "px_per_degree"), errors="coerce").dropna()
+    if not len(ppd):
+        return ""
+    deg = max(widths) / ppd
+    spread = (f"{deg.iloc[0]:.1f} degrees of visual angle horizontally" if len(deg) == 1 else
+              f"{deg.min():.1f}-{deg.max():.1f} degrees of visual angle horizontally "
+              f"(median {deg.median():.1f})")
+    widest = "The videos" if len(set(widths)) == 1 else "The widest videos"
+    return f" {widest} ({max(widths)} pixels wide) thus spanned {spread}."
+
+
+def _order(quality: pd.DataFrame | None, raters: list[str]) -> str:
+    """Practice, order, breaks and the time in the study, from the session files."""
+    if quality is None or not raters:
+        return ""
+    practice = pd.to_numeric(_column(quality, raters, "practice_trials"),
+                             errors="coerce").dropna()
+    breaks = pd.to_numeric(_column(quality, raters, "break_every"), errors="coerce").dropna()
+    parts = []
+    if len(practice) and practice.nunique() == 1 and practice.iloc[0] > 0:
+        k = int(practice.iloc[0])
+        parts.append(f"{k} practice trial{'s' if k != 1 else ''} (not rated) came first")
+    parts.append("each participant saw the trials in their own random order, never the same "
+                 "stimulus twice in a row")
+    if len(breaks) and breaks.nunique() == 1:
+        every = int(breaks.iloc[0])
+        parts.append(f"a break was offered every {every} trials" if every > 0 else
+                     "no breaks were offered")
+    text = " " + "; ".join(parts)
+    minutes = pd.to_numeric(_column(quality, raters, "minutes"), errors="coerce").dropna()
+    if len(minutes):
+        spread = (f"{minutes.iloc[0]:.0f} min" if len(minutes) == 1 else
+                  f"a median of {minutes.median():.0f} min ({minutes.min():.0f}-"
+                  f"{minutes.max():.0f})")
+        text += f". The participants spent {spread} in the study, breaks included"
+    return text[0] + text[1].upper() + text[2:] + "."
+
+
 def _text(column: pd.Series) -> pd.Series:
     """A column as text, "" for a gap (a column of NaN is float: no "" fill)."""
     return column.map(lambda v: "" if pd.isna(v) else str(v))
@@ -101,13 +194,13 @@ def _sessions(quality: pd.DataFrame | None, raters: list[str]) -> str:
     q = q[~simulated]
     n = len(q)
     vsync = int((q["vsync"] == True).sum()) if "vsync" in q.columns else 0  # noqa: E712
-    text = (f" All {n} sessions ran with vsync" if vsync == n else
-            f" {vsync} of the {n} sessions ran with vsync")
+    text = (f" The sessions of all {n} participants ran with vsync" if vsync == n else
+            f" The sessions of {vsync} of the {n} participants ran with vsync")
     shown = pd.to_numeric(q.get("presentations"), errors="coerce").sum()
     dropped = pd.to_numeric(q.get("trials_with_drops"), errors="coerce").sum()
     if shown and math.isfinite(shown):
-        text += (f"; {int(dropped)} of {int(shown)} presentations ({dropped / shown:.1%}) "
-                 "dropped a frame or more")
+        text += (f"; {int(dropped)} of the {int(shown)} presentations in their session files "
+                 f"({dropped / shown:.1%}) dropped a frame or more")
     pilots = pilot_raters(q, list(q.index))
     if pilots:
         text += (f"; {len(pilots)} of them ran paced on the clock without vsync (pilots: "
@@ -125,14 +218,17 @@ def presentation_paragraph(rs: RatingSet, quality: pd.DataFrame | None,
     view = ("one loop" if p["min_view_seconds"] is None else f"{p['min_view_seconds']:g} s")
     text = ("Stimuli were shown in the toolkit's player at their native resolution (one video "
             "pixel per screen pixel). Each trial " + ("looped" if p["loop"] else "played")
-            + " the test video and its reference, frame-accurately, and the participant "
+            + " the test video and its reference in step (a switch showed the other video at "
+            "the same frame), and the participant "
             f"switched between them with the Space key; every switch showed a "
             f"{p['blank_seconds']:g} s grey blank. The rating could be given after {view}"
             + (", and each source's reference was also rated as a hidden reference"
                if p["hidden_reference"] else "")
             + f". A pre-flight check before the session required a display of at least "
             f"{p['min_width']}x{p['min_height']} pixels at {p['min_refresh_hz']:g} Hz or more.")
-    return text + _displays(quality, used) + _seating(p, quality, used) + _sessions(quality, used)
+    return (text + _videos(p) + _displays(quality, used) + _cadence(p, quality, used)
+            + _seating(p, quality, used) + _angle(p, quality, used) + _sessions(quality, used)
+            + _order(quality, used))
 
 
 def viewing_summary(rs: RatingSet, quality: pd.DataFrame | None, raters: list[str],
@@ -172,7 +268,9 @@ def metric_viewing_text(viewing: dict[str, Any] | None) -> tuple[str, str]:
     text += f"; at the instructed {viewing['seating_cm']:g} cm, {who} {spread}."
     off = [m for m, v in viewing["metric_ppd"].items()
            if not panel["min"] - 0.5 <= v <= panel["max"] + 0.5]
-    advice = (f"No measured participant saw the stimuli at the pixels per degree of "
-              f"{', '.join(off)}: rescore with --ppd {panel['median']:.0f} to compare under the "
-              "panel's viewing condition." if off else "")
-    return text, advice
+    if not off:
+        return text, ""
+    text += (f" No measured participant saw the stimuli at the pixels per degree of "
+             f"{', '.join(off)}.")
+    return text, (f"Rescore with --ppd {panel['median']:.0f} to compare under the panel's "
+                  "viewing condition.")

@@ -23,6 +23,7 @@ from .data import Exclusion, RatingSet, balanced_subset, drop_unrated, rater_ord
 from .display_facts import display_facts
 from .errors import AnalysisError
 from .reliability import repetition_correlation
+from .session_protocol import session_protocol
 from .session_time import study_minutes
 
 # Flag thresholds (documented in the report's methods section and the README).
@@ -39,7 +40,8 @@ FACT_COLUMNS = ("sessions", "files", "n_ratings", "n_planned", "completeness", "
                 "blocks_planned_by", "vsync", "preflight_skipped", "finished", "presentations",
                 "dropped_frames", "trials_with_drops", "requeued", "median_viewing_s",
                 "median_toggles", "minutes", "sittings", "screen", "refresh_hz",
-                "viewing_distance_cm", "px_per_mm", "px_per_degree")
+                "viewing_distance_cm", "px_per_mm", "px_per_degree", "practice_trials",
+                "break_every")
 
 
 def _median(values: Iterable[Any]) -> float:
@@ -97,6 +99,7 @@ def facts_from_sessions(records: list) -> pd.DataFrame:
             "median_toggles": _median(_toggles(p) for p in rated),
             **dict(zip(("minutes", "sittings"), study_minutes(recs), strict=True)),
             **display_facts(recs),
+            **session_protocol(recs),
         })
     return pd.DataFrame(rows).set_index("rater") if rows else pd.DataFrame()
 
@@ -207,10 +210,26 @@ def quality_table(rs: RatingSet, *, screening: pd.DataFrame | None = None,
         pd.Series("", index=info.index)
     simulated = modes.str.contains("simulated")
     mixed = bool(simulated.any() and not simulated.all())
-    info["flags"] = ["; ".join(rater_flags(row, min_completeness, simulated_among_real=mixed))
-                     for _, row in info.iterrows()]
+    vision = _vision_flags(rs)
+    info["flags"] = ["; ".join(rater_flags(row, min_completeness, simulated_among_real=mixed)
+                               + vision.get(str(rater), []))
+                     for rater, row in info.iterrows()]
     info.index.name = "rater"
     return info
+
+
+def _vision_flags(rs: RatingSet) -> dict[str, list[str]]:
+    """Per rater, the vision checks of the study's panel that they failed or that were
+    inconclusive (flags, not exclusions: --exclude-failed-vision leaves the failed out)."""
+    if rs.panel is None:
+        return {}
+    out: dict[str, list[str]] = {}
+    for rater, checks in rs.panel.screenings.items():
+        for test, outcome in sorted(checks.items()):
+            if outcome in ("failed", "inconclusive"):
+                out.setdefault(str(rater), []).append(f"{test} check {outcome} (vision "
+                                                      "screening)")
+    return out
 
 
 def rater_flags(row: pd.Series, min_completeness: float | None, *,

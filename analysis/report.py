@@ -28,6 +28,7 @@ from .reliability import Reliability
 from .report_html import write_html
 from .screening import rules as screening_rules
 from .screening.result import RemovedRater
+from .sessions import withdrawn_participants
 from .sureal_io import write_sureal_json
 from .version import __version__
 
@@ -165,6 +166,7 @@ def _sessions_facts(a: Analysis, n_screened: int) -> dict[str, Any]:
     raters = list(a.screened.raters)
     return {"screening_applied": rule is None or n_screened >= rule.min_raters,
             "pilot_raters_used": pilot_raters(a.quality, raters),
+            "withdrawn": withdrawn_participants(a.exclusions),
             "minutes": _minutes(a.quality, raters)}
 
 

@@ -164,7 +164,7 @@ def quality_legend(table: pd.DataFrame | None) -> str:
 
 #: What each score model is, in the words of a methods section.
 _MODEL_TEXT = {
-    "mle": "SUREAL's maximum-likelihood subject model (Li & Bampis 2020): quality with rater "
+    "mle": "SUREAL's maximum-likelihood subject model (Li et al. 2020): quality with rater "
            "bias and inconsistency and content ambiguity; if it diverges, its ITU-T P.910 "
            "variant (MLE_CO_AP2) is used and this report says so.",
     "p910": "SUREAL's MLE_CO_AP2, the ITU-T P.910 subject model: quality with rater bias and "

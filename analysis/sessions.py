@@ -139,6 +139,22 @@ def _withdrawals(records: list[Session], study_id: str) -> dict[str, str]:
     return out
 
 
+WITHDRAWAL_RULE = "a withdrawal covers every session of the participant"
+
+
+def withdrawn_participants(exclusions: list[Exclusion]) -> list[str]:
+    """The participants whose withdrawal refused their sessions (each once)."""
+    out: list[str] = []
+    for x in exclusions:
+        rule, reason = (x.get("rule"), x.get("reason")) if isinstance(x, dict) else \
+            (x.rule, x.reason)
+        if rule == WITHDRAWAL_RULE and str(reason).startswith("participant "):
+            who = str(reason).removeprefix("participant ").split(" withdrew", 1)[0]
+            if who not in out:
+                out.append(who)
+    return out
+
+
 def _withdrawn_exclusion(rec: Session, withdrawn_in: str) -> Exclusion:
     """The refusal of one session of a participant who withdrew (this one or another)."""
     who = rec.info.participant
@@ -148,8 +164,7 @@ def _withdrawn_exclusion(rec: Session, withdrawn_in: str) -> Exclusion:
     else:
         reason = (f"participant {who} withdrew from the study (in {withdrawn_in}); this "
                   "session of theirs is not used either")
-    return Exclusion("refused session", rec.path, reason,
-                     "a withdrawal covers every session of the participant")
+    return Exclusion("refused session", rec.path, reason, WITHDRAWAL_RULE)
 
 
 def _refusal(rec: Session, study_id: str, manifest_sha256: str | None,

@@ -326,3 +326,16 @@ def _answer_value(value: Any) -> str:
     if isinstance(value, list | tuple | dict):
         return f"a {type(value).__name__} of {len(value)}"
     return f"a {type(value).__name__}"
+
+
+def screening_distance_problem(manifest: Any) -> str | None:
+    """The acuity check measured at another distance than the one participants are told to
+    sit at while rating: it then screens the acuity of another viewing condition."""
+    vs = manifest.panel.vision_screening if manifest.panel is not None else None
+    seat = manifest.protocol.viewing_distance_cm
+    if vs is None or not vs.acuity or seat is None or abs(vs.viewing_distance_cm - seat) < 1:
+        return None
+    return (f"the acuity check runs at {vs.viewing_distance_cm:g} cm, but participants are "
+            f"told to sit {seat:g} cm from the screen while they rate: set "
+            f"panel.vision_screening.viewing_distance_cm to {seat:g} in manifest.json to "
+            "screen the viewing condition they rate in")

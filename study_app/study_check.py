@@ -28,6 +28,7 @@ from stimuli_manifests.from_folder.pixel_sample import PixelSample
 from stimuli_manifests.from_folder.probe import decode_findings
 from stimuli_manifests.lossless import LOSSLESS_DECODER_NAMES
 from stimuli_manifests.pairs import pair_mismatches
+from stimuli_manifests.panel import screening_distance_problem
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +88,8 @@ def check_study(study: Study, *, progress: bool = False) -> StudyCheck:
         [LevelSample(c.method, c.reference, c.level, out.samples.get(str(c.id)))
          for c in m.conditions], {str(r.id): out.samples.get(str(r.id)) for r in m.references})
     out.samples.clear()  # a few MB per video: not kept with the result
+    if (problem := screening_distance_problem(m)) is not None:
+        out.warnings.append(problem)
     out.warnings += _session_files_warning(study.folder)
     fps_set = {round(v.fps, 3) for v in out.videos.values()}
     if len(fps_set) > 1:

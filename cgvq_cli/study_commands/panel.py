@@ -29,6 +29,7 @@ def run(args: argparse.Namespace) -> int:
     from session_store.errors import StudyError
     from session_store.study_folder import MANIFEST_NAME, load_study
     from stimuli_manifests import parse_manifest, save_manifest
+    from stimuli_manifests.panel import screening_distance_problem
     from stimuli_manifests.panel_templates import default_panel
 
     if not args.add_templates:
@@ -58,6 +59,9 @@ def run(args: argparse.Namespace) -> int:
                                          "acuity": bool(args.acuity), "on_fail": on_fail}
             if not args.acuity and args.no_colour_check:
                 del block["vision_screening"]
+        seat = manifest.protocol.viewing_distance_cm
+        if seat is not None and "vision_screening" in block:  # screen where they will sit
+            block["vision_screening"]["viewing_distance_cm"] = seat
         data = manifest.model_dump(mode="json", exclude_none=True)
         data["panel"] = block
         manifest = parse_manifest(data, source=str(args.study / MANIFEST_NAME))
@@ -82,6 +86,8 @@ def run(args: argparse.Namespace) -> int:
         if vs.acuity:
             print(f"  acuity: {vs.optotype}, pass at logMAR {vs.acuity_logmar:g} and Weber "
                   f"contrast {vs.contrast_weber:g}")
+        if (problem := screening_distance_problem(manifest)) is not None:
+            print(f"  warning: {problem}")
     return 0
 
 

@@ -57,8 +57,9 @@ def test_the_text_states_the_study_as_generated_and_recomputed(study, tmp_path):
     # the design as generated: 3 scenes, 2 methods x 3 levels, one hidden reference each;
     # the manifest's default labels
     assert text.startswith(
-        f"10 participants gave valid ratings of {n_stim} stimuli (3 source contents; 6 "
-        "distortion conditions: blur, noise at 3 levels; 3 hidden references) on a "
+        f"10 participants gave valid ratings. The study had {n_stim} stimuli (3 source "
+        "contents; 6 distortion conditions: blur, noise at 3 levels; 18 processed sequences; "
+        "3 hidden references), rated on a "
         'continuous 0 to 100 scale labelled "Very annoying" (0), "Annoying" (25), '
         '"Slightly annoying" (50), "Perceptible but not annoying" (75), "Imperceptible" (100); '
         "full design: every stimulus rated 2 times")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from collections import Counter
 
+import numpy as np
 import pytest
 
 from analysis.data import PanelAnswers
@@ -37,10 +38,25 @@ def test_the_papers_sentence_from_known_answers():
     data = PanelAnswers(answers=answers, screenings={"p1": {"colour": "passed"},
                                                      "p2": {"colour": "failed"}})
     panel = _panel()
+    ages = np.array([25, 57, 31])
     assert panel_sentence(panel, data, ["p1", "p2", "p3", "p4"]) == (
-        "4 participants aged 25-57 (1 did not give their age), 2 male, 1 female and 1 did "
-        "not say, with normal or corrected-to-normal vision; 2 of 4 answered the post-study "
-        "survey; 2 took the remote vision screening and 1 failed it.")
+        f"4 participants aged 25-57 (mean {ages.mean():.1f}, SD {ages.std(ddof=1):.1f}; 1 did "
+        "not give their age), 2 male, 1 female and 1 did not say, with normal or "
+        "corrected-to-normal vision (self-reported); 2 of 4 answered the post-study survey; "
+        "2 took the remote vision screening (colour: generated pseudo-isochromatic plates; "
+        "at 60 cm on the participants' own uncalibrated screens, a screening, not a "
+        "diagnosis): 1 passed and 1 failed it (colour 1); the ratings of the one who failed "
+        "were kept (flagged, not excluded).")
+    data.screenings["p3"] = {"colour": "inconclusive"}
+    assert "3 took the remote vision screening (" in panel_sentence(
+        panel, data, ["p1", "p2", "p3", "p4"])
+    assert "): 1 passed, 1 failed it (colour 1) and 1 was inconclusive; the ratings" in \
+        panel_sentence(panel, data, ["p1", "p2", "p3", "p4"])
+    del data.screenings["p3"]
+    answers["p3"]["graphics_background"] = "yes"
+    answers["p1"]["graphics_background"] = "no"
+    assert ", 1 of 2 working or studying in computer graphics, vision or video;" in \
+        panel_sentence(panel, data, ["p1", "p2", "p3", "p4"])
     answers["p4"]["vision"] = "not_corrected"
     assert "3 of 4 with normal or corrected-to-normal vision" in panel_sentence(
         panel, data, ["p1", "p2", "p3", "p4"])
@@ -62,7 +78,8 @@ def test_one_age_and_a_vision_question_left_unanswered():
                                  "p2": {"age": 30, "gender": "female"}})
     sentence = panel_sentence(_panel(), data, ["p1", "p2"])
     assert sentence.startswith("2 participants aged 30, 1 male and 1 female, with normal or "
-                               "corrected-to-normal vision (1 did not say how they see)")
+                               "corrected-to-normal vision (self-reported; 1 did not say how "
+                               "they see)")
     data.answers["p2"]["vision"] = "not_corrected"
     assert "1 of 2 with normal or corrected-to-normal vision" in panel_sentence(
         _panel(), data, ["p1", "p2"])
@@ -121,8 +138,12 @@ def test_report_panel_from_simulated_sessions(panel_study, tmp_path):
     assert s.startswith(f"8 participants aged {min(ages)}-{max(ages)}")
     assert f"{genders['male']} male" in s
     assert f"{survey} of 8 answered the post-study survey" in s
-    assert "8 took the remote vision screening and 1 failed it" in s
+    assert "7 passed and 1 failed it (colour 1); the ratings of the one who failed were " \
+        "kept" in s and "8 took the remote vision screening (" in s
     assert a.quality.loc[failed[0], "vision"] == "colour failed"
+    assert "colour check failed (vision screening)" in a.quality.loc[failed[0], "flags"]
+    assert not any("vision screening" in str(f) for r, f in a.quality["flags"].items()
+                   if r != failed[0])
 
     report = write_report(a, tmp_path / "report")
     summary = json.loads((report.parent / "summary.json").read_text())
@@ -135,6 +156,7 @@ def test_report_panel_from_simulated_sessions(panel_study, tmp_path):
     assert "&lt;script&gt;alert(" in html and "<script>alert(" not in html
     assert "<img src=x" not in html
     assert (report.parent / "figures" / "panel_survey.png").is_file()
+    assert (report.parent / "figures" / "panel_survey.pdf").read_bytes().startswith(b"%PDF")
 
     excluded = run_analysis(rs, AnalysisConfig(n_boot=20, n_splits=20, ci_draws=5,
                                                exclude_failed_vision=True), progress=False)

@@ -171,8 +171,9 @@ def test_a_participant_the_check_ended_is_counted_in_the_screening(tmp_path):
     row = next(r for r in a.panel.screening if r["participant"] == "p_out")
     assert row["colour"] == "failed" and row["ratings used"] == "no"
     assert a.panel.sentence.endswith(
-        "; 5 took the remote vision screening and 0 failed it; 1 further participant failed "
-        "it and was not admitted (the check ended their session).")
+        "a screening, not a diagnosis) and all passed it; 1 further participant failed it and "
+        "was not admitted (the check ended their session).")
+    assert "; 5 took the remote vision screening (" in a.panel.sentence
     ended = [x for x in a.exclusions if x.kind == "ended by vision check"]
     assert [x.who for x in ended] == ["p_out"]
 
@@ -185,8 +186,9 @@ def test_the_sentence_counts_raters_excluded_for_their_vision(study):
     rs = load_ratings(manifest, sessions=[sessions])
     a = run_analysis(rs, AnalysisConfig(**FAST, exclude_failed_vision=True), progress=False)
     assert a.panel.sentence.endswith(
-        "; 4 took the remote vision screening and 0 failed it; 1 further participant failed "
-        "it and was left out of the analysis.")
+        "a screening, not a diagnosis) and all passed it; 1 further participant failed it and "
+        "was left out of the analysis.")
+    assert "; 4 took the remote vision screening (" in a.panel.sentence
     assert a.panel.failed_vision == [who]
 
 

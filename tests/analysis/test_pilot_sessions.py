@@ -105,8 +105,9 @@ def test_simulated_sessions_are_not_counted_as_displays():
                             "trials_with_drops": [2, 30, 0, 0]},
                            index=["P1", "PILOT", "S1", "S2"])
     text = _sessions(quality, ["P1", "PILOT", "S1", "S2"])
-    assert text.startswith(" 1 of the 2 sessions ran with vsync; 32 of 80 presentations "
-                           "(40.0%) dropped a frame or more")
+    assert text.startswith(" The sessions of 1 of the 2 participants ran with vsync; 32 of "
+                           "the 80 presentations in their session files (40.0%) dropped a "
+                           "frame or more")
     assert "1 of them ran paced on the clock without vsync (pilots: PILOT)" in text
     assert "(2 simulated sessions, which had no display, are not counted)" in text
 

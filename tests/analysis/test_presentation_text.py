@@ -49,9 +49,11 @@ def test_the_session_timing_is_counted_from_the_quality_table():
                             "vsync": [True, True, False], "presentations": [40, 40, 20],
                             "trials_with_drops": [1, 0, 3]}, index=["P1", "P2", "P3"])
     assert _sessions(quality, ["P1", "P2", "P3"]) == (
-        " 2 of the 3 sessions ran with vsync; 4 of 100 presentations (4.0%) dropped a frame "
-        "or more; 1 of them ran paced on the clock without vsync (pilots: P3).")
-    assert _sessions(quality, ["P1", "P2"]).startswith(" All 2 sessions ran with vsync; 1 of 80")
+        " The sessions of 2 of the 3 participants ran with vsync; 4 of the 100 presentations "
+        "in their session files (4.0%) dropped a frame or more; 1 of them ran paced on the "
+        "clock without vsync (pilots: P3).")
+    assert _sessions(quality, ["P1", "P2"]).startswith(
+        " The sessions of all 2 participants ran with vsync; 1 of the 80")
     simulated = quality.assign(timing_mode="simulated")
     assert "simulated" in _sessions(simulated, ["P1", "P2", "P3"])
 
@@ -136,8 +138,10 @@ def test_the_metrics_pixels_per_degree_are_set_against_the_panels(tmp_path):
     assert ("at the instructed 90 cm, the 3 participants whose screens the card calibration "
             f"measured saw {lo:.0f}-{hi:.0f} (median {mid:.0f}).") in text
     # 100 ppd is beyond every participant's; 62 is within
-    assert advice.startswith("No measured participant saw the stimuli at the pixels per "
-                             "degree of flip:") and f"rescore with --ppd {mid:.0f}" in advice
+    assert text.endswith("No measured participant saw the stimuli at the pixels per degree "
+                         "of flip.")  # the paper's text says so too
+    assert advice == (f"Rescore with --ppd {mid:.0f} to compare under the panel's viewing "
+                      "condition.")
     assert "--ppd" not in text  # the paper's sentence states facts
     # nothing measured: said so, no advice
     text, advice = metric_viewing_text({**viewing, "panel_ppd": None})

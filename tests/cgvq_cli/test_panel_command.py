@@ -60,3 +60,31 @@ def test_on_fail_without_any_vision_check_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--on-fail needs a vision check to act on" in err, err
     assert (study / "manifest.json").read_bytes() == before
+
+
+def test_the_acuity_check_runs_where_participants_sit(tmp_path, capsys):
+    """A study seated at 75 cm gets its vision checks at 75 cm (the templates said 60); a
+    check at another distance than the seating is named by panel and by check."""
+    from stimuli_manifests import save_manifest
+
+    study = make_study(tmp_path / "study")
+    loaded = load_manifest(study / "manifest.json")
+    data = loaded.manifest.model_dump(mode="json", exclude_none=True)
+    data["protocol"]["viewing_distance_cm"] = 75
+    from stimuli_manifests import parse_manifest
+
+    save_manifest(parse_manifest(data), study / "manifest.json")
+    assert main(["panel", str(study), "--add-templates", "--acuity"]) == 0
+    out = capsys.readouterr().out
+    assert "acuity at 75 cm" in out and "warning" not in out
+    assert load_manifest(study / "manifest.json").manifest.panel.vision_screening \
+        .viewing_distance_cm == 75
+    data = json.loads((study / "manifest.json").read_text())
+    data["panel"]["vision_screening"]["viewing_distance_cm"] = 60
+    (study / "manifest.json").write_text(json.dumps(data))
+    assert main(["panel", str(study)]) == 0
+    said = ("the acuity check runs at 60 cm, but participants are told to sit 75 cm from "
+            "the screen while they rate")
+    assert said in capsys.readouterr().out
+    main(["check", str(study)])
+    assert said in capsys.readouterr().out

@@ -53,18 +53,26 @@ def bare_session(path: Path, participant: str = "P01", n: int = 6) -> SessionSto
 
 def player_session(folder: Path, loaded, participant: str, *, screen=(1920, 1080),
                    hz: float = 60.0, card_px: float | None = None, seed: int = 1,
-                   timing: str = "vsync") -> Path:
+                   timing: str = "vsync", practice: int | None = None,
+                   break_every: int | None = None, withdraw: bool = False,
+                   name: str | None = None) -> Path:
     """A participant's finished session as the player writes it: the protocol in force, the
     display the pre-flight measured (``timing``: vsync, or paced-pilot for an experimenter's
     pilot) and, with ``card_px``, the acuity check's card geometry (measured at the check's
-    60 cm, not at the seating distance). Ratings: 20, 50, 80 in turn over the trials."""
+    60 cm, not at the seating distance). Ratings: 20, 50, 80 in turn over the trials.
+    ``practice``/``break_every``: the run's settings; ``withdraw``: the participant withdraws
+    after the first trial; ``name``: the file's name (a second session of a participant)."""
     from session_store.schedule import make_schedule, schedule_items
     from study_app.vision.acuity import card_calibration
 
     m = loaded.manifest
     plan = make_schedule(schedule_items(m), m.protocol.repetitions, seed)
     settings = {"protocol": m.protocol.model_dump(mode="json"), "timing_mode": timing}
-    path = folder / f"{participant}.sqlite"
+    if practice is not None:
+        settings["practice_trials"] = practice
+    if break_every is not None:
+        settings["break_every"] = break_every
+    path = folder / f"{name or participant}.sqlite"
     with SessionStore.create(path, participant=participant, study_id=m.study_id,
                              manifest_sha256=loaded.sha256, seed=seed, app_version="t",
                              plan=plan, settings=settings) as store:
@@ -73,7 +81,10 @@ def player_session(folder: Path, loaded, participant: str, *, screen=(1920, 1080
         if card_px is not None:
             store.record_screening("acuity", "passed",
                                    {"geometry": card_calibration(card_px, 60).to_dict()})
-        for k, trial in enumerate(plan):
+        for k, trial in enumerate(plan[:1] if withdraw else plan):
             store.record(trial.index, plain_result(20.0 + 30 * (k % 3)))
-        store.finish()
+        if withdraw:
+            store.withdraw()
+        else:
+            store.finish()
     return path

@@ -177,7 +177,7 @@ def _panel(a: Analysis, s: dict[str, Any]) -> str:
     text += (f" The analysis uses {_count(s['n_raters_used'], 'rater')} and "
              f"{s['n_ratings_used']} ratings.")
     if sentence := (s.get("panel") or {}).get("sentence"):  # from their questionnaires
-        text += f" Panel analysed: {sentence}"
+        text += f" The raters analysed were {sentence}"
     return text
 
 
@@ -197,8 +197,10 @@ def _scores(a: Analysis, s: dict[str, Any]) -> str:
     has = refs >= 0
     estimator = ("plain means" if a.config.model in ("mos", "bt500") else
                  "the model's rater bias and inconsistency held fixed")
-    ci = (f"95% confidence intervals are t intervals whose standard deviation comes from "
-          f"{s['n_bootstrap']} bootstrap resamples of the raters ({estimator}).")
+    ci = (f"95% confidence intervals are t intervals (Kish's effective number of raters "
+          f"minus 1 degrees of freedom) whose standard deviation comes from "
+          f"{s['n_bootstrap']} bootstrap resamples of the raters ({estimator}), scaled by "
+          "sqrt(n/(n-1)) for the n raters behind the stimulus.")
     text = f"Quality scores Q were estimated with {model}."
     if not has.any():
         text += (" No hidden reference was rated, so no DMOS was formed: the scores reported "
@@ -206,7 +208,10 @@ def _scores(a: Analysis, s: dict[str, Any]) -> str:
                  "scale. " + ci.replace("95% confidence", "Their 95% confidence"))
     else:
         text += (f" DMOS = Q(v) - Q(ref) + {a.screened.ref_score:g}, with Q(ref) the score of "
-                 f"the hidden reference of the same content; {ci}")
+                 "the hidden reference of the same content (its reference shown against "
+                 "itself): the differential score of ITU-T P.910's ACR-HR, applied here to "
+                 "remove, per content, how far below the top of the scale raters put even an "
+                 f"unimpaired video; {ci}")
         if not has.all():
             missing = sorted(set(rs.stimuli["reference"].astype(str).to_numpy()[~has]))
             text += (f" No hidden reference of {_names(missing)} was rated: "
@@ -332,5 +337,8 @@ def methods_paragraphs(a: Analysis, s: dict[str, Any]) -> list[str]:
     warning = (f"[Not for a paper as it stands: {len(pilots)} of the {s['n_raters_used']} "
                f"raters ran pilots, paced without vsync ({_names(pilots)}); they are not "
                "participant data.]" if pilots else "")
+    todo = ("[To add, which no file records: the room and its lighting; how the ethics "
+            "approval and the participants' informed consent were obtained; the "
+            "compensation.]" if shown else "")
     return [p for p in (warning, _panel(a, s), shown, _scores(a, s), _reliability(a, s),
-                        _metrics(s)) if p]
+                        _metrics(s), todo) if p]

@@ -76,6 +76,11 @@ def _seating(p: dict[str, Any], quality: pd.DataFrame | None, raters: list[str])
     return text
 
 
+def _impairment(rs: RatingSet) -> bool:
+    """Whether the scale's labels are the impairment scale's (P.910 DCR, P.913)."""
+    return any(t.strip().lower() == "imperceptible" for _, t in rs.scale_labels)
+
+
 def _videos(p: dict[str, Any]) -> str:
     """The references' size, length and frame rate (the test videos match them)."""
     videos = [v for v in p.get("videos") or [] if v.get("width") and v.get("fps")
@@ -224,6 +229,9 @@ def presentation_paragraph(rs: RatingSet, quality: pd.DataFrame | None,
             f"{p['blank_seconds']:g} s grey blank. The rating could be given after {view}"
             + (", and each source's reference was also rated as a hidden reference"
                if p["hidden_reference"] else "")
+            + ". The method is a double-stimulus rating with free switching between the test "
+            "video and its reference" + (" on an impairment scale (a variant of ITU-T P.910's "
+                                         "DCR)" if _impairment(rs) else "")
             + f". A pre-flight check before the session required a display of at least "
             f"{p['min_width']}x{p['min_height']} pixels at {p['min_refresh_hz']:g} Hz or more.")
     return (text + _videos(p) + _displays(quality, used) + _cadence(p, quality, used)

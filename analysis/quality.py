@@ -36,6 +36,10 @@ THRESHOLDS: dict[str, float] = {
     "repeat_r": 0.5,            # mean correlation between a rater's repetitions
 }
 
+LONG_MINUTES = 12 * 60
+"""A participant longer in the study than this (away time between sittings not counted) had
+a clock that jumped, or left the app open overnight: flagged, the time is not believed."""
+
 FACT_COLUMNS = ("sessions", "files", "n_ratings", "n_planned", "completeness", "timing_mode",
                 "blocks_planned_by", "vsync", "preflight_skipped", "finished", "presentations",
                 "dropped_frames", "trials_with_drops", "requeued", "median_viewing_s",
@@ -276,6 +280,10 @@ def rater_flags(row: pd.Series, min_completeness: float | None, *,
     rr = row.get("repeat_r")
     if rr is not None and np.isfinite(rr) and rr < t["repeat_r"]:
         out.append(f"repeat r {rr:.2f} < {t['repeat_r']}")
+    m = row.get("minutes")
+    if m is not None and np.isfinite(m) and m > LONG_MINUTES:
+        out.append(f"{m / 60:.0f} h in the study (> {LONG_MINUTES // 60} h: a computer clock "
+                   "that jumped during a sitting?)")
     return out
 
 

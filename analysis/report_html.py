@@ -105,10 +105,11 @@ def quality_display(q: pd.DataFrame) -> pd.DataFrame:
             answered = (f"{int(num(r['n_ratings']))}/{int(num(r['n_planned']))} "
                         f"({num(r.get('completeness')):.0%})")
         mode = r.get("timing_mode")
-        timing = ", ".join(x for x in (
-            "" if mode is None or pd.isna(mode) else str(mode),
-            {True: "vsync on", False: "vsync off"}.get(
-                None if pd.isna(r.get("vsync")) else bool(r.get("vsync")), "")) if x)
+        mode = "" if mode is None or pd.isna(mode) else str(mode)
+        on = {True: "vsync on", False: "vsync off"}.get(
+            None if pd.isna(r.get("vsync")) else bool(r.get("vsync")), "")
+        timing = mode if (mode, on) == ("vsync", "vsync on") else \
+            ", ".join(x for x in (mode, on) if x)  # "vsync, vsync on" says it twice
         frames = ""
         if np.isfinite(num(r.get("presentations"))) and \
                 np.isfinite(num(r.get("dropped_frames"))):
@@ -123,7 +124,7 @@ def quality_display(q: pd.DataFrame) -> pd.DataFrame:
             "pre-flight": "skipped" if r.get("preflight_skipped") is True
             or str(r.get("preflight_skipped")) == "True" else "",
             "frames": frames,
-            "min": num(r.get("minutes")),
+            "minutes": num(r.get("minutes")),
             "view s": num(r.get("median_viewing_s")), "toggles": num(r.get("median_toggles")),
             "hidden ref": num(r.get("hidden_ref_mean_share")),
             "r others": num(r.get("loo_r")), "repeat r": num(r.get("repeat_r")),
@@ -142,7 +143,7 @@ QUALITY_COLUMNS = {
               "allowed no vsync; simulated for simulated raters, who have no pre-flight) and "
               "whether vsync was on",
     "frames": "frames = dropped frames in presentations with drops / all presentations",
-    "min": "min = minutes in the study: from each start (or return) to the last thing "
+    "minutes": "minutes = in the study: from each start (or return) to the last thing "
            "recorded before the next, summed (pauses count; the time away between sittings "
            "does not)",
     "view s": "view s = median viewing time per trial",

@@ -149,7 +149,7 @@ def test_report_panel_from_simulated_sessions(panel_study, tmp_path):
     summary = json.loads((report.parent / "summary.json").read_text())
     assert summary["panel"]["sentence"] == s
     # and the paper's text describes the panel with the same sentence
-    assert f"Panel analysed: {s}" in (report.parent / "methods.txt").read_text()
+    assert f"The raters analysed were {s}" in (report.parent / "methods.txt").read_text()
     assert summary["panel"]["failed_vision"] == failed
     assert PAYLOAD not in json.dumps(summary) and summary["panel"]["n_free_text"]["comments"] >= 1
     html = report.read_text()

@@ -32,3 +32,15 @@ def test_sittings_are_summed_without_the_time_away():
 def test_a_session_that_never_started_has_no_time():
     minutes, n = study_minutes([_rec([("created", "2026-01-01T10:00:00Z")])])
     assert math.isnan(minutes) and n == 0
+
+
+def test_an_implausible_time_in_the_study_is_flagged():
+    import pandas as pd
+
+    from analysis.quality import rater_flags
+
+    assert not any("h in the study" in f for f in rater_flags(pd.Series({"minutes": 35.0}),
+                                                                None))
+    flags = rater_flags(pd.Series({"minutes": 388462.4}), None)
+    assert "6474 h in the study (> 12 h: a computer clock that jumped during a sitting?)" \
+        in flags

@@ -112,6 +112,13 @@ def run(args: argparse.Namespace) -> int:
     return _report(outcome)
 
 
+FINISHED_FLUSH_S = 60.0
+"""How long a start of a finished session waits to send what had not arrived."""
+AFTER_END_SCREEN_S = 2.0
+"""The end screen already waited for the uploads and said what arrived: one short last try
+after it closes, not a second long wait with no window."""
+
+
 def _run_served(invite, args: argparse.Namespace, opts) -> int:
     """Download, run with the uploader following the session file, report what arrived."""
     from session_store import read_session
@@ -139,20 +146,30 @@ def _run_served(invite, args: argparse.Namespace, opts) -> int:
         if path.exists():
             info = read_session(path).info
             if info.finished_at is not None:  # nothing to run: send what is left
-                status = uploader.flush(60.0)
+                print(f"Your session is finished; sending what has not reached the study "
+                      f"server yet (at most {FINISHED_FLUSH_S:.0f} s)...", flush=True)
+                status = uploader.flush(FINISHED_FLUSH_S)
                 print(f"Your session is finished ({path}). {status.describe()}")
                 return 0 if status.all_arrived else 1
-        opts.upload_report = lambda: upload_report(uploader)
+        reported: list[bool] = []  # the end screen waited for the uploads and said so
+
+        def report() -> tuple[bool, str]:
+            reported.append(True)
+            return upload_report(uploader)
+
+        opts.upload_report = report
         opts.ended_by_server = lambda: WITHDRAWN if uploader.status.withdrawn else None
         client = ServerClient(invite.server, invite.token)
         opts.next_block = lambda sid, k, last: request_block(client, invite.participant,
                                                              uploader, sid, k, last)
         outcome = run_study(study, opts)
-        if path.exists() and not uploader.status.all_arrived and \
+        wait = (0.0 if not path.exists() else
+                AFTER_END_SCREEN_S if reported else FLUSH_AT_END_S)  # never wait twice
+        if wait > AFTER_END_SCREEN_S and not uploader.status.all_arrived and \
                 uploader.status.state != "refused":
             print(f"Sending your last answers to the study server (at most "
                   f"{FLUSH_AT_END_S:.0f} s)...", flush=True)
-        status = uploader.flush(FLUSH_AT_END_S if path.exists() else 0.0)
+        status = uploader.flush(wait)
     finally:
         uploader.stop()
     return _report(outcome, status if path.exists() else None)

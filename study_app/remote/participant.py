@@ -25,7 +25,7 @@ from session_store.invite import Invite
 from .download import check_disk_space, download_study, human_bytes, study_plan
 from .http import ServerClient, ServerRefused, ServerUnavailable
 from .stall_note import StallNote
-from .uploader import WITHDRAWN, Uploader
+from .uploader import WITHDRAWN, Uploader, participant_reason
 
 log = logging.getLogger(__name__)
 
@@ -73,8 +73,10 @@ def fetch_study(invite: Invite, data_dir: str | Path | None = None, *,
     except ServerUnavailable as exc:
         found = _last_study(last, invite.server)
         if found is not None:
-            say(f"The study server cannot be reached ({exc}); continuing with the study "
-                "downloaded before. Your answers are sent once the server is back.")
+            why = participant_reason(str(exc))
+            say(f"{why[:1].upper()}{why[1:]}. The study downloaded before is used; your "
+                "answers are kept on this computer and sent when the server answers again "
+                "(while the study runs, or the next time you start it).")
             return found
         raise ServerUnavailable(f"{exc}: the server may be down or this computer offline; "
                                 "try again later (anything downloaded so far is kept); if "

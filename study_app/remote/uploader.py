@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import random
+import re
 import sqlite3
 import threading
 import time
@@ -182,6 +183,9 @@ class UploadStatus:
     withdrawn: bool = False
     """The server refused because the participant was withdrawn (410): nothing is to be sent
     again, and nothing continued."""
+    pending: tuple[tuple[str, int], ...] = ()
+    """What has not arrived, by kind of change (``rating``, ``answer``, ``withdrawn``...),
+    as the session file says when the last pass failed or the app asked."""
 
     @property
     def all_arrived(self) -> bool:
@@ -199,13 +203,21 @@ class UploadStatus:
         if self.state == "refused":
             return (f"The study server refused the upload ({self.error}). Please contact the "
                     "experimenter and send your session file with 'cgvq-study export'.")
-        why = self.error or "sending"
-        what = ("1 recorded step of your session (an answer or your progress) has" if
-                missing == 1 else f"{missing} recorded steps of your session (answers and "
-                "progress) have")
-        return (f"{what} not reached the study server yet ({why}). They are kept on this "
-                "computer and sent the next time you start the study the same way (your "
-                "invitation, or the command the experimenter gave you).")
+        why = participant_reason(self.error)
+        pending = dict(self.pending)
+        again = ("start the study once more the same way when you are online (your "
+                 "invitation, or the command the experimenter gave you)")
+        if pending.get("withdrawn"):
+            return (f"Your withdrawal has not reached the study server yet ({why}). Please "
+                    f"{again}: it only sends your withdrawal. Or write to the experimenter "
+                    "that you withdrew.")
+        answers = pending.get("rating", 0) + pending.get("answer", 0)
+        what = (f"{answers} of your answers {'is' if answers == 1 else 'are'} not on the "
+                "study server yet" if answers else
+                "The last steps of your session are not on the study server yet" if pending
+                or missing else "Your answers are not on the study server yet")
+        return (f"{what} ({why}). They are safe on this computer: {again}, and it sends only "
+                "what is missing.")
 
 
 class Uploader:
@@ -261,11 +273,23 @@ class Uploader:
                     st = replace(st, local_seq=need)
                 if st.all_arrived or st.state in ("refused", "stopped") or \
                         not self.path.exists():
-                    return st
+                    return self._with_file(st)
                 left = deadline - time.monotonic()
                 if left <= 0 or not self._thread.is_alive():
-                    return st
+                    return self._with_file(st)
                 self._changed.wait(min(left, 0.5))
+
+    def _with_file(self, st: UploadStatus) -> UploadStatus:
+        """``st`` with what the session file says has and has not arrived (a run whose passes
+        all failed knows only what earlier runs stored in the file)."""
+        if st.all_arrived or not self.path.exists():
+            return st
+        local, acked, pending = outbox_state(self.path)
+        acked = max(st.acked_seq, acked)
+        if acked >= max(local, st.local_seq) > 0:
+            return replace(st, acked_seq=acked, local_seq=max(local, st.local_seq))
+        return replace(st, acked_seq=acked, local_seq=max(local, st.local_seq),
+                       pending=pending)
 
     def stop(self, timeout: float = 5.0) -> UploadStatus:
         self._stop.set()
@@ -318,7 +342,9 @@ class Uploader:
                 if isinstance(exc, ServerUnavailable) and exc.retry_after is not None:
                     delay = max(delay, min(exc.retry_after, self.max_backoff_s))
                 log.debug("upload of %s postponed %.1f s: %s", self.path, delay, exc)
-                self._set(state="offline", error=str(exc), local_seq=_local_seq(self.path))
+                local, acked, pending = outbox_state(self.path)
+                self._set(state="offline", error=str(exc), local_seq=local, pending=pending,
+                          acked_seq=max(self.status.acked_seq, acked))
             except StudyError as exc:
                 log.warning("upload of %s stopped: %s", self.path, exc)
                 self._set(state="refused", error=str(exc))
@@ -327,6 +353,36 @@ class Uploader:
                 self._wake.wait(delay)
         if self.status.state != "refused":
             self._set(state="stopped")
+
+
+def participant_reason(error: str | None) -> str:
+    """Why the upload has not gone through, in a participant's words: no server address, no
+    nested brackets ("the study server cannot be reached: connection refused")."""
+    if not error:
+        return "it is still being sent"
+    m = re.fullmatch(r"cannot reach the study server \S+ \((.*)\)", error)
+    if m:
+        return f"the study server cannot be reached: {m.group(1)}"
+    return error.replace("(", "- ").replace(")", "")
+
+
+def outbox_state(path: Path) -> tuple[int, int, tuple[tuple[str, int], ...]]:
+    """(last change, last change the server acknowledged, the changes not acknowledged by
+    kind) as the session file holds them; zeros when it cannot be read."""
+    try:
+        con = open_existing(path, readonly=True)
+    except StudyError:
+        return 0, 0, ()
+    try:
+        local = int(con.execute("SELECT coalesce(max(seq), 0) FROM outbox").fetchone()[0])
+        acked = outbox.acked_seq(con)
+        kinds = con.execute("SELECT kind, count(*) FROM outbox WHERE seq > ? GROUP BY kind "
+                            "ORDER BY kind", (acked,)).fetchall()
+        return local, acked, tuple((str(k), int(n)) for k, n in kinds)
+    except sqlite3.Error:
+        return 0, 0, ()
+    finally:
+        con.close()
 
 
 def _local_seq(path: Path) -> int:

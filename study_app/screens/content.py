@@ -319,6 +319,13 @@ def end(session_path: Path, total: int, withdrawn: bool, name_keys: NameKeys,
                 "Attach both to an e-mail to the experimenter, or upload both where the "
                 "experimenter told you. Do not delete or rename either of them: one without "
                 "the other is missing answers.")
+    elif upload is not None:  # a study server: starting again sends the rest; e-mail if not
+        body = (f"{first}\n\n{sent}"
+                "## If you cannot start the study again\n\n"
+                "Then send this one file to the experimenter instead:\n\n"
+                f"{where}\n\n"
+                "Attach it to an e-mail to the experimenter, or upload it where the "
+                "experimenter told you. Send only this file: it holds all your answers.")
     else:
         body = (f"{first}\n\n{sent}"
                 "## Send this one file to the experimenter\n\n"

@@ -39,8 +39,10 @@ def test_uploader_waits_for_the_file_and_follows_it_without_notify(
             time.sleep(0.1)
         status = up.flush(0.5)
         assert status.state == "offline" and not status.all_arrived
-        assert "1 recorded step of your session (an answer or your progress) has not " \
-               "reached the study server" in status.describe()
+        assert status.describe().startswith(
+            "1 of your answers is not on the study server yet (the study server cannot be "
+            "reached: "), status.describe()
+        assert srv.url not in status.describe()  # no address, no errno for a participant
         store.close()
     finally:
         up.stop()
@@ -57,10 +59,25 @@ def test_end_screen_sentences():
         "All your answers have arrived at the study server.")
     refused = UploadStatus("refused", 3, 12, "409: entry 4 differs").describe()
     assert "refused the upload" in refused and "cgvq-study export" in refused
-    offline = UploadStatus("offline", 3, 12, "cannot reach").describe()
-    assert offline.startswith("9 recorded steps of your session (answers and progress) have "
-                              "not reached")
-    assert "sent the next time you start the study the same way" in offline
+    offline = UploadStatus("offline", 3, 12, "cannot reach the study server "
+                           "https://study.example.org:8443 (connection refused)",
+                           pending=(("answer", 1), ("event", 2), ("rating", 6))).describe()
+    assert offline == (
+        "7 of your answers are not on the study server yet (the study server cannot be "
+        "reached: connection refused). They are safe on this computer: start the study once "
+        "more the same way when you are online (your invitation, or the command the "
+        "experimenter gave you), and it sends only what is missing.")
+    steps = UploadStatus("offline", 11, 12, "the study server answered 503",
+                         pending=(("finish", 1),)).describe()
+    assert steps.startswith("The last steps of your session are not on the study server yet "
+                            "(the study server answered 503)")
+    left = UploadStatus("offline", 3, 12, "cannot reach the study server http://x:1 (no "
+                        "answer in time)", pending=(("rating", 2), ("withdrawn", 1)))
+    assert left.describe().startswith(
+        "Your withdrawal has not reached the study server yet (the study server cannot be "
+        "reached: no answer in time). Please start the study once more the same way when "
+        "you are online (your invitation, or the command the experimenter gave you): it only "
+        "sends your withdrawal.")
 
 
 def test_end_screen_text_with_and_without_everything_arrived(tmp_path):
@@ -70,7 +87,34 @@ def test_end_screen_text_with_and_without_everything_arrived(tmp_path):
     path = tmp_path / "P01.sqlite"
     done = content.end(path, 12, False, keys, upload=(True, "All arrived."))
     assert "There is nothing to send" in done.body and "Send this one file" not in done.body
-    missing = content.end(path, 12, False, keys, upload=(False, "3 change(s) have not ..."))
-    assert "3 change(s) have not" in missing.body and "Send this one file" in missing.body
+    missing = content.end(path, 12, False, keys, upload=(False, "3 of your answers are not"))
+    assert "3 of your answers are not" in missing.body
+    assert "## If you cannot start the study again" in missing.body  # the e-mail: a fallback
+    assert "## Send this one file" not in missing.body
     plain = content.end(path, 12, False, keys)
     assert "Send this one file" in plain.body and "server" not in plain.body
+
+
+def test_the_count_left_comes_from_the_file_when_no_pass_succeeds(
+        served_study, tmp_path, invites, server_factory):
+    """A run that starts with the server down knows what earlier runs had sent: the answers
+    still to send are those recorded since (before: every change of the session counted)."""
+    [inv] = invites(1)
+    srv = server_factory(served_study)
+    path = tmp_path / "P01.sqlite"
+    store = write_session(served_study, path, "P01", ratings=3)
+    up = Uploader(path, ServerClient(srv.url, inv.token), "P01", idle_check_s=0.2).start()
+    assert up.flush(30).all_arrived
+    up.stop()
+    srv.stop()
+    for rating in (41.0, 42.0):  # two answers while the server is down
+        nxt = store.next_trial()
+        store.record(nxt.index, TrialResult(rating, 3000.0, 1, 1000.0, 2000.0, utc_now()))
+    store.close()
+    later = Uploader(path, ServerClient(srv.url, inv.token), "P01", min_backoff_s=5).start()
+    try:
+        status = later.flush(2.0)
+    finally:
+        later.stop()
+    assert not status.all_arrived and status.acked_seq > 0
+    assert status.describe().startswith("2 of your answers are not on the study server yet")

@@ -29,6 +29,12 @@ before it (Enter on Submit, twice in 150 ms) would otherwise also choose this sc
 and the participant would never see the break or the end screen. Scrolling is not ignored."""
 
 _CHOICE_EVENTS = ("KEYDOWN", "MOUSEBUTTONDOWN", "MOUSEBUTTONUP")
+IDLE_REDRAW_S = 0.5
+"""A text screen with no input is drawn again twice a second (a window the system uncovered
+gets an event and is drawn at once): a pause or end screen left open for an hour costs next
+to nothing, where drawing every refresh took 40-47 % of a core in software rendering."""
+IDLE_POLL_S = 0.01
+"""How often an idle screen looks for input: keys and clicks within 10 ms."""
 
 
 @dataclass
@@ -58,11 +64,13 @@ class TextScreen:
         ready = False  # keys and clicks count; the state line says so (tests wait for it)
         if d.pacer is not None:
             d.pacer.reset()
+        drawn_at = None  # nothing on a text screen moves: drawn again only on a change
         while True:
             if not ready and time.monotonic() >= opens_at:
                 ready = True
                 self.state(spec.name)
-            for event in pg.event.get():
+            events = pg.event.get()
+            for event in events:
                 if not ready and event.type in choice_events:
                     continue  # too early: the press was meant for the screen before
                 if event.type == pg.QUIT and spec.close_action == "quit":
@@ -84,7 +92,12 @@ class TextScreen:
                 if outcome is not None:
                     self.state(f"{spec.name}-done", choice=outcome)
                     return outcome
+            now = time.monotonic()
+            if not events and drawn_at is not None and now - drawn_at < IDLE_REDRAW_S:
+                time.sleep(IDLE_POLL_S)  # an idle screen: no draw, no flip
+                continue
             draw_text_screen(d.renderer, lay, flow, st.offset, primary=spec.primary,
                              disabled=st.disabled, hover=hover, scroll_hint=st.hint())
             self.shot(spec.name)
             d.flip()
+            drawn_at = now

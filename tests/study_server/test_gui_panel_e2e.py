@@ -162,7 +162,8 @@ def test_questionnaires_in_the_real_app_through_the_server(tmp_path, xdisplay, i
     survey = sum(any(k in a for k in ("notice_artifacts", "task_clear", "comments"))
                  for a in answers)
     assert f"{survey} of 5 answered the post-study survey" in panel["sentence"]
-    assert "5 took the remote vision screening and 1 failed it" in panel["sentence"]
+    assert "5 took the remote vision screening (" in panel["sentence"]
+    assert "): 4 passed and 1 failed it (colour 1)" in panel["sentence"]
     assert me.participant not in panel["failed_vision"] and len(panel["failed_vision"]) == 1
     html = (report / "report.html").read_text()
     assert "&lt;b&gt;Nice&lt;/b&gt; &amp; clear" in html and COMMENT not in html

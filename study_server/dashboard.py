@@ -75,6 +75,11 @@ handshake) but whose session has not: still downloading, stuck, stopped at the p
 or reading the consent. "last seen" says when."""
 
 
+STOPPED = "stopped, to continue later"
+"""A participant who chose "stop and continue later" on the pause screen: the last thing
+their app sent; they come back with the same invitation."""
+
+
 def attention(row: dict[str, Any], partial: bool, limits: CellLimits) -> list[str]:
     """Why one participant's row needs a look, in words: the cells the table marks (with the
     report's thresholds, ``limits``), plus their flags. Empty for a participant who withdrew
@@ -109,8 +114,21 @@ def attention(row: dict[str, Any], partial: bool, limits: CellLimits) -> list[st
         if ps.unreadable:
             out.append(f"{ps.unreadable} unreadable entr{'y' if ps.unreadable == 1 else 'ies'}")
     for f in row["p"]["flags"]:
-        out.append(f["kind"] + (f" ×{f['count']}" if f["count"] > 1 else ""))
+        words = FLAG_WORDS.get(f["kind"], f["kind"].replace("_", " "))
+        out.append(words + (f" ×{f['count']}" if f["count"] > 1 else ""))
     return out
+
+
+FLAG_WORDS = {
+    "offline_gap": "answers arrived late (offline meanwhile)",
+    "clock_skew": "computer clock far off",
+    "second_session": "a second session",
+    "local_edit": "session file edited on the computer",
+    "contradiction": "an upload contradicted what had arrived",
+    "refused": "an upload refused",
+}
+"""The upload flags in the "participants to look at" list, in words (the flags table below
+the list gives each flag's full message)."""
 
 
 ORDERS = ("id", "look")
@@ -147,14 +165,14 @@ class Pages:
             state = "invited" if not p["last_seen"] else FETCHED
             if s is not None:
                 state = {"finish": "finished", "withdrawn": "withdrew in app"}.get(
-                    s["closed_as"] or "", "running")
+                    s["closed_as"] or "", STOPPED if s.get("stopped") else "running")
             planned = 0
             if s is not None:  # an adaptive session plans its later blocks as it goes
                 planned = s["n_planned"] if s["finished_at"] else \
                     max(s["n_planned"], snap.planned_per_participant)
             rows.append({"p": p, "s": s, "ps": ps, "state": state, "planned": planned,
                          "progress": (s["n_ratings"] / planned) if s and planned else 0.0,
-                         "stalled": state in ("running", FETCHED) and _older_than(
+                         "stalled": state in ("running", STOPPED, FETCHED) and _older_than(
                              p["last_seen"], STALLED_AFTER_S)})
         per_stim = sorted(snap.per_stimulus.items(), key=lambda kv: kv[1])
         counts = [n for _, n in per_stim]
@@ -182,7 +200,8 @@ class Pages:
         if order == "look":  # the rows to look at first, the most reasons first (stable)
             rows.sort(key=lambda r: -len(r["attention"]))
         finished = sum(1 for r in rows if r["state"] == "finished")
-        pending = sum(1 for r in rows if r["state"] in ("invited", FETCHED, "running"))
+        pending = sum(1 for r in rows if r["state"] in ("invited", FETCHED, "running",
+                                                        STOPPED))
         rate = self.stats.rate_per_hour()
         return {
             "study_id": self.study_id, "listing": listing, "rows": rows, "snap": snap,

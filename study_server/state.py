@@ -206,6 +206,7 @@ class ServerState:
                  "last_at": f.last_at, "count": f.count})
         versions = self.store.versions()
         number = {v.manifest_sha256: i + 1 for i, v in enumerate(versions)}
+        last_event = self.store.last_events()
         out = []
         for p in self.store.participants():
             s = sessions.get(p.participant)
@@ -218,7 +219,8 @@ class ServerState:
                     "n_ratings": s.n_ratings, "n_planned": s.n_planned,
                     "first_received": s.first_received, "last_received": s.last_received,
                     "finished_at": s.finished_at, "closed_as": s.closed_as,
-                    "app_version": s.app_version},
+                    "app_version": s.app_version,
+                    "stopped": last_event.get(s.session_id) == "quit"},
                 "flags": flags.get(p.participant, [])})
         return {
             "study_id": self.study_id,

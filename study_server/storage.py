@@ -26,6 +26,7 @@ all, so every migration is exercised by every test):
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import sqlite3
 import threading
@@ -464,6 +465,24 @@ class ServerStore:
         with self._read() as con:
             return [SessionRow(**dict(r)) for r in
                     con.execute("SELECT * FROM sessions ORDER BY participant")]
+
+    def last_events(self) -> dict[str, str]:
+        """Per session whose last stored change is a session event, that event's kind
+        ("quit": the participant stopped, to continue later)."""
+        with self._read() as con:
+            rows = con.execute(
+                "SELECT s.session_id, e.body FROM sessions s JOIN entries e ON "
+                "e.session_id = s.session_id AND e.seq = s.acked_seq WHERE e.kind = 'event'"
+            ).fetchall()
+        out = {}
+        for session_id, body in rows:
+            try:
+                kind = json.loads(body).get("kind")
+            except (ValueError, AttributeError):
+                continue
+            if isinstance(kind, str):
+                out[str(session_id)] = kind
+        return out
 
     def entries(self, session_id: str, after: int = 0, limit: int | None = None
                 ) -> list[StoredEntry]:

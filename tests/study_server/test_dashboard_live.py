@@ -93,7 +93,8 @@ def test_the_list_to_look_at_says_why_in_words():
                                 vision={"ishihara": "failed", "acuity": "passed"},
                                 unreadable=1)
     flag = {"kind": "clock_skew", "count": 2, "message": "..."}
-    row = {"p": {"participant": "P03", "last_seen": None, "flags": [flag]}, "ps": ps,
+    late = {"kind": "offline_gap", "count": 1, "message": "..."}
+    row = {"p": {"participant": "P03", "last_seen": None, "flags": [flag, late]}, "ps": ps,
            "state": "running", "stalled": False}
     limits = stats.CellLimits(panel_r=0.75, hidden_reference=50.0)
     ps.hidden_reference_mean = 42.0
@@ -101,7 +102,8 @@ def test_the_list_to_look_at_says_why_in_words():
         "partial: not used yet", "failed the ishihara check", "r panel 0.31",
         "hidden references rated 42.0 on average",
         "timing paced-60", "4 dropped frame(s)", "1 re-queued trial(s)",
-        "pre-flight skipped", "1 unreadable entry", "clock_skew ×2"]
+        "pre-flight skipped", "1 unreadable entry", "computer clock far off ×2",
+        "answers arrived late (offline meanwhile)"]  # words, not the flags' codes
     clean = stats.ParticipantStats("P04", timing="vsync", panel_r=0.8, hidden_reference_mean=51,
                                    vision={"ishihara": "passed"}, preflight_skipped=False)
     assert dashboard.attention({**row, "ps": clean, "p": {**row["p"], "flags": []}},
@@ -162,3 +164,29 @@ def test_a_participant_who_fetched_the_study_is_seen_before_any_session(
     assert later["P01"]["stalled"] and not later["P02"]["stalled"]
     assert any(w.startswith("no contact for") for w in later["P01"]["attention"])
     assert later["P02"]["attention"] == []
+
+
+def test_a_participant_who_stopped_to_continue_later_is_told_apart(
+        served_study, tmp_path, invites, server_factory, monkeypatch):
+    """"Stop and continue later" is the last thing the app sends (a quit event): the row says
+    so, not "running" (which an app that lost its connection also shows)."""
+    monkeypatch.setenv("CGVQ_ADMIN_TOKEN", ADMIN)
+    p01, p02 = invites(2)
+    srv = server_factory(served_study)
+    for inv, stop in ((p01, True), (p02, False)):
+        path = tmp_path / f"{inv.participant}.sqlite"
+        store = write_session(served_study, path, inv.participant, ratings=2)
+        if stop:
+            store.log_event("quit", answered=2)
+        store.close()
+        sync_session(path, ServerClient(srv.url, inv.token), inv.participant)
+    srv.stop()
+    st = ServerState.open(ServerConfig(served_study, stats_in_background=False))
+    try:
+        rows = {r["p"]["participant"]: r for r in st.pages.context()["rows"]}
+        html = _text(st.pages.dashboard())
+    finally:
+        st.stop()
+    assert rows["P01"]["state"] == dashboard.STOPPED == "stopped, to continue later"
+    assert rows["P02"]["state"] == "running"
+    assert "stopped, to continue later" in html

@@ -619,7 +619,8 @@ class App:
                 return
             answered, total = self.store.progress()
             confirm = (content.confirm_quit(answered, total, self._name_keys) if choice == "quit"
-                       else content.confirm_withdraw(self._name_keys))
+                       else content.confirm_withdraw(
+                           self._name_keys, served=self.opts.upload_report is not None))
             if self._screen(confirm) == "yes":
                 raise _QuitRequestedError if choice == "quit" else _WithdrawnError
 

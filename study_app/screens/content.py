@@ -204,11 +204,15 @@ def confirm_quit(answered: int, total: int, name_keys: NameKeys) -> ScreenSpec:
                  close_action="yes", primary="no")
 
 
-def confirm_withdraw(name_keys: NameKeys) -> ScreenSpec:
-    body = ("You can stop taking part at any time, without giving a reason.\n\n"
-            "If you withdraw, the study ends now and your result file is marked as "
-            "withdrawn. Please still send it to the experimenter, and tell them whether "
-            "your answers so far may be used or should be deleted.")
+def confirm_withdraw(name_keys: NameKeys, *, served: bool = False) -> ScreenSpec:
+    """``served``: the study came from a study server, which is told of the withdrawal."""
+    body = ("You can stop taking part at any time, without giving a reason.\n\n" + (
+        "If you withdraw, the study ends now and the study server is told: none of your "
+        "answers will be used. (If this computer is offline, the next screen says how the "
+        "withdrawal still reaches the experimenter.)" if served else
+        "If you withdraw, the study ends now and your result file is marked as "
+        "withdrawn. Please still send it to the experimenter, and tell them whether "
+        "your answers so far may be used or should be deleted."))
     return _spec("confirm-withdraw", "Withdraw from the study?", body, CONFIRM_KEYS,
                  [("no", "No, go back"), ("yes", "Yes, withdraw")], name_keys,
                  close_action="no", primary="no")

@@ -11,6 +11,7 @@ import sqlite3
 from pathlib import Path
 
 import numpy as np
+import pytest
 from support.sessions import plain_result
 
 from session_store import SessionStore, read_session
@@ -122,6 +123,32 @@ def test_end_screen_text_for_two_files_with_and_without_an_upload(tmp_path):
 def test_two_files_end_screen_screenshot(egl, tmp_path):
     """The screen as the player draws it (off-screen), saved for a person to look at:
     test-artifacts/study_app/screens/end-two-files.png."""
+    spec = content.end(tmp_path / "sessions" / "P07.sqlite", 240, False, names,
+                       in_two_files=True)
+    _shot(spec, "end-two-files")
+
+
+@pytest.mark.parametrize(("withdrawn", "name"), [(False, "end-offline"),
+                                                 (True, "end-withdrawn-offline")])
+def test_offline_end_screens_screenshot(egl, tmp_path, withdrawn, name):
+    """A served session whose last answers (or whose withdrawal) have not reached the server:
+    starting again is the instruction, the file by e-mail the fallback. Saved for a person
+    to look at: test-artifacts/study_app/screens/end-offline*.png."""
+    from study_app.remote import UploadStatus
+
+    pending = (("withdrawn", 1),) if withdrawn else (("event", 1), ("rating", 3))
+    status = UploadStatus("offline", 9, 13, "cannot reach the study server "
+                          "https://study.example.org:8443 (connection refused)",
+                          pending=pending)
+    spec = content.end(tmp_path / "sessions" / "P07.sqlite", 240, withdrawn, names,
+                       upload=(False, status.describe()))
+    assert ("withdrawal has not reached" in spec.body) == withdrawn
+    assert "## If you cannot start the study again" in spec.body
+    _shot(spec, name)
+
+
+def _shot(spec, name: str) -> None:
+    """Draw ``spec`` off-screen as the player does and save it under test-artifacts."""
     import moderngl
     from PIL import Image
 
@@ -132,8 +159,6 @@ def test_two_files_end_screen_screenshot(egl, tmp_path):
     from study_app.screens.textflow import flow_blocks
 
     size = (1280, 800)
-    spec = content.end(tmp_path / "sessions" / "P07.sqlite", 240, False, names,
-                       in_two_files=True)
     ctx = moderngl.create_standalone_context(backend="egl", require=330)
     try:
         fbo = ctx.simple_framebuffer(size)
@@ -153,7 +178,7 @@ def test_two_files_end_screen_screenshot(egl, tmp_path):
         image = pixels.reshape(size[1], size[0], 3)[::-1]
     finally:
         ctx.release()
-    out = REPO / "test-artifacts" / "study_app" / "screens" / "end-two-files.png"
+    out = REPO / "test-artifacts" / "study_app" / "screens" / f"{name}.png"
     out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(image).save(out)
     assert len(np.unique(image.reshape(-1, 3), axis=0)) > 2  # text was drawn

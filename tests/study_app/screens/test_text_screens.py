@@ -151,3 +151,13 @@ def test_the_seating_screen_gives_the_distance_in_centimetres_and_card_widths():
     assert "arm's length" not in again
     assert "Sit about 70 cm" in content.break_screen(1, 2, names, 70.0).body
     assert "Sit about" not in content.break_screen(1, 2, names).body
+
+
+def test_a_served_withdrawal_says_the_server_is_told():
+    """From a study server the file need not be sent by hand: the server is told (a local
+    study's participant is asked to send the file and say what may be used)."""
+    served = content.confirm_withdraw(names, served=True).body
+    assert "the study server is told: none of your answers will be used" in served
+    assert "send it to the experimenter" not in served
+    local = content.confirm_withdraw(names).body
+    assert "send it to the experimenter" in local and "server" not in local

@@ -103,6 +103,9 @@ class RunOptions:
     upload_report: Callable[[], tuple[bool, str]] | None = None
     """With a study server: waits for the last uploads and says (everything arrived, the
     sentence for the end screen); the end screen then shows it."""
+    on_commit: Callable[[], None] | None = None
+    """With a study server: a rating was committed (the uploader tries at once, also while it
+    backs off after an outage); must not block."""
     ended_by_server: Callable[[], str | None] | None = None
     """With a study server: why it no longer accepts this session (the participant was
     withdrawn), else None; asked before each trial, and the session then ends there."""
@@ -659,6 +662,8 @@ class App:
             else:
                 store.record(trial.index, result)
                 self._state("recorded", trial=trial.index, rating=f"{result.rating:.3f}")
+            if self.opts.on_commit is not None:
+                self.opts.on_commit()
             since_break += 1
             answered, total = self._progress()
             if break_due(since_break, self.opts.break_every, total - answered):

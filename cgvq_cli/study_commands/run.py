@@ -158,6 +158,7 @@ def _run_served(invite, args: argparse.Namespace, opts) -> int:
             return upload_report(uploader)
 
         opts.upload_report = report
+        opts.on_commit = uploader.notify
         opts.ended_by_server = lambda: WITHDRAWN if uploader.status.withdrawn else None
         client = ServerClient(invite.server, invite.token)
         opts.next_block = lambda sid, k, last: request_block(client, invite.participant,

@@ -4,8 +4,9 @@
 client's clock and compares the client's change log with what it holds), then every entry
 after the acknowledged one, in batches, each answered with the new acknowledged sequence
 number (written into the file's ``upload_state``). :class:`Uploader` runs passes on a
-background thread: the app calls :meth:`Uploader.notify` after each committed rating (which
-only sets an event, so the presentation loop never waits for the network); offline, passes
+background thread: the app calls :meth:`Uploader.notify` after each committed rating
+(``RunOptions.on_commit``; it only sets an event, so the presentation loop never waits for
+the network, and a pass backing off after an outage tries again at once); offline, passes
 fail and are retried with exponential backoff (or the server's ``Retry-After``) until the
 server is back. A refusal (a bad token, a contradiction with acknowledged data) stops the
 thread: retrying cannot help, and the end screen says so.

@@ -146,8 +146,14 @@ def _angle(p: dict[str, Any], quality: pd.DataFrame | None, raters: list[str]) -
 
 
 def _order(quality: pd.DataFrame | None, raters: list[str]) -> str:
-    """Practice, order, breaks and the time in the study, from the session files."""
+    """Practice, order, breaks and the time in the study, from the session files (of people:
+    simulated sessions have no order a person saw, nor time)."""
     if quality is None or not raters:
+        return ""
+    modes = _text(quality.reindex(raters)["timing_mode"]) if "timing_mode" in \
+        quality.columns else pd.Series("", index=raters)
+    raters = [r for r in raters if "simulated" not in modes.get(r, "")]
+    if not raters:
         return ""
     practice = pd.to_numeric(_column(quality, raters, "practice_trials"),
                              errors="coerce").dropna()

@@ -107,3 +107,16 @@ def test_a_withdrawal_is_in_the_participant_flow(tmp_path, capsys):
                               "references)")
     quality = pd.read_csv(out / "tables" / "data_quality.csv", index_col="rater")
     assert list(quality["practice_trials"].isna()) == [True] * len(quality)  # not stored
+
+
+def test_simulated_raters_have_no_order_or_time_to_report():
+    from analysis.presentation_text import _order
+
+    quality = pd.DataFrame({"timing_mode": ["simulated", "simulated", "vsync"],
+                            "practice_trials": [2, 2, 3], "break_every": [40, 40, 20],
+                            "minutes": [0.1, 0.1, 31.0]}, index=["S1", "S2", "P1"])
+    assert _order(quality, ["S1", "S2"]) == ""
+    assert _order(quality, ["S1", "S2", "P1"]) == (
+        " 3 practice trials (not rated) came first; each participant saw the trials in their "
+        "own random order, never the same stimulus twice in a row; a break was offered every "
+        "20 trials. The participants spent 31 min in the study, breaks included.")

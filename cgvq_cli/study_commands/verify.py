@@ -52,6 +52,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {problem.message if problem.path == report.path else problem}")
         for warning in report.warnings:
             print(f"  warning: {warning}")
+    for line in _copies(reports):
+        print(line)
     if len(reports) > 1:
         states = [r.state for r in reports]
         counts = {s: states.count(s)
@@ -64,6 +66,19 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.flush()
         raise StudyError(_failure_line(reports))
     return code
+
+
+def _copies(reports: list[VerifyReport]) -> list[str]:
+    """Files that are one session (a sent file, its export zip, a pulled copy): said once,
+    so the counts below are not read as that many participants."""
+    by_session: dict[str, list[VerifyReport]] = {}
+    for r in reports:
+        if r.info is not None and r.checked:
+            by_session.setdefault(r.info.session_id, []).append(r)
+    return [f"{len(same)} files are copies of one session ({same[0].info.session_id[:12]}..., "
+            f"participant {same[0].info.participant}): the analysis uses the copy with the "
+            f"most ratings ({', '.join(str(r.path) for r in same)})"
+            for same in by_session.values() if len(same) > 1]
 
 
 def _failure_line(reports: list[VerifyReport]) -> str:

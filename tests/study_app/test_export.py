@@ -54,6 +54,10 @@ def test_verify_takes_files_folders_and_zips_at_once(tmp_path, capsys):
     assert "P02.sqlite: intact but INCOMPLETE" in out
     assert f"{z}:P01_" in out and "broken.sqlite: DAMAGED" in out
     assert "4 session files: 2 complete, 1 incomplete, 1 damaged" in out
+    sid = read_session(done).info.session_id  # the file and its zip are one session
+    (copies,) = [ln for ln in out.splitlines() if "copies of one session" in ln]
+    assert copies.startswith(f"2 files are copies of one session ({sid[:12]}..., "
+                             "participant P01): the analysis uses the copy with the most ratings")
     assert main(["verify", str(tmp_path / "in" / "P01.sqlite"), str(z)]) == 0
     capsys.readouterr()
 

@@ -1,6 +1,6 @@
 // Times in the browser's local time (relative ones get it as a tooltip, with the zone);
 // reload every data-refresh seconds, but only once the server answers: after an outage or a
-// restart the page stays, says since when the server is unreachable, and keeps trying.
+// restart the page stays, says when the server last answered, and keeps trying.
 document.querySelectorAll("time[datetime]").forEach(function (t) {
   var d = new Date(t.getAttribute("datetime"));
   if (isNaN(d)) { return; }
@@ -9,6 +9,7 @@ document.querySelectorAll("time[datetime]").forEach(function (t) {
   if (!t.classList.contains("rel")) { t.textContent = text; }
 });
 var every = Number(document.body.dataset.refresh || 0);
+var answered = new Date();  // the server's last answer: this page
 var since = null;
 function check() {
   fetch(location.href, { cache: "no-store", credentials: "same-origin" })
@@ -25,9 +26,10 @@ function check() {
         banner.className = "banner";
         document.body.insertBefore(banner, document.body.firstChild);
       }
-      banner.textContent = "The study server cannot be reached since " +
-        since.toLocaleTimeString() + "; this page shows what it said before, and tries " +
-        "again every " + every + " s.";
+      document.body.classList.add("stale");  // "... ago" stopped at that answer
+      banner.textContent = "The study server cannot be reached (its last answer came at " +
+        answered.toLocaleTimeString() + ", no answer since " + since.toLocaleTimeString() +
+        "); this page shows what it said then, and tries again every " + every + " s.";
       setTimeout(check, every * 1000);
     });
 }

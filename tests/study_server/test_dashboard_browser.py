@@ -204,7 +204,10 @@ def test_the_page_survives_a_server_outage_and_recovers(browser, tmp_path, invit
     srv.stop()
     browser.execute_script("every = 1; check();")
     banner = WebDriverWait(browser, 30).until(lambda b: b.find_elements(By.ID, "unreachable"))
-    assert banner[0].text.startswith("The study server cannot be reached since ")
+    assert banner[0].text.startswith("The study server cannot be reached (its last answer "
+                                     "came at ")  # the page's time, not the first failed try
+    assert "no answer since" in banner[0].text
+    assert "stale" in browser.find_element(By.TAG_NAME, "body").get_attribute("class")
     assert "tries again every 1 s" in banner[0].text
     assert len(browser.find_elements(By.CSS_SELECTOR, "#participants tr[data-participant]")) == 2
     _full_page_screenshot(browser, "dashboard_server_unreachable.png")

@@ -123,9 +123,10 @@ def test_the_netflix_dataset_reads_as_published(tmp_path):
     assert main(["report", "--sureal", str(NFLX), "--bootstrap", "50", "--splits", "20",
                  "--out", str(tmp_path / "nflx")]) == 0
     text = " ".join((tmp_path / "nflx" / "methods.txt").read_text().split())
-    assert text.startswith("30 participants gave valid ratings of 79 stimuli (9 source "
-                           "contents; 70 distorted versions; 9 hidden references) on a 1 to 5 "
-                           "scale; full design: every stimulus rated once by every rater.")
+    assert text.startswith("30 participants gave valid ratings. The study had 79 stimuli (9 "
+                           "source contents; 70 distorted versions; 9 hidden references), "
+                           "rated on a 1 to 5 scale; full design: every stimulus rated once by "
+                           "every rater.")
     # NFLX labels no HRC, so P.913's r2 cannot run, and the text says so
     assert "r1 decided alone" in text and "r2 < 0.8" not in text
     assert re.search(r"4 raters \((2[6-9], ){3}2[6-9]\) were removed\. [^.]*\. The analysis "

@@ -68,6 +68,7 @@ from .remote.uploader import WITHDRAWN
 from .resume_check import check_resumable
 from .reveal import reveal_in_file_manager
 from .screens import content
+from .termination import Termination, termination_watch
 from .text_screen import TextScreen
 from .trial_screen import OnGpu, TrialScreen, upload_pair, viewing_layout_for
 from .vision.acuity_plan import acuity_plan
@@ -160,7 +161,8 @@ class RunOutcome:
     """How a run ended: ``finished``, ``quit`` (resumable), ``withdrawn``, ``ended`` (the study
     server no longer accepts the session), ``screened-out``
     (a failed vision check with ``on_fail: end``; ``screened_by`` says which), ``declined``
-    (no consent) or ``closed`` (the window closed before the session started)."""
+    (no consent) or ``closed`` (the window closed before the session started or, on a
+    return, before it reopened: then ``session_path`` is the untouched session)."""
 
     status: str
     session_path: Path | None
@@ -212,6 +214,7 @@ class App:
         self._practice_mode = False
         self._first_pair: DecodedPair | None = None
         self._loop_s = 1.0
+        self._termination = Termination()
 
     # -- utilities --------------------------------------------------------------------
     def _state(self, name: str, **kw: Any) -> None:
@@ -256,21 +259,18 @@ class App:
                 log.info("took over the lock of an ended run (process %s)",
                          lock.took_over.get("pid"))
             resume = self._check_existing()
-            self.display = Display(
-                windowed=self.opts.windowed or self.opts.window_size is not None,
-                window_size=self.opts.window_size or self._window_for(),
-                refresh_hz=self.opts.refresh_hz, force_pacer=self.opts.force_pacer)
-            self.display.priority = realtime.raise_priority()
-            try:
-                return self._run(resume)
-            except _QuitRequestedError:
-                answered, total = self.store.progress() if self.store else (0, 0)
-                if self.store:
-                    self.store.log_event("quit", answered=answered)
-                return RunOutcome("quit", self.session_path if self.store else None,
-                                  answered, total)
-            except _ClosedError:
-                return RunOutcome("closed", None)
+            with termination_watch(self._post_close) as self._termination:
+                self.display = Display(
+                    windowed=self.opts.windowed or self.opts.window_size is not None,
+                    window_size=self.opts.window_size or self._window_for(),
+                    refresh_hz=self.opts.refresh_hz, force_pacer=self.opts.force_pacer)
+                self.display.priority = realtime.raise_priority()
+                try:
+                    return self._run(resume)
+                except _QuitRequestedError:
+                    return self._quit_outcome()
+                except _ClosedError:  # before the session (re)opened: nothing new in it
+                    return RunOutcome("closed", self.session_path if resume else None)
         finally:
             self.prefetch.close()
             if self.store is not None:
@@ -490,8 +490,36 @@ class App:
         """Run ``fn`` in a worker thread while a waiting screen keeps the window alive."""
         return wait_for(self.display, fn, message, self._on_close)
 
+    def _quit_outcome(self) -> RunOutcome:
+        """A confirmed stop (or a signal, see :mod:`.termination`), recorded as the event
+        the dashboard and the analysis read as "stopped, to continue later"."""
+        answered, total = self.store.progress() if self.store else (0, 0)
+        if self.store:
+            signal = ({"signal": self._termination.name} if self._termination.requested
+                      else {})
+            self.store.log_event("quit", answered=answered, **signal)
+        return RunOutcome("quit", self.session_path if self.store else None, answered, total)
+
+    def _post_close(self) -> None:
+        """From the signal handler: wake the screen showing now with a window-close event."""
+        d = self.display
+        if d is not None and d.pg.display.get_init():
+            d.pg.event.post(d.pg.event.Event(d.pg.QUIT))
+
+    def _stop_if_terminated(self) -> None:
+        """A signal asked the run to end: stop as a confirmed quit (no session open yet:
+        closed; a session already finished or withdrawn: its end screen closes as usual)."""
+        if not self._termination.requested:
+            return
+        if self.store is None:
+            raise _ClosedError
+        info = self.store.info
+        if info.finished_at is None and not info.withdrawn:
+            raise _QuitRequestedError
+
     def _on_close(self) -> None:
         """The window's close button outside a text screen: confirm, or nothing stored yet."""
+        self._stop_if_terminated()
         if self.store is None:
             raise _ClosedError
         answered, total = self.store.progress()
@@ -568,7 +596,10 @@ class App:
     # -- text screens -----------------------------------------------------------------
     def _screen(self, spec: content.ScreenSpec) -> str:
         """Show a text screen until one of its actions is chosen; returns the action."""
-        return TextScreen(self.display, self._state, self._shot, self._on_close).show(spec)
+        self._stop_if_terminated()
+        choice = TextScreen(self.display, self._state, self._shot, self._on_close).show(spec)
+        self._stop_if_terminated()  # closed by a signal: not the screen's close action
+        return choice
 
     # -- practice and main loop -------------------------------------------------------
     def _practice(self) -> None:

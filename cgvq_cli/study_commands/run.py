@@ -193,6 +193,10 @@ def _report(outcome, upload=None) -> int:
     if outcome.status == "declined":
         print("Consent declined: nothing was recorded.")
         return 1
+    if outcome.status == "closed" and outcome.session_path is not None:
+        print(f"Closed before the session continued: nothing new was recorded in "
+              f"{outcome.session_path}; run the same command again to continue.")
+        return 1
     if outcome.status == "closed":
         print("Closed before the study started: nothing was recorded.")
         return 1

@@ -102,31 +102,33 @@ def _adaptive_words(settings: dict[str, Any] | None, planned_by: set[str]) -> st
 
 
 def allocation_sentence(a: Analysis, counts: dict[str, float]) -> str:
-    """How the ratings were allocated, in one sentence (the full design kept short)."""
+    """How the ratings were allocated, in one sentence a paper can keep (the full design
+    kept short)."""
     rs = a.screened
     per_cell = np.isfinite(rs.scores).sum(axis=2)
-    spread = (f"ratings per stimulus min {counts['min']}, median {counts['median']:g}, "
-              f"max {counts['max']}")
+    lo, hi = counts["min"], counts["max"]
+    spread = (f"each stimulus received {lo}" + ("" if lo == hi else f"-{hi}") +
+              f" ratings (median {counts['median']:g})")
     if rs.allocation == "full":
         if per_cell.size and per_cell.min() == per_cell.max():
             r = int(per_cell.max())
-            return (f"full design: every stimulus rated {'once' if r == 1 else f'{r} times'} "
-                    "by every rater")
+            return (f"a full design: every rater rated every stimulus "
+                    f"{'once' if r == 1 else f'{r} times'}")
         reps = rs.n_repetitions
         planned = f"{reps} repetition{'' if reps == 1 else 's'} planned"
         n_partial = len(a.partial_kept)
         why = (f"unbalanced by the {n_partial} partial session{'' if n_partial == 1 else 's'} "
                "kept" if n_partial else "unbalanced: not every rating was given as often")
-        return f"full design ({planned}), {why}: " + spread
+        return f"a full design ({planned}), {why}: " + spread
     if rs.allocation == "adaptive":
         info = rs.rater_info
         planned_by = ({p.strip() for v in info["blocks_planned_by"].dropna() for p in
                        str(v).split(",") if p.strip()}
                       if info is not None and "blocks_planned_by" in info.columns else set())
         words = _adaptive_words(rs.allocation_settings, planned_by)
-        return "adaptive design" + (f" ({words})" if words else "") + ": " + spread
-    return ("unbalanced design (no allocation policy declared, but stimuli got different "
-            "numbers of ratings): " + spread)
+        return "an adaptive design" + (f" ({words})" if words else "") + ": " + spread
+    return ("an unbalanced design (no allocation policy declared, but stimuli received "
+            "different numbers of ratings): " + spread)
 
 
 def allocation_summary(a: Analysis) -> dict[str, Any]:
@@ -269,7 +271,8 @@ def summary_text(a: Analysis) -> str:
     lines = [f"study {s['study']}: {s['n_stimuli']} stimuli, {s['n_raters_used']} of "
              f"{s['n_raters_input']} raters, {s['n_ratings_used']} ratings; model "
              f"{s['model_name']}"]
-    lines.append(s["allocation"]["sentence"])
+    design = s["allocation"]["sentence"]
+    lines.append(design[0].upper() + design[1:] + ".")
     if s["model_fallback"]:
         lines.append(f"WARNING: {s['model_fallback']}")
     refused = [x for x in s["exclusions"] if x["kind"] in ("refused session",

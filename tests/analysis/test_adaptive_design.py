@@ -186,6 +186,10 @@ def test_report_states_the_policy_and_counts(adaptive) -> None:
     assert (out / "figures" / "ratings_per_stimulus.png").stat().st_size > 5000
     assert "Allocation of ratings" in html and "ratings_per_stimulus.png" in html
     assert f"median {np.median(counts):g}" in html
+    assert al["sentence"].startswith("an adaptive design (3 blocks per session")
+    assert al["sentence"].endswith(f": each stimulus received {counts.min()}-{counts.max()} "
+                                   f"ratings (median {np.median(counts):g})")
+    assert "<p>An adaptive design (3 blocks" in html
     # the paper text gives the ICC on what it was computed on: block 1's single ratings
     text = " ".join((out / "methods.txt").read_text(encoding="utf-8").split())
     assert f"on the {BLOCK1}: {n} stimuli x {N_RATERS} raters, with 95% CIs" in text
@@ -207,6 +211,6 @@ def test_balanced_input_is_unchanged() -> None:
     write_report(a, out)
     s = json.loads((out / "summary.json").read_text(encoding="utf-8"))
     assert s["allocation"]["policy"] == "full"
-    assert s["allocation"]["sentence"] == "full design: every stimulus rated once by every rater"
+    assert s["allocation"]["sentence"] == "a full design: every rater rated every stimulus once"
     assert s["icc_subset"] is None and s["screening_subset"] is None
     assert not (out / "figures" / "ratings_per_stimulus.png").exists()

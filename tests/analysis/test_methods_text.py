@@ -62,7 +62,7 @@ def test_the_text_states_the_study_as_generated_and_recomputed(study, tmp_path):
         "3 hidden references), rated on a "
         'continuous 0 to 100 scale labelled "Very annoying" (0), "Annoying" (25), '
         '"Slightly annoying" (50), "Perceptible but not annoying" (75), "Imperceptible" (100); '
-        "full design: every stimulus rated 2 times")
+        "a full design: every rater rated every stimulus 2 times.")
     assert "mirrored" not in text
     removed = pd.read_csv(out / "tables" / "outliers.csv", dtype={"rater": str})["rater"]
     assert sorted(removed) == sorted(st.outliers)  # the two random raters, and only they
@@ -125,8 +125,8 @@ def test_the_netflix_dataset_reads_as_published(tmp_path):
     text = " ".join((tmp_path / "nflx" / "methods.txt").read_text().split())
     assert text.startswith("30 participants gave valid ratings. The study had 79 stimuli (9 "
                            "source contents; 70 distorted versions; 9 hidden references), "
-                           "rated on a 1 to 5 scale; full design: every stimulus rated once by "
-                           "every rater.")
+                           "rated on a 1 to 5 scale; a full design: every rater rated every "
+                           "stimulus once.")
     # NFLX labels no HRC, so P.913's r2 cannot run, and the text says so
     assert "r1 decided alone" in text and "r2 < 0.8" not in text
     assert re.search(r"4 raters \((2[6-9], ){3}2[6-9]\) were removed\. [^.]*\. The analysis "

@@ -7,9 +7,11 @@ change of the analysis API is absorbed here.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,6 +56,19 @@ class StudyFigures:
     problems: list[str] = field(default_factory=list)
 
 
+@contextlib.contextmanager
+def _analysis_quiet() -> Iterator[None]:
+    """The analysis logs its decisions (a rater screened out) at INFO, once per report; the
+    server reruns it every few seconds, and the same lines filled its log. Warnings pass."""
+    logger = logging.getLogger("analysis")
+    level = logger.level
+    logger.setLevel(logging.WARNING)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
 def loaded_manifest(manifest_bytes: bytes, sha256: str) -> LoadedManifest:
     manifest = parse_manifest(json.loads(manifest_bytes), source="manifest")
     return LoadedManifest(manifest, None, Path("."), sha256)
@@ -77,7 +92,8 @@ def analyse(frame: pd.DataFrame, loaded: LoadedManifest, *, seed: int = 0,
         return out
     config = AnalysisConfig(seed=seed, n_splits=SPLITS, ci_draws=CI_DRAWS, n_boot=100)
     try:
-        a = run_analysis(rs, config, progress=False)
+        with _analysis_quiet():
+            a = run_analysis(rs, config, progress=False)
     except AnalysisError as exc:
         out.problems.append(_live(str(exc), config.min_completeness))
         return out

@@ -29,6 +29,13 @@ REFRESH_S = 30
 STALLED_AFTER_S = 15 * 60
 """A running participant not heard from for this long is marked: their app is closed or
 cannot reach the server, and a reminder may help."""
+REMIND_STOPPED_AFTER_S = 24 * 3600
+"""A participant who chose "stop and continue later" is marked only once this long has passed
+without them coming back: a reminder the same day nags someone who said they would return."""
+CAME_BACK_S = 5 * 60
+"""A stopped participant whose app reached the server this long after the last upload came
+back (it fetched the study again) but sent nothing: their display check failed, or they
+closed the app before it."""
 
 
 def _ago(iso: str | None) -> str:
@@ -48,6 +55,12 @@ def _ago(iso: str | None) -> str:
 def _older_than(iso: str | None, seconds: float) -> bool:
     t = parse_time(iso)
     return t is not None and (datetime.now(UTC) - t).total_seconds() > seconds
+
+
+def _later_by(iso: str | None, than: str | None, seconds: float) -> bool:
+    """``iso`` is more than ``seconds`` after ``than`` (both known)."""
+    t, t0 = parse_time(iso), parse_time(than)
+    return t is not None and t0 is not None and (t - t0).total_seconds() > seconds
 
 
 def _fmt(x: Any, digits: int = 1) -> str:
@@ -80,58 +93,118 @@ STOPPED = "stopped, to continue later"
 their app sent; they come back with the same invitation."""
 
 
-def attention(row: dict[str, Any], partial: bool, limits: CellLimits) -> list[str]:
-    """Why one participant's row needs a look, in words: the cells the table marks (with the
-    report's thresholds, ``limits``), plus their flags. Empty for a participant who withdrew
-    in the app (nothing of theirs is used)."""
-    if row["state"] == "withdrew in app":
-        return []
-    ps, out = row["ps"], []
-    if row["stalled"]:
-        out.append(f"no contact for {_ago(row['p']['last_seen']).replace(' ago', '')}")
-    if ps is not None:
-        if ps.removed_by_screening:
-            out.append("screening would remove")
-        elif partial:
-            out.append("partial: not used yet")
-        failed = [t for t, o in sorted(ps.vision.items()) if o == "failed"]
-        if failed:
-            out.append(f"failed the {', '.join(failed)} check")
-        if ps.panel_r is not None and ps.panel_r < limits.panel_r:
-            out.append(f"r panel {ps.panel_r:.2f}")
-        if limits.hidden_reference_low(ps.hidden_reference_mean):
-            out.append(f"hidden references rated {ps.hidden_reference_mean:.1f} on average")
-        if ps.timing and ps.timing not in ("vsync", "simulated"):
-            out.append(f"timing {ps.timing}")
-        if ps.dropped_frames:
-            out.append(f"{ps.dropped_frames} dropped frame(s)")
-        if ps.requeued:
-            out.append(f"{ps.requeued} re-queued trial(s)")
-        if ps.preflight_skipped and not ps.simulated:  # a simulated rater has no display
-            out.append("pre-flight skipped")
-        if ps.preflight_failed:
-            out.append(f"pre-flight: {', '.join(ps.preflight_failed)} failed")
-        if ps.unreadable:
-            out.append(f"{ps.unreadable} unreadable entr{'y' if ps.unreadable == 1 else 'ies'}")
-    for f in row["p"]["flags"]:
-        words = FLAG_WORDS.get(f["kind"], f["kind"].replace("_", " "))
-        out.append(words + (f" ×{f['count']}" if f["count"] > 1 else ""))
-    return out
-
+LOOK_NOW, LOOK, REMIND = 3, 2, 1
+"""How much a reason to look at a participant matters: their data may be unusable or they
+need help (``LOOK_NOW``), a mark on the data (``LOOK``), a reminder or a wait (``REMIND``).
+The "those to look at first" order sorts by it, then by the number of reasons."""
 
 FLAG_WORDS = {
-    "offline_gap": "answers arrived late (offline meanwhile)",
-    "clock_skew": "computer clock far off",
     "second_session": "a second session",
     "local_edit": "session file edited on the computer",
     "contradiction": "an upload contradicted what had arrived",
-    "refused": "an upload refused",
+    "refused": "an upload refused, nothing accepted since",
 }
 """The upload flags in the "participants to look at" list, in words (the flags table below
 the list gives each flag's full message)."""
+FLAG_URGENCY = {"second_session": LOOK_NOW, "local_edit": LOOK_NOW, "contradiction": LOOK_NOW,
+                "refused": LOOK}
+"""How much each upload flag needs a look (a kind not named here: ``LOOK``)."""
+HANDLED_FLAGS = frozenset({"offline_gap", "clock_skew"})
+"""Facts the server already handled (answers that arrived late after rating offline, a
+clock it corrected): in the flags table and the row's flags cell, not in the list."""
+
+
+def reasons(row: dict[str, Any], partial: bool, limits: CellLimits) -> list[tuple[int, str]]:
+    """Why one participant's row needs a look: (urgency, words) for the cells the table
+    marks (with the report's thresholds, ``limits``), their state and their flags. Empty for
+    a participant who withdrew in the app (nothing of theirs is used)."""
+    if row["state"] == "withdrew in app":
+        return []
+    ps, out = row["ps"], []
+    seen = _ago(row["p"]["last_seen"])
+    if row.get("came_back"):
+        out.append((LOOK_NOW, f"came back {seen} but sent nothing since: the display check "
+                              "may have failed, ask them"))
+    elif row["stalled"] and row["state"] == FETCHED:
+        out.append((LOOK_NOW, f"got the study {seen} but no session arrived: the display "
+                              "check may have failed, ask them"))
+    elif row["stalled"] and row["state"] == STOPPED:
+        out.append((REMIND, f"stopped {seen}, not back since"))
+    elif row["stalled"]:
+        out.append((REMIND, f"no contact for {seen.replace(' ago', '')}"))
+    if ps is not None:
+        if ps.removed_by_screening:
+            out.append((LOOK_NOW, "screening would remove"))
+        elif partial:
+            out.append((REMIND, "partial: not used yet"))
+        failed = [t for t, o in sorted(ps.vision.items()) if o == "failed"]
+        if failed:
+            out.append((LOOK_NOW, f"failed the {', '.join(failed)} check"))
+        if ps.panel_r is not None and ps.panel_r < limits.panel_r:
+            out.append((LOOK, f"r panel {ps.panel_r:.2f}"))
+        if limits.hidden_reference_low(ps.hidden_reference_mean):
+            out.append((LOOK, f"hidden references rated {ps.hidden_reference_mean:.1f} on "
+                              "average"))
+        if ps.timing and ps.timing not in ("vsync", "simulated"):
+            out.append((LOOK_NOW, f"timing {ps.timing}"))
+        if ps.dropped_frames:
+            out.append((LOOK, f"{ps.dropped_frames} dropped frame(s)"))
+        if ps.requeued:
+            out.append((LOOK, f"{ps.requeued} re-queued trial(s)"))
+        if ps.preflight_skipped and not ps.simulated:  # a simulated rater has no display
+            out.append((LOOK_NOW, "pre-flight skipped"))
+        if ps.preflight_failed:
+            out.append((LOOK_NOW, f"pre-flight: {', '.join(ps.preflight_failed)} failed"))
+        if ps.unreadable:
+            out.append((LOOK_NOW, f"{ps.unreadable} unreadable "
+                                  f"entr{'y' if ps.unreadable == 1 else 'ies'}"))
+    last_received = parse_time((row.get("s") or {}).get("last_received"))
+    for f in row["p"]["flags"]:
+        if f["kind"] in HANDLED_FLAGS:
+            continue
+        urgency = FLAG_URGENCY.get(f["kind"], LOOK)
+        if f["kind"] == "refused" and last_received is not None and \
+                (parse_time(f["last_at"]) or last_received) < last_received:
+            continue  # later uploads were accepted: the app sent the batch again, as it does
+        words = FLAG_WORDS.get(f["kind"], f["kind"].replace("_", " "))
+        out.append((urgency, words + (f" ×{f['count']}" if f["count"] > 1 else "")))
+    return out
+
+
+def attention(row: dict[str, Any], partial: bool, limits: CellLimits) -> list[str]:
+    """:func:`reasons` in words, as the "participants to look at" list gives them."""
+    return [words for _, words in reasons(row, partial, limits)]
 
 
 ORDERS = ("id", "look")
+
+
+def _to_go(rows: list[dict[str, Any]], per_participant: int) -> dict[str, tuple[int, int]]:
+    """The ratings still to come, by who owes them: (ratings, participants) for those
+    rating now, those who stopped or went quiet, and those who have not started. Only the
+    first are on their way; the estimate of the time to completion assumes all of them."""
+    out = {"rating now": [0, 0], "stopped": [0, 0], "not started": [0, 0]}
+    for r in rows:
+        s = r["s"]
+        if r["state"] in ("finished", "withdrew in app"):
+            continue
+        if s is None:
+            n, who = per_participant, "not started"
+        else:
+            n = max(r["planned"] - s["n_ratings"], 0)
+            who = "rating now" if r["state"] == "running" and not r["stalled"] else "stopped"
+        if n:
+            out[who][0] += n
+            out[who][1] += 1
+    return {k: (n, people) for k, (n, people) in out.items()}
+
+
+def _to_go_words(to_go: dict[str, tuple[int, int]]) -> str:
+    """ "14 from the 2 rating now, 64 from 5 who stopped, 120 from 10 not started"."""
+    words = {"rating now": "the {p} rating now", "stopped": "{p} who stopped or went quiet",
+             "not started": "{p} not started"}
+    return ", ".join(f"{n} from " + words[who].format(p=people)
+                     for who, (n, people) in to_go.items() if n)
 
 
 class Pages:
@@ -172,8 +245,11 @@ class Pages:
                     max(s["n_planned"], snap.planned_per_participant)
             rows.append({"p": p, "s": s, "ps": ps, "state": state, "planned": planned,
                          "progress": (s["n_ratings"] / planned) if s and planned else 0.0,
-                         "stalled": state in ("running", STOPPED, FETCHED) and _older_than(
-                             p["last_seen"], STALLED_AFTER_S)})
+                         "stalled": _older_than(p["last_seen"], {
+                             "running": STALLED_AFTER_S, FETCHED: STALLED_AFTER_S,
+                             STOPPED: REMIND_STOPPED_AFTER_S}.get(state, math.inf)),
+                         "came_back": state == STOPPED and _later_by(
+                             p["last_seen"], s["last_received"], CAME_BACK_S)})
         per_stim = sorted(snap.per_stimulus.items(), key=lambda kv: kv[1])
         counts = [n for _, n in per_stim]
         scenes = None
@@ -191,14 +267,15 @@ class Pages:
         current = {v["manifest_sha256"] for v in listing["versions"] if v["current"]}
         arrived_earlier = sum(r["s"]["n_ratings"] for r in rows
                               if r["s"] is not None and r["s"]["manifest_sha256"] not in current)
-        to_go = sum((snap.planned_per_participant if r["s"] is None else
-                     0 if r["s"]["finished_at"] else
-                     max(r["planned"] - r["s"]["n_ratings"], 0)) for r in rows)
+        to_go_by = _to_go(rows, snap.planned_per_participant)
+        to_go = sum(n for n, _ in to_go_by.values())
         partial = set(snap.study.partial) if snap.study is not None else set()
         for r in rows:
-            r["attention"] = attention(r, r["p"]["participant"] in partial, snap.limits)
-        if order == "look":  # the rows to look at first, the most reasons first (stable)
-            rows.sort(key=lambda r: -len(r["attention"]))
+            why = reasons(r, r["p"]["participant"] in partial, snap.limits)
+            r["attention"] = [words for _, words in why]
+            r["urgency"] = max((u for u, _ in why), default=0)
+        if order == "look":  # the most urgent first, then the most reasons (stable)
+            rows.sort(key=lambda r: (-r["urgency"], -len(r["attention"])))
         finished = sum(1 for r in rows if r["state"] == "finished")
         pending = sum(1 for r in rows if r["state"] in ("invited", FETCHED, "running",
                                                         STOPPED))
@@ -215,6 +292,7 @@ class Pages:
             "attention": [r for r in rows if r["attention"]], "limits": snap.limits,
             "n_invited": len(rows), "n_started": started, "n_finished": finished,
             "n_arrived": arrived, "n_arrived_earlier": arrived_earlier, "n_to_go": to_go,
+            "to_go_words": _to_go_words(to_go_by), "n_versions": len(listing["versions"]),
             "n_arrived_withdrawn": arrived_withdrawn, "n_pending": pending,
             "n_withdrew_in_app": len(left),
             "n_withdrawn": len(listing["withdrawn"]) + len(left),

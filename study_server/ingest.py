@@ -418,8 +418,9 @@ class Ingest:
             raise Refused(409, str(exc)) from None
         except (StudyError, sqlite3.IntegrityError, AttributeError, OverflowError) as exc:
             self.forget(session_id)
-            self.flag(pid, session_id, "refused", f"upload refused: {exc}")
-            raise Refused(409, f"upload refused: {exc}") from None
+            why = str(exc).removeprefix("upload refused: ")  # the replica's own words
+            self.flag(pid, session_id, "refused", f"upload refused: {why}")
+            raise Refused(409, f"upload refused: {why}") from None
         except BaseException:
             self.forget(session_id)
             raise

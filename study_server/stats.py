@@ -330,12 +330,17 @@ class StatsWorker:
                      / max(len(self.plan.stimuli), 1))
 
     def rate_per_hour(self) -> float:
-        """Ratings received per hour over the last hour (or since the first session, when
-        the study is younger), asked per request: a rate kept in the snapshot froze when
-        uploads stopped, and promised a completion that was not coming."""
-        recent = self.store.ratings_received_since(
-            (datetime.now(UTC) - RATE_WINDOW).isoformat(timespec="milliseconds")
-            .replace("+00:00", "Z"))
+        """Ratings *given* per hour over the last hour (or since the first session, when the
+        study is younger), asked per request: a rate kept in the snapshot froze when uploads
+        stopped, and promised a completion that was not coming. A rating counts by when it
+        was given (the participant's clock corrected by its measured offset), not when it
+        arrived: answers queued offline for a day and sent in one burst are no pace."""
+        start = datetime.now(UTC) - RATE_WINDOW
+        recent = 0
+        for client_at, offset_ms in self.store.ratings_received_since(
+                start.isoformat(timespec="milliseconds").replace("+00:00", "Z")):
+            given = parse_time(client_at)
+            recent += given is None or given + timedelta(milliseconds=offset_ms or 0) >= start
         if not recent:
             return 0.0
         first = min((s.first_received for s in self.store.sessions()), default=None)

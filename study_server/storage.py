@@ -662,10 +662,15 @@ class ServerStore:
                 "SELECT raters, ratings, mean_width, max_width FROM stopping_history "
                 "ORDER BY raters")]
 
-    def ratings_received_since(self, since: str) -> int:
+    def ratings_received_since(self, since: str) -> list[tuple[str | None, float | None]]:
+        """The ratings that arrived since ``since``: each one's time on the participant's
+        clock and that clock's offset from the server's (ms, server minus participant)."""
         with self._read() as con:
-            return int(con.execute("SELECT count(*) FROM entries WHERE kind='rating' AND "
-                                   "received_at >= ?", (since,)).fetchone()[0])
+            return [(r[0], r[1]) for r in con.execute(
+                "SELECT e.client_at, p.clock_offset_ms FROM entries e "
+                "JOIN sessions s ON s.session_id = e.session_id "
+                "JOIN participants p ON p.participant = s.participant "
+                "WHERE e.kind='rating' AND e.received_at >= ?", (since,))]
 
     def checkpoint(self) -> bool:
         """Fold the WAL into the main file and truncate it; False when a reader held it."""

@@ -12,9 +12,10 @@ var every = Number(document.body.dataset.refresh || 0);
 var answered = new Date();  // the server's last answer: this page
 var since = null;
 function check() {
-  fetch(location.href, { cache: "no-store", credentials: "same-origin" })
+  // a cheap probe first (not the page itself: that rendered it twice per reload)
+  fetch("/healthz", { cache: "no-store", credentials: "same-origin" })
     .then(function (r) {
-      if (r.ok || r.status === 401 || r.status === 403) { location.reload(); return; }
+      if (r.ok) { location.reload(); return; }
       throw new Error("HTTP " + r.status);
     })
     .catch(function () {

@@ -138,8 +138,9 @@ def invites(served_study: Path, tmp_path: Path):
 
 
 def write_session(study: Path, path: Path, participant: str, *, ratings: int,
-                  finish: bool = False, seed: int = 1):
-    """A session file of ``study`` (as the app writes it) with ``ratings`` answered trials."""
+                  finish: bool = False, seed: int = 1, clock=None):
+    """A session file of ``study`` (as the app writes it) with ``ratings`` answered trials;
+    ``clock`` (returning ISO times) stamps what follows the session's creation."""
     from session_store import SessionStore, TrialResult, utc_now
     from session_store.schedule import ScheduleItem, make_schedule
     from stimuli_manifests import load_manifest as _load
@@ -151,6 +152,8 @@ def write_session(study: Path, path: Path, participant: str, *, ratings: int,
     store = SessionStore.create(path, participant=participant, study_id=m.study_id,
                                 manifest_sha256=loaded.sha256, seed=seed, app_version="test",
                                 plan=plan, settings={"timing_mode": "vsync"})
+    if clock is not None:
+        store.clock = clock
     store.save_preflight([{"name": "screen_size", "ok": True, "message": "ok"}],
                          skipped=False)
     store.log_event("consent", consent_sha256="c" * 64)

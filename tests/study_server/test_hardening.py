@@ -430,3 +430,14 @@ def test_a_logout_outlives_a_restart_and_cookies_expire(state):
     assert not auth.cookie_valid(ADMIN, day_old)
     assert auth.cookie_valid(ADMIN, auth.make_cookie(ADMIN, now=time.time() - 60))
     assert not auth.cookie_valid("another admin token", auth.make_cookie(ADMIN))
+
+
+def test_a_refused_batch_is_flagged_in_one_sentence(state, genuine):
+    """The flag read "upload refused: upload refused: entry 16 ..." (the replica's words were
+    prefixed a second time)."""
+    _upload(state, "P01", genuine[:4])
+    exc = _refused(state, "P01", [genuine[5]])  # entry 5 left out: the chain does not go on
+    assert exc.status == 409
+    [flag] = [f for f in state.store.flags() if f.kind == "refused"]
+    assert flag.message.startswith("upload refused: ") and flag.message.count("refused") == 1
+    assert exc.detail == flag.message

@@ -109,8 +109,9 @@ def pick_practice(items: Sequence[ScheduleItem], n: int, seed: int,
                   levels: Mapping[str, int] | None = None) -> list[ScheduleItem]:
     """``n`` distinct stimuli for practice trials (not recorded), drawn with the seed: test
     videos before hidden references (a practice should show a distortion), and with
-    ``levels`` (test id -> distortion level) one of the highest level and one of the lowest
-    first, so that the practice spans the range the participant will rate."""
+    ``levels`` (test id -> distortion level; 1 is the strongest) one of the strongest level
+    and then one of the mildest first, so that the practice spans the range the participant
+    will rate, starting with a distortion nobody can miss."""
     if n <= 0:
         return []
     rng = np.random.default_rng([seed, 0x5EED])
@@ -120,7 +121,7 @@ def pick_practice(items: Sequence[ScheduleItem], n: int, seed: int,
     known = {int(levels[it.id]) for it in tests if it.id in levels} if levels else set()
     if n >= 2 and len(known) >= 2:
         assert levels is not None
-        for level in (max(known), min(known)):
+        for level in (min(known), max(known)):  # strongest, then mildest
             at = [it for it in tests if levels.get(it.id) == level and it not in picks]
             other_scene = [it for it in at if all(it.reference != p.reference for p in picks)]
             pool = other_scene or at

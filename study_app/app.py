@@ -306,7 +306,7 @@ class App:
             distance = self.m.protocol.viewing_distance_cm
             if distance is not None:
                 self._screen(content.seating(distance, self._name_keys, again=resume))
-            if not resume and self.opts.practice > 0:
+            if self.opts.practice > 0 and not self._practised():
                 self._practice()
             return self._main_loop()
         except _EndedByServerError as exc:
@@ -515,10 +515,10 @@ class App:
         items = pick_practice(schedule_items(self.m), self.opts.practice,
                               self.store.info.seed,
                               levels={str(c.id): c.level for c in self.m.conditions})
-        self.store.log_event("practice", stimuli=[it.id for it in items])
         min_view = self._min_view()
         self._screen(content.practice_intro(len(items), VIEWING, RATING, min_view,
                                             self._name_keys))
+        self.store.log_event("practice", stimuli=[it.id for it in items])  # once begun
         self._practice_mode = True
         try:
             for k, item in enumerate(items):
@@ -540,6 +540,12 @@ class App:
         finally:
             self._practice_mode = False
         self._screen(content.practice_done(self._name_keys))
+
+    def _practised(self) -> bool:
+        """The practice was shown, or rating began: a participant who stopped before it (on
+        the seating screen, in a questionnaire) still gets it when they come back."""
+        return self.store.progress()[0] > 0 or any(
+            e["kind"] == "practice" for e in self.store.events())
 
     def _min_view(self) -> float:
         mv = self.m.protocol.min_view_seconds

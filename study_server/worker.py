@@ -12,10 +12,16 @@ from session_store.sqlite_errors import is_disk_full
 
 log = logging.getLogger(__name__)
 
+REST_FACTOR = 2.0
+"""After a run the worker rests at least this many times as long as the run took: statistics
+that grow with the study (seconds at thousands of ratings) keep within a third of one core
+instead of following each other back to back."""
+
 
 class ThrottledWorker:
     """Runs ``work`` after :meth:`poke` (or every ``every_s`` anyway), never more often than
-    every ``every_s`` seconds; an exception is logged and handed to ``on_error``, and the
+    every ``every_s`` seconds nor sooner than :data:`REST_FACTOR` times its last duration
+    after it ended; an exception is logged and handed to ``on_error``, and the
     thread goes on. ``before`` runs once on the thread first (imports, warm-up)."""
 
     def __init__(self, name: str, every_s: float, work: Callable[[], object], *,
@@ -31,6 +37,7 @@ class ThrottledWorker:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._last = 0.0
+        self._took = 0.0
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
@@ -49,13 +56,14 @@ class ThrottledWorker:
         if self.before is not None:
             self.before()
         while not self._stop.is_set():
-            wait = self._last + self.every_s - time.monotonic()
+            wait = self._last + max(self.every_s, REST_FACTOR * self._took) - time.monotonic()
             if wait > 0 and self._stop.wait(wait):
                 break
             self._wake.wait(timeout=self.every_s)
             self._wake.clear()
             if self._stop.is_set():
                 break
+            started = time.monotonic()
             try:
                 self.work()
             except Exception as exc:  # the server keeps serving
@@ -67,3 +75,4 @@ class ThrottledWorker:
                 if self.on_error is not None:
                     self.on_error(exc)
             self._last = time.monotonic()
+            self._took = self._last - started

@@ -51,14 +51,16 @@ def test_practice_picks_distinct():
 
 
 def test_practice_spans_the_levels_and_shows_distortions_first():
-    """Two practice trials: one of the strongest and one of the weakest distortion, from two
-    scenes where possible, never a hidden reference while test videos are left."""
+    """Two practice trials: one of the strongest distortion (level 1, the manifest's
+    convention) and then one of the weakest (the highest level), from two scenes where
+    possible, never a hidden reference while test videos are left. The order was the other
+    way round, against what the docs tell experimenters."""
     tests = [ScheduleItem(f"R{r}_L{lv}", f"R{r}", False) for r in range(3) for lv in (1, 2, 3)]
     stim = [*tests, *(ScheduleItem(f"R{r}", f"R{r}", True) for r in range(3))]
     levels = {t.id: int(t.id[-1]) for t in tests}
     for seed in range(40):
         a, b = pick_practice(stim, 2, seed, levels)
-        assert (levels[a.id], levels[b.id]) == (3, 1) and a.reference != b.reference
+        assert (levels[a.id], levels[b.id]) == (1, 3) and a.reference != b.reference
         four = pick_practice(stim, 4, seed, levels)
         assert len({p.id for p in four}) == 4 and not any(p.is_hidden_reference for p in four)
     # without levels: still test videos before hidden references

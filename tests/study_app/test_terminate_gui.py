@@ -3,7 +3,8 @@ terminal closed: SIGHUP) is the participant's confirmed "stop and continue later
 exits by itself with the saved-session message, records a "quit" naming the signal, frees
 its lock, and a later run resumes where it stopped. Before, SDL turned SIGTERM into a
 window-close that waited for a confirmation nobody gave, SIGINT raised a traceback and SIGHUP
-killed the app without a word."""
+killed the app without a word. A participant who stops before the practice gets it
+when they come back (it used to count as done once the session existed)."""
 
 from __future__ import annotations
 
@@ -30,11 +31,27 @@ def test_signals_end_the_run_as_a_confirmed_quit(tmp_path, xdisplay, study_facto
     session = study / "sessions" / "P01.sqlite"
     lock = study / "sessions" / "P01.sqlite.lock"
     args = [str(study), "--participant", "P01", "--seed", "3", "--max-dropped-frames", "-1",
-            "--practice", "0", PILOT]
+            "--practice", "1", PILOT]
 
-    # SIGTERM while a video plays (trial 1, after one answer)
+    # SIGTERM on the practice's first screen: the practice comes again on the return
     app = app_driver(xdisplay, args)
     app.through_consent()
+    app.wait("practice")
+    os.kill(app.proc.pid, signal.SIGTERM)
+    code, out = app.finish(timeout=20)
+    assert code == 0 and "Session saved (0 of 3 trials answered)" in out, out
+    assert "practice" not in [e["kind"] for e in _events(session)]
+
+    # SIGTERM while a video plays (trial 1, after the practice and one answer)
+    app = app_driver(xdisplay, args)
+    app.resume()
+    app.wait("practice")
+    app.key("space")
+    app.wait("viewing trial=-1 practice=1")
+    app.open_rating()
+    app.key("Right", "Return")
+    app.wait("practice-end")
+    app.key("space")
     app.rate(1)
     app.wait("viewing trial=1")
     os.kill(app.proc.pid, signal.SIGTERM)
@@ -45,6 +62,7 @@ def test_signals_end_the_run_as_a_confirmed_quit(tmp_path, xdisplay, study_facto
     assert not any("Traceback" in line for line in app.lines)
     quit_ = _events(session)[-1]
     assert quit_["kind"] == "quit" and quit_["signal"] == "SIGTERM" and quit_["answered"] == 1
+    assert [e["kind"] for e in _events(session)].count("practice") == 1  # not on later returns
 
     # SIGINT on the pause screen: a text screen, not the trial's event loop
     app = app_driver(xdisplay, args)
@@ -81,4 +99,4 @@ def test_signals_end_the_run_as_a_confirmed_quit(tmp_path, xdisplay, study_facto
     rows, problems = read_ratings(session)
     assert problems == [] and [r["trial"] for r in rows] == [0, 1, 2]
     kinds = [e["kind"] for e in _events(session)]
-    assert kinds.count("quit") == 2 and kinds[-1] != "quit"
+    assert kinds.count("quit") == 3 and kinds[-1] != "quit"

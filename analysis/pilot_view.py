@@ -101,7 +101,8 @@ def level_hints(levels: pd.DataFrame, span: float) -> list[str]:
                     f"{_num(strong['mean'])} and level {int(mild['level'])} (the mildest) "
                     f"{_num(mild['mean'])}: the levels look numbered the wrong way round; "
                     "level 1 must be the strongest distortion (renumber the files or map "
-                    "them in a CSV, then run init again)")
+                    "them in a CSV, run init again, then pilot again: this pilot ran on the "
+                    "old numbering)")
                 continue
             if abs(rise) <= FLAT_SHARE * span:
                 hints.append(f"{name}levels {int(strong['level'])} to {int(mild['level'])} "
@@ -162,8 +163,11 @@ def pilot_lines(view: PilotView, rs: RatingSet) -> list[str]:
             if row.get("timing_mode") == "paced-pilot":
                 facts.append("paced on the clock without vsync")
             drops = int(row.get("trials_with_drops", 0) or 0)
-            if drops:
-                facts.append(f"{drops} trial(s) with dropped frames")
+            shown = int(row.get("presentations", 0) or 0)
+            requeued = int(row.get("requeued", 0) or 0)
+            if drops:  # counted per presentation: a re-queued trial was shown twice
+                facts.append(f"dropped frames in {drops} of {shown} presentations" + (
+                    f" ({requeued} re-queued and shown again)" if requeued else ""))
         out.append(f"{rater}: " + ", ".join(facts))
     mirrored = (f" (ratings mirrored to higher-is-better: {_num(rs.scale_min)} + "
                 f"{_num(rs.scale_max)} - rating)" if rs.scale_direction == "lower_is_better"

@@ -185,9 +185,10 @@ def _refusal(rec: Session, study_id: str, manifest_sha256: str | None,
         return Exclusion(
             "refused session", rec.path,
             f"was run with another manifest (sha256 {rec.info.manifest_sha256[:12]}..., this "
-            f"one is {manifest_sha256[:12]}...); if the manifest was edited after the "
-            "study, analyse with the manifest the participants saw ('cgvq-study pull' saves "
-            f"it as manifest.{rec.info.manifest_sha256[:12]}.json)",
+            f"one is {manifest_sha256[:12]}...): the study changed after this session (init "
+            "run again, say); analyse it with the manifest it ran on ('cgvq-study pull' keeps "
+            f"a served study's earlier one as manifest.{rec.info.manifest_sha256[:12]}.json), "
+            "or, for a pilot, pilot again",
             "session manifest_sha256 must equal the manifest file's sha256")
     return None
 

@@ -6,6 +6,7 @@ import shlex
 from pathlib import Path
 
 from cgvq_cli.text_table import format_table
+from session_store.study_folder import SESSIONS_DIR
 from stimuli_manifests.from_folder.mapping import Problem
 from study_app.study_init import InitResult
 
@@ -35,10 +36,14 @@ def print_probe_table(result: InitResult, folder: Path) -> None:
 
 
 def print_warnings(warnings: list[str]) -> None:
-    """Warnings, one line per distinct message with the files it applies to."""
+    """Warnings, one line per distinct message with the files it applies to (a warning
+    about a whole method keeps its subject in front, as ``check`` prints it)."""
     groups: dict[str, list[str]] = {}
     for warning in warnings:
         subject, _, detail = warning.partition(": ")
+        if subject.startswith("method "):
+            groups.setdefault(warning, [])
+            continue
         groups.setdefault(detail or subject, []).append(subject if detail else "")
     for detail, subjects in groups.items():
         subjects = [s for s in subjects if s]
@@ -71,6 +76,12 @@ def print_changes(result: InitResult, out: Path) -> None:
                         "comparison)", changes.remapped)):
         if ids:
             print(f"  {label}: {', '.join(ids)}")
+    if (changes.replaced or changes.removed or changes.remapped) and result.manifest_written:
+        folder = out / SESSIONS_DIR
+        held = sorted(p.name for p in folder.glob("*.sqlite")) if folder.is_dir() else []
+        print("  sessions run before this change (a pilot's, say) were run on the previous "
+              "manifest: the analysis refuses them, so pilot again"
+              + (f"; in {folder}: {', '.join(held)} (move them out)" if held else ""))
     if "display" in changes.settings:
         d = manifest.display
         print(f"  the participant's display now needs at least {d.min_width}x{d.min_height} "

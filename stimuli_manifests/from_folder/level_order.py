@@ -55,8 +55,14 @@ def level_order_warnings(tests: list[LevelSample],
             out.append(
                 f"method {method!r}: the levels look numbered the wrong way round: level {lo} "
                 f"is closer to its reference in pixels than level {hi} in {len(reversed_in)} "
-                f"of {compared} scene(s) (mean squared difference {strong:.3g} against "
-                f"{mild:.3g} in scene {scene!r}), and level 1 must be the strongest "
-                "distortion; if so, renumber the files or map them in a CSV (pixels are not "
+                f"of {compared} scene(s) (mean squared difference {_msd(strong)} against "
+                f"{_msd(mild)} in scene {scene!r}), and level 1 must be the strongest "
+                f"distortion; if so, renumber its files (level {lo} becomes level {hi}, "
+                f"level {hi} level {lo}, and so on) or map them in a CSV (pixels are not "
                 "what people see: a pilot shows what they see, 'cgvq-analyze pilot')")
     return out
+
+
+def _msd(x: float) -> str:
+    """A mean squared difference as people read it: 1396, not 1.4e+03; 0.0123 stays."""
+    return f"{x:.0f}" if x >= 100 else f"{x:.3g}"

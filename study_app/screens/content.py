@@ -146,8 +146,8 @@ def _card_widths(distance_cm: float) -> str:
 
 def seating(distance_cm: float, name_keys: NameKeys, *, again: bool = False) -> ScreenSpec:
     """Before the trials (and on a return): where to sit while rating."""
-    lead = "Before you go on: " if again else ""
-    body = (f"{lead}**sit with your eyes about {distance_cm:g} cm from the screen** "
+    lead = "Before you go on: **sit" if again else "**Sit"
+    body = (f"{lead} with your eyes about {distance_cm:g} cm from the screen** "
             f"({_card_widths(distance_cm)}), facing its centre, "
             "and keep that distance while you rate the videos.\n\n"
             "The experimenter chose this distance so that everyone sees the videos at the "

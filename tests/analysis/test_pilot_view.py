@@ -75,13 +75,16 @@ def test_the_command_reads_one_pilots_session(tmp_path, capsys):
     session = write_session(tmp_path / "P01.sqlite", frame, study_id=st.manifest.manifest.study_id,
                             manifest_sha256=None,
                             settings={"timing_mode": "paced-pilot"},
-                            display={"vsync": False, "refresh_hz": 60})
+                            display={"vsync": False, "refresh_hz": 60},
+                            requeue=(3, 7), dropped={10: 2, 11: 5})
     out = tmp_path / "pilot.csv"
     code, stdout, err = analyze(capsys, "pilot", "--manifest", manifest, "--sessions", session,
                                 "--out", out)
     assert code == 0, err
     assert "pilot of study synthetic: 1 rater, 60 ratings" in stdout
     assert "P01: 60 ratings" in stdout and "paced on the clock without vsync" in stdout
+    # 62 presentations: the 2 re-queued attempts (which dropped frames) and 2 more with drops
+    assert "dropped frames in 4 of 62 presentations (2 re-queued and shown again)" in stdout
     assert "  blur: L1 20 (70), L2 50 (40), L3 80 (10)" in stdout
     assert "look at: noise: level 1 (meant to be the strongest)" in stdout
     table = pd.read_csv(out, index_col="stimulus")

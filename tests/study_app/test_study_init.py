@@ -130,6 +130,9 @@ def test_init_writes_a_study_that_check_accepts_and_reruns_report_changes(tmp_pa
     assert "added: city_taa_L1" in out
     assert "removed: forest_dlss_L2" in out
     assert "replaced (new file or content): city_fsr_L1" in out
+    # a pilot run before the change is refused by the analysis from now on: init says so
+    assert "sessions run before this change (a pilot's, say) were run on the previous " \
+        "manifest: the analysis refuses them, so pilot again" in out
     assert not (study / "videos" / "forest" / "dlss_L2.mkv").exists()
     m = load_manifest(study / "manifest.json").manifest
     assert m.protocol.repetitions == 2 and m.title == "My study"
@@ -227,7 +230,9 @@ def test_a_study_with_sessions_is_not_changed_under_them(tmp_path, capsys):
     code, _, err = init(capsys, renders, "--out", study)
     assert code == 2
     assert len(error_lines(err)) == 1 and "1 session file(s)" in err
-    assert init(capsys, renders, "--out", study, "--force")[0] == 0
+    code, out, _ = init(capsys, renders, "--out", study, "--force")
+    assert code == 0  # forced: the session left behind is named, to be moved out
+    assert f"in {study / 'sessions'}: P01.sqlite (move them out)" in out
 
 
 def test_a_served_study_is_not_changed_under_its_participants(tmp_path, capsys):

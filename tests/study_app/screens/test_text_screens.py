@@ -146,8 +146,10 @@ def test_the_seating_screen_gives_the_distance_in_centimetres_and_card_widths():
     first = content.seating(70.0, names).body
     assert "about 70 cm from the screen" in first and "about 8 bank-card widths" in first
     assert "arm's length" in first  # 70 cm is about an arm's length; 120 cm is not
+    assert first.startswith("**Sit with your eyes")  # a sentence starts with a capital
     again = content.seating(120.0, names, again=True).body
-    assert again.startswith("Before you go on") and "about 14 bank-card widths" in again
+    assert again.startswith("Before you go on: **sit with your eyes")
+    assert "about 14 bank-card widths" in again
     assert "arm's length" not in again
     assert "Sit about 70 cm" in content.break_screen(1, 2, names, 70.0).body
     assert "Sit about" not in content.break_screen(1, 2, names).body

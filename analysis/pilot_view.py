@@ -85,6 +85,26 @@ def _num(x: float) -> str:
     return "-" if not math.isfinite(x) else f"{x:.0f}"
 
 
+def reversed_levels(dmos: pd.DataFrame, span: float) -> list[str]:
+    """The methods whose mean DMOS falls from level 1 (meant to be the strongest) to their
+    mildest level by more than :data:`FLAT_SHARE` of the scale, in words: the report's form of
+    the pilot's first hint, for a study whose pilot was skipped or read as a report."""
+    tests = dmos[~dmos["is_hidden_reference"].astype(bool)].dropna(subset=["level"])
+    out = []
+    for method, rows in tests.groupby("method", sort=True):
+        means = rows.groupby(rows["level"].astype(int))["dmos"].mean().dropna()
+        if len(means) < 2:
+            continue
+        lo, hi = int(means.index.min()), int(means.index.max())
+        if means[hi] - means[lo] < -FLAT_SHARE * span:
+            out.append(f"{method}: DMOS falls from {_num(means[lo])} at level {lo} (meant to "
+                       f"be the strongest distortion) to {_num(means[hi])} at level {hi} (the "
+                       "mildest): the levels look numbered the wrong way round, so every "
+                       "level-wise result of this method reads backwards (renumber the files "
+                       "or map them in a CSV before the next study)")
+    return out
+
+
 def level_hints(levels: pd.DataFrame, span: float) -> list[str]:
     """Per method with two levels or more: reversed or flat ratings; per method: a strongest
     level nobody saw, a mildest level far from the reference."""

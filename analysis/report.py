@@ -21,6 +21,7 @@ from .exports import write_dmos_csv, write_rating_matrix
 from .figures import FIGURES, draw_all
 from .methods_text import methods_paragraphs
 from .panel import panel_json
+from .pilot_view import reversed_levels
 from .pipeline import Analysis
 from .presentation_text import pilot_raters, viewing_summary
 from .quality import THRESHOLDS
@@ -224,6 +225,8 @@ def summary(a: Analysis) -> dict[str, Any]:
                                  if a.quality is not None else None, index="rater"),
         "flag_thresholds": THRESHOLDS,
         "n_input_problems": len(a.problems),
+        "reversed_levels": reversed_levels(a.dmos(), a.ratings.scale_max
+                                           - a.ratings.scale_min),
         "timings_s": {k: round(v, 3) for k, v in a.timings.items()},
     }
     if a.reliability is not None:
@@ -275,6 +278,7 @@ def summary_text(a: Analysis) -> str:
     lines.append(design[0].upper() + design[1:] + ".")
     if s["model_fallback"]:
         lines.append(f"WARNING: {s['model_fallback']}")
+    lines += [f"WARNING: {h}" for h in s["reversed_levels"]]
     refused = [x for x in s["exclusions"] if x["kind"] in ("refused session",
                                                            "duplicate session")]
     if refused:

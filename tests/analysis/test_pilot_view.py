@@ -110,3 +110,31 @@ def test_bad_input_is_one_line(tmp_path, capsys, args, says):
         args = ["--ratings", tmp_path / "r.csv", *args]
     code, _, err = analyze(capsys, "pilot", "--manifest", manifest, *args)
     assert code == 2 and err.count("\n") == 1 and says in err, err
+
+
+def test_the_report_names_a_method_numbered_backwards(tmp_path):
+    """Only `pilot` said it: a report (of two pilots, or of a study whose pilot was skipped)
+    gave no word. Four raters rate the pattern; DMOS per level follows it exactly (the
+    hidden reference is rated 90 throughout), so the report names noise, and only noise."""
+    from analysis.pipeline import AnalysisConfig, run_analysis
+    from analysis.report import summary, write_report
+
+    st = synthetic_study(n_scenes=2, methods=("blur", "noise", "alias"), levels=3, n_raters=4,
+                         noise_sd=0, bias_sd=0, seed=1)
+    info = ratings_from_frame(st.ratings, st.manifest).stimuli
+    frame = st.ratings.copy()
+    rater_jitter = {r: 2.0 * k - 3.0 for k, r in enumerate(sorted(frame["participant"].unique()))}
+    frame["rating"] = [
+        (REFERENCE if hidden else PATTERN[(info.at[s, "method"], int(info.at[s, "level"]))])
+        + JITTER[int(rep)] + rater_jitter[who]
+        for s, hidden, rep, who in zip(frame["stimulus"], frame["is_hidden_reference"],
+                                       frame["repetition"], frame["participant"], strict=True)]
+    a = run_analysis(ratings_from_frame(frame, st.manifest),
+                     AnalysisConfig(outliers="none", model="mos", n_boot=20, n_splits=20,
+                                    ci_draws=4), progress=False)
+    [hint] = summary(a)["reversed_levels"]
+    # plain-mean DMOS = rating - hidden reference + 100: 85 -> 95, 30 -> 40
+    assert hint.startswith("noise: DMOS falls from 95 at level 1 (meant to be the strongest "
+                           "distortion) to 40 at level 3 (the mildest)")
+    html = write_report(a, tmp_path / "report").read_text(encoding="utf-8")
+    assert "noise: DMOS falls from 95 at level 1" in html

@@ -214,10 +214,8 @@ def summary(a: Analysis) -> dict[str, Any]:
         "n_ratings_used": rs.n_ratings,
         "exclusions": [x.__dict__ for x in a.exclusions],
         "partial_kept": [{"rater": r, "completeness": c} for r, c in a.partial_kept],
-        "removed_raters": [
-            {k: _num(v) for k, v in r.__dict__.items()}
-            for r in a.outliers.removed
-        ],
+        "removed_raters": [{k: _num(v) for k, v in r.__dict__.items()}
+                           for r in a.outliers.removed],
         "screening": _records(a.outliers.table, index="rater"),
         "model_rejected_raters": list(sc.rejected),
         **_sessions_facts(a, used.n_raters),
@@ -225,8 +223,7 @@ def summary(a: Analysis) -> dict[str, Any]:
                                  if a.quality is not None else None, index="rater"),
         "flag_thresholds": THRESHOLDS,
         "n_input_problems": len(a.problems),
-        "reversed_levels": reversed_levels(a.dmos(), a.ratings.scale_max
-                                           - a.ratings.scale_min),
+        "reversed_levels": reversed_levels(a.dmos(), a.ratings.scale_max - a.ratings.scale_min),
         "timings_s": {k: round(v, 3) for k, v in a.timings.items()},
     }
     if a.reliability is not None:

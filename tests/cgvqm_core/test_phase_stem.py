@@ -128,7 +128,7 @@ def test_the_space_to_depth_stem_is_the_3d_stem(frames, cl):
         assert got.is_contiguous(memory_format=torch.channels_last_3d)
 
 
-def test_space_to_depth_rules(backbone):
+def test_space_to_depth_rules(backbone, monkeypatch):
     def fp(**kw):
         args = dict(fp32_stem=True, differences=False, fuse_bn=True, tf32_stem=False,
                     fused=None, pad_stem=None)
@@ -143,6 +143,10 @@ def test_space_to_depth_rules(backbone):
     # a 16-bit stem rounds 36 up to 40
     assert FeatureNet(backbone, 3, stem_s2d=True, pad_stem=True).model.stem[0].in_channels \
         == 36
+    # the layout, not the speed: a CPU without bf16 hardware would refuse to run it
+    import cgvqm_core.precision as precision
+
+    monkeypatch.setattr(precision, "cpu_bf16", lambda: precision.CpuBf16(True, False, "test"))
     low = FeatureNet(backbone, 3, precision="bf16", fp32_stem=False, differences=False,
                      stem_s2d=True, pad_stem=True)
     assert low.model.stem[0].in_channels == 40 and low.pad_stem

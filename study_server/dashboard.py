@@ -186,7 +186,7 @@ def _to_go(rows: list[dict[str, Any]], per_participant: int) -> dict[str, tuple[
     out = {"rating now": [0, 0], "stopped": [0, 0], "not started": [0, 0]}
     for r in rows:
         s = r["s"]
-        if r["state"] in ("finished", "withdrew in app"):
+        if r["state"] in ("finished", "withdrew in app") or (s and s.get("finished_at")):
             continue
         if s is None:
             n, who = per_participant, "not started"

@@ -77,13 +77,7 @@ def test_gui_session_end_to_end(tmp_path, xdisplay, study_factory, app_driver):
     app.wait("consent")
     assert not session.exists()
     app.key("a")
-    app.wait("practice")
-    app.key("space")
-    app.wait("viewing trial=-1 practice=1")
-    app.open_rating()
-    app.key("Right", "Return")
-    app.wait("practice-end")
-    app.key("space")
+    app.practice()
 
     app.switch_to_reference(0)
     time.sleep(1.2)  # the blank (0.5 s) is over: the reference shows for about 0.7 s

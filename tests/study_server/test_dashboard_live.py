@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 import re
-from datetime import timedelta
+from datetime import datetime, timedelta
 
 import study_server.dashboard as dashboard
 import study_server.stats as stats
@@ -19,6 +19,16 @@ from .conftest import ADMIN, write_session
 
 def _text(html: str) -> str:
     return " ".join(re.sub(r"<[^>]+>", " ", html).split())
+
+
+def _later(hours: float):
+    """A ``datetime`` whose now() is ``hours`` ahead (the dashboard's clock, patched)."""
+    class Later(datetime):  # the real one: a patched module's would add up
+        @classmethod
+        def now(cls, tz=None):
+            return super().now(tz) + timedelta(hours=hours)
+
+    return Later
 
 
 def test_the_plan_is_shown_before_the_first_statistics(served_study, invites, monkeypatch):
@@ -55,14 +65,8 @@ def test_the_pace_follows_the_clock_and_a_pause_says_stalled(served_study, tmp_p
         st.stats.refresh()
         now = _text(st.pages.dashboard())
         assert st.stats.rate_per_hour() > 0 and "estimated time to completion" in now
-
-        class Later(stats.datetime):
-            @classmethod
-            def now(cls, tz=None):
-                return super().now(tz) + timedelta(hours=2)
-
-        monkeypatch.setattr(stats, "datetime", Later)  # two hours without an upload
-        monkeypatch.setattr(dashboard, "datetime", Later)
+        monkeypatch.setattr(stats, "datetime", _later(hours=2))  # two hours without an upload
+        monkeypatch.setattr(dashboard, "datetime", _later(hours=2))
         later = st.pages.context()
         html = _text(st.pages.dashboard())
     finally:
@@ -149,13 +153,7 @@ def test_a_participant_who_fetched_the_study_is_seen_before_any_session(
     try:
         rows = {r["p"]["participant"]: r for r in st.pages.context()["rows"]}
         html = _text(st.pages.dashboard())
-
-        class Later(stats.datetime):
-            @classmethod
-            def now(cls, tz=None):
-                return super().now(tz) + timedelta(hours=1)
-
-        monkeypatch.setattr(dashboard, "datetime", Later)  # an hour later, still no session
+        monkeypatch.setattr(dashboard, "datetime", _later(hours=1))  # still no session
         later = {r["p"]["participant"]: r for r in st.pages.context()["rows"]}
     finally:
         st.stop()
@@ -265,12 +263,7 @@ def test_stopped_came_back_and_refused_rows_in_the_list(served_study, tmp_path, 
         st.store.add_flag("P03", sess["P03"].session_id, "refused", "upload refused: entry 4 "
                       "where 3 was expected", before.isoformat().replace("+00:00", "Z"))
 
-        class Later(stats.datetime):
-            @classmethod
-            def now(cls, tz=None):
-                return super().now(tz) + timedelta(hours=2)
-
-        monkeypatch.setattr(dashboard, "datetime", Later)
+        monkeypatch.setattr(dashboard, "datetime", _later(hours=2))
         rows = {r["p"]["participant"]: r for r in st.pages.context()["rows"]}
         html = _text(st.pages.dashboard())
         assert not rows["P01"]["stalled"] and rows["P01"]["attention"] == []  # 2 h: not yet
@@ -286,12 +279,7 @@ def test_stopped_came_back_and_refused_rows_in_the_list(served_study, tmp_path, 
         look = [r["p"]["participant"] for r in st.pages.context("look")["rows"]]
         assert look[:2] == ["P02", "P03"]  # the one who needs help before the reminders
 
-        class DayLater(stats.datetime):
-            @classmethod
-            def now(cls, tz=None):
-                return super().now(tz) + timedelta(hours=25)
-
-        monkeypatch.setattr(dashboard, "datetime", DayLater)
+        monkeypatch.setattr(dashboard, "datetime", _later(hours=25))
         rows = {r["p"]["participant"]: r for r in st.pages.context()["rows"]}
     finally:
         st.stop()

@@ -144,6 +144,16 @@ class AppDriver:
         self.wait("consent")
         self.key("a")
 
+    def practice(self) -> None:
+        """One practice trial from its first screen: view, rate, and on to the study."""
+        self.wait("practice")
+        self.key("space")
+        self.wait("viewing trial=-1 practice=1")
+        self.open_rating()
+        self.key("Right", "Return")
+        self.wait("practice-end")
+        self.key("space")
+
     def resume(self) -> None:
         """A returning participant: past the display check and the welcome-back screen."""
         self.wait("preflight-passed")

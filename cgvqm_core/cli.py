@@ -32,6 +32,21 @@ from .ray_options import add_ray_arguments, ray_settings
 from .stage_clock import StageClock
 from .version import __version__
 
+log = logging.getLogger(__name__)
+
+
+class _Once(argparse.Action):
+    """An option that takes one value: given twice, the last one silently won."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        seen = f"_given_{self.dest}"
+        if getattr(namespace, seen, False):
+            parser.error(f"{option_string} given twice; score takes one (batch takes "
+                         f"{option_string} more than once)")
+        setattr(namespace, seen, True)
+        setattr(namespace, self.dest, values)
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="cgvqm",
@@ -46,9 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
     sc = sub.add_parser("score", help="score one test video against its reference")
     sc.add_argument("--ref", required=True, help="reference video (file, PNG folder or .npy)")
     sc.add_argument("--test", required=True, help="test (distorted) video")
-    sc.add_argument("--pool", choices=("max", "mean"), default="max",
+    sc.add_argument("--pool", choices=("max", "mean"), default="max", action=_Once,
                     help="CGVQM patch pooling: max (as calibrated, default) or mean "
-                         "(upstream demo)")
+                         "(upstream demo); one (batch writes several)")
     sc.add_argument("--fps", type=float, help="frame rate of PNG folders / .npy inputs")
     sc.add_argument("--emap", metavar="OUT", help="write the error-map video (.mp4 or .mkv)")
     sc.add_argument("--emap-png", metavar="DIR", help="also write the error map as PNG frames")
@@ -257,16 +272,37 @@ def _refuse_self_scoring(args: argparse.Namespace) -> None:
                          "video to score against this reference")
 
 
+def _carries_rate(path: str) -> bool:
+    """A video file has its own frame rate; a PNG folder or a .npy array has none."""
+    p = Path(path).expanduser()
+    return p.is_file() and p.suffix.lower() != ".npy"
+
+
 def _refuse_fps_for_files(args: argparse.Namespace) -> None:
     """--fps gives PNG folders and .npy arrays their rate; video files keep their own, so
     with two of them it would change nothing."""
-    def carries_rate(path: str) -> bool:
-        p = Path(path).expanduser()
-        return p.is_file() and p.suffix.lower() != ".npy"
-
-    if args.fps is not None and carries_rate(args.ref) and carries_rate(args.test):
+    if args.fps is not None and _carries_rate(args.ref) and _carries_rate(args.test):
         raise CGVQMError(f"--fps {args.fps:g}: both inputs are video files, which carry their "
                          "own frame rate; --fps applies to PNG folders and .npy arrays only")
+
+
+def _rate_for_frames(args: argparse.Namespace) -> None:
+    """Without --fps, frames that carry no rate take the other input's (a 25 fps video's
+    frames are 25 fps); with neither carrying one, 30 fps is assumed, and said: the rate sets
+    CGVQM's clip length, so a 24 fps render scored as 30 gets another score."""
+    if args.fps is not None:
+        return
+    from .stream import open_input
+
+    known = [p for p in (args.ref, args.test) if _carries_rate(p)]
+    if len(known) == 1:
+        args.fps = open_input(known[0], on_conversion="quiet").info.fps
+        log.info("the frames without a rate of their own take %s's %g fps", known[0],
+                 args.fps)
+    elif not known:
+        log.warning("%s and %s carry no frame rate: 30 fps assumed (it sets CGVQM's clip "
+                    "length); give --fps for frames rendered at another rate", args.ref,
+                    args.test)
 
 
 def _cmd_score(args: argparse.Namespace) -> int:
@@ -295,6 +331,7 @@ def _score_pair(args: argparse.Namespace) -> int:
     get_entry(name)  # an unknown name first, with the list
     refuse_unread_options(args, [name])
     _refuse_fps_for_files(args)
+    _rate_for_frames(args)
     if name not in ("cgvqm-2", "cgvqm-5"):
         if args.emap or args.emap_png:
             raise CGVQMError(f"error maps are written for CGVQM only, not {name}")

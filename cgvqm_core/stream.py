@@ -226,9 +226,13 @@ def resampling_note(n_test: int, n_ref: int) -> str:
                     "repeating test frames")
     if dropped:
         what.append(f"{dropped} test frame{'s were' if dropped != 1 else ' was'} dropped")
+    shifted = int((idx != np.arange(n_ref)).sum())
+    shift = (f"; {shifted} of the {n_ref} reference frames are compared with a test frame "
+             "from another moment (a test with extra frames at its end: trim it to the "
+             "reference's length)" if shifted else "")
     return (f"test has {n_test} frames, reference {n_ref}: {' and '.join(what)} "
             "(nearest-neighbour resampling in time to the reference's frame count, as "
-            "upstream; no interpolation); --strict refuses such a pair")
+            f"upstream; no interpolation){shift}; --strict refuses such a pair")
 
 
 def alignment_note(ref: FrameSource, test: FrameSource) -> str:

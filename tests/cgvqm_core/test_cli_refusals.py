@@ -189,6 +189,28 @@ def test_score_warns_how_many_frames_were_dropped(capsys, tmp_path, vids):
     assert rc == 0, err
     assert f"test has {2 * N_REF} frames, reference {N_REF}: {N_REF} test frames were dropped" \
         in err
+    # every reference frame i but the first meets test frame 2i: the whole clip is shifted,
+    # not just its end (a -224 score read as "4 frames dropped")
+    assert f"{N_REF - 1} of the {N_REF} reference frames are compared with a test frame " \
+        "from another moment" in err
+
+
+def test_frames_without_a_rate_take_the_videos_or_say_30_is_assumed(capsys, tmp_path, vids,
+                                                                    npy_pair):
+    """.npy arrays and PNG folders carry no frame rate: beside a video they take its rate
+    (a 30 fps default made a 25 fps pair an error naming a rate nobody gave); two of them
+    get 30 fps, said, since the rate sets CGVQM's clip length."""
+    ref = write_video(tmp_path / "ref25.mkv", vids.smooth(1, N_REF, HW, HW), 25)
+    args = ["score", "--ref", ref, "--test", npy_pair[1], "--random-backbone", 0,
+            "--weights", "uniform", "--json"]
+    rc, out, err = _run(capsys, *args)
+    assert rc == 0, err
+    assert "differs" not in err and json.loads(out)["provenance"]["test"]["fps"] == 25
+    rc, out, err = _run(capsys, *[a for a in _score_args(npy_pair) if a != FPS and
+                                  a != "--fps"], "--json")
+    assert rc == 0, err
+    assert "carry no frame rate: 30 fps assumed" in err
+    assert json.loads(out)["provenance"]["test"]["fps"] == 30
 
 
 def test_score_strict_refuses_a_frame_count_mismatch(capsys, tmp_path, vids):
@@ -300,3 +322,12 @@ def test_weights_verify_and_fetch_name_the_missing_file(capsys, tmp_path, monkey
                       tmp_path / "nope.pth")
     _refused(rc, err, "--backbone-file", "no such file")
     assert not (tmp_path / "cache").exists()  # nothing copied before the refusal
+
+
+def test_score_takes_one_pooling(capsys, npy_pair):
+    """`score --pool max --pool mean` wrote only the mean; batch is the one that takes both."""
+    with pytest.raises(SystemExit) as exc:  # argparse's exit, as for any bad option
+        main([str(a) for a in _score_args(npy_pair, "--pool", "max", "--pool", "mean")])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1, err
+    assert err.startswith("cgvqm score: error: --pool given twice; score takes one")

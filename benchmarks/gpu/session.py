@@ -99,6 +99,10 @@ from cgvqm_core.patch_scorer import default_batch_size  # noqa: E402
 from cgvqm_core.stage_clock import StageClock  # noqa: E402
 
 
+class NotHereError(Exception):
+    """A section this device cannot run (bf16 on a CPU without it): skipped, with why."""
+
+
 class DeadlineError(BaseException):
     """The session's deadline passed (a BaseException, so that no section's own handler
     swallows it; :func:`main` catches what escapes between sections)."""
@@ -603,7 +607,7 @@ def upstream_own(ss: Session) -> dict:
 
 def differences(ss: Session) -> dict:
     if "bf16" not in ss.precs:
-        raise RuntimeError("bf16 is not offered here")
+        raise NotHereError("bf16 is not offered here")
     ref, tests = ss.pair()
     dev, reps = ss.device, ss.sizes.repeats
     exact = ss.metric("cgvqm-2", precision="fp32").score_many(ref, tests)
@@ -737,6 +741,9 @@ def run_plan(ss: Session, only: list[str] | None) -> None:
             try:
                 ss.fig[name] = fn(ss)
                 rec["status"] = "done"
+            except NotHereError as exc:
+                rec["status"] = f"skipped: {exc}"
+                print(f"  {rec['status']}")
             except DeadlineError:
                 rec["status"] = "cut at the deadline"
                 print(f"  cut at the deadline after {time.monotonic() - t0:.0f} s")

@@ -21,7 +21,7 @@ from session_store.records import utc_now
 
 from .ingest import parse_time
 from .stopping import StoppingStatus, WidthPoint, evaluate
-from .worker import ThrottledWorker
+from .worker import REST_FACTOR, ThrottledWorker
 
 if TYPE_CHECKING:
     from .analysis_adapter import StudyFigures
@@ -236,7 +236,7 @@ class StatsWorker:
         self._snapshot.target_per_stimulus = self._target_per_stimulus()
         self._lock = threading.Lock()
         self._worker = ThrottledWorker("dashboard-stats", config.stats_every_s, self.refresh,
-                                       on_error=self._failed)
+                                       on_error=self._failed, rest_factor=REST_FACTOR)
 
     def start(self) -> None:
         self._worker.start()

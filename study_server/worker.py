@@ -13,26 +13,29 @@ from session_store.sqlite_errors import is_disk_full
 log = logging.getLogger(__name__)
 
 REST_FACTOR = 2.0
-"""After a run the worker rests at least this many times as long as the run took: statistics
-that grow with the study (seconds at thousands of ratings) keep within a third of one core
-instead of following each other back to back."""
+"""The dashboard's statistics rest at least this many times as long as their last run took:
+statistics that grow with the study (seconds at thousands of ratings) keep within a third of
+one core instead of following each other back to back. (The allocation's refit does not
+rest: the blocks participants ask for wait on it.)"""
 
 
 class ThrottledWorker:
     """Runs ``work`` after :meth:`poke` (or every ``every_s`` anyway), never more often than
-    every ``every_s`` seconds nor sooner than :data:`REST_FACTOR` times its last duration
-    after it ended; an exception is logged and handed to ``on_error``, and the
+    every ``every_s`` seconds nor sooner than ``rest_factor`` times its last duration after
+    it ended; an exception is logged and handed to ``on_error``, and the
     thread goes on. ``before`` runs once on the thread first (imports, warm-up)."""
 
     def __init__(self, name: str, every_s: float, work: Callable[[], object], *,
                  on_error: Callable[[Exception], None] | None = None,
-                 before: Callable[[], None] | None = None, join_s: float = 60.0) -> None:
+                 before: Callable[[], None] | None = None, join_s: float = 60.0,
+                 rest_factor: float = 0.0) -> None:
         self.name = name
         self.every_s = every_s
         self.work = work
         self.on_error = on_error
         self.before = before
         self.join_s = join_s
+        self.rest_factor = rest_factor
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -56,7 +59,7 @@ class ThrottledWorker:
         if self.before is not None:
             self.before()
         while not self._stop.is_set():
-            wait = self._last + max(self.every_s, REST_FACTOR * self._took) - time.monotonic()
+            wait = self._last + max(self.every_s, self.rest_factor * self._took) - time.monotonic()
             if wait > 0 and self._stop.wait(wait):
                 break
             self._wake.wait(timeout=self.every_s)

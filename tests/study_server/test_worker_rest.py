@@ -1,6 +1,7 @@
 """The background statistics grow with the study (seconds at thousands of ratings); run back
-to back they kept a core busy all the time. After each run the worker rests at least twice as
-long as the run took, whatever the pokes."""
+to back they kept a core busy all the time. After each run the statistics' worker rests at
+least twice as long as the run took, whatever the pokes (the allocation's refit, which
+participants' blocks wait on, does not)."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ def test_a_slow_run_is_followed_by_a_rest_twice_as_long():
         if len(starts) >= 3:
             done.set()
 
-    w = ThrottledWorker("test", 0.01, work)
+    w = ThrottledWorker("test", 0.01, work, rest_factor=REST_FACTOR)  # as the statistics
     w.start()
     try:
         deadline = time.monotonic() + 10

@@ -47,6 +47,7 @@ from stimuli_manifests.tables import FORMAT_COLUMN, SCORES
 from .errors import CGVQMError
 from .metrics.registry import MetricOptions, MetricScore, Scorer, build_scorers
 from .metrics.viewing import ViewingCondition
+from .progress import Progress, progress_bar
 
 log = logging.getLogger(__name__)
 
@@ -589,7 +590,7 @@ def _first_five(items: list[str]) -> str:
 def manifest_units(manifest: str | Path, metrics: Sequence[str], options: MetricOptions, *,
                    include_references: bool = False, root: str | Path | None = None,
                    group_size: int = 4, allow_resample: bool = False,
-                   on_conversion: str = "warn", progress: bool = True,
+                   on_conversion: str = "warn", progress: Progress = True,
                    strict: bool = False) -> list[WorkUnit]:
     """One work unit per reference, after checking every input's sha256."""
     loaded = _load(manifest, root)
@@ -610,7 +611,7 @@ def manifest_units(manifest: str | Path, metrics: Sequence[str], options: Metric
     digests: dict[str, str] = {}
     bad = []
     for sid, (path, expected) in tqdm(paths.items(), desc="checking inputs", unit="file",
-                                      disable=not progress, leave=False):
+                                      disable=progress is not True, leave=False):
         try:
             actual = sha256_path(path)
         except StimuliError as exc:
@@ -637,7 +638,7 @@ def score_manifest(manifest: str | Path, out: str | Path, metrics: Sequence[str]
                    options: MetricOptions | None = None, *, include_references: bool = False,
                    root: str | Path | None = None, group_size: int = 4,
                    allow_resample: bool = False, on_conversion: str = "warn",
-                   progress: bool = True, strict: bool = False) -> BatchSummary:
+                   progress: Progress = True, strict: bool = False) -> BatchSummary:
     """Score the manifest's conditions (and hidden references if asked) with each metric.
 
     Every pair's headers are checked first (:func:`refuse_misaligned_pairs`): a frame-rate
@@ -653,7 +654,7 @@ def score_manifest(manifest: str | Path, out: str | Path, metrics: Sequence[str]
 def _score_manifest(manifest: str | Path, out: Path, metrics: Sequence[str],
                     options: MetricOptions, *, include_references: bool,
                     root: str | Path | None, group_size: int, allow_resample: bool,
-                    on_conversion: str, progress: bool, strict: bool) -> BatchSummary:
+                    on_conversion: str, progress: Progress, strict: bool) -> BatchSummary:
     state = read_scores(out)
     refuse_misaligned_pairs(manifest, include_references=include_references, root=root,
                             on_conversion=on_conversion, allow_resample=allow_resample,
@@ -668,7 +669,7 @@ def _score_manifest(manifest: str | Path, out: Path, metrics: Sequence[str],
     summary = BatchSummary()
     total = sum(len(u.tests) for u in units)
     appender = Appender(out, state)
-    bar = tqdm(total=total, desc="cgvqm batch", unit="video", disable=not progress)
+    bar = progress_bar(total, "cgvqm batch", "video", progress)
     try:
         for u in units:
             rows = run_unit(u, scorers=scorers, done=done, verify=False,

@@ -130,7 +130,8 @@ def _cmd_metrics(args: argparse.Namespace) -> int:
         return 0
     print(f"{'name':<10} {'direction':<14} {'kind':<6} {'range':<12} available here")
     for r in rows:
-        avail = "yes" if r["available"] else f"no: {r['reason']}"
+        avail = (f"yes ({r['reason']})" if r["reason"] else "yes") if r["available"] else (
+            f"no: {r['reason']}")
         print(f"{r['name']:<10} {r['direction']:<14} {r['kind']:<6} {r['range']:<12} {avail}")
     return 0
 
@@ -351,7 +352,7 @@ def _score_pair(args: argparse.Namespace) -> int:
         print(f"timing: {clock.report()}", file=sys.stderr)
     note = _alignment(args) if (args.json or args.csv) else ""
     if args.json:
-        out = res.to_dict(patches=True)
+        out = {"metric": metric_name(metric), **res.to_dict(patches=True)}
         if note:
             out["note"] = note
         if clock is not None:
@@ -363,7 +364,7 @@ def _score_pair(args: argparse.Namespace) -> int:
             tag += " [UNIFORM WEIGHTS]"
         if metric.seamless:
             tag += " [SEAMLESS: not upstream-identical]"
-        print(f"{res.variant} q = {res.q:.3f} ({res.label}; {res.pool} pooling, "
+        print(f"{metric_name(metric)} q = {res.q:.3f} ({res.label}; {res.pool} pooling, "
               f"{res.n_patches} patches, {res.seconds:.1f} s){tag}")
         if res.q_anchored is not None:
             print(f"calibrated to the study scale: {res.q_anchored:.2f} "
@@ -404,8 +405,10 @@ def _variant_of_weights(args: argparse.Namespace, names: list[str], asked: bool)
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
+    """Progress: a bar on a terminal, plain lines where stderr is a log file."""
     from .batch import score_manifest
     from .metrics import parse_metric_list
+    from .progress import for_stderr
 
     cluster = ray_settings(args, args.device)  # no Ray: says so before any work
     check_options(args)
@@ -426,7 +429,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     s = run(args.manifest, args.out, names, options,
             include_references=args.include_references, root=args.root,
             group_size=args.group_size, allow_resample=args.allow_resample,
-            on_conversion=on_conversion(args), strict=args.strict)
+            on_conversion=on_conversion(args), strict=args.strict, progress=for_stderr())
     print(f"{s.scored} scored, {s.skipped} already in {args.out}, {s.rows} rows written "
           f"({', '.join(names)})")
     for name in s.not_applicable:
@@ -436,6 +439,23 @@ def _cmd_batch(args: argparse.Namespace) -> int:
         if s.failed:
             raise CGVQMError(s.failure_message(args.out))
     return 0
+
+
+def _backbone_beside_weights(args: argparse.Namespace) -> None:
+    """``fetch --from DIR`` is an offline fetch: the backbone comes from DIR too when it is
+    there, and when it is neither there nor cached, nothing is copied (a download attempt
+    after copying the weights would report half a fetch as a failure)."""
+    from . import hub
+
+    if args.source is None or args.no_backbone or args.backbone_file:
+        return
+    beside = Path(args.source).expanduser() / hub.BACKBONE_FILE
+    if beside.is_file():
+        args.backbone_file = str(beside)
+    elif not hub.hub_checkpoint_path().is_file():
+        raise CGVQMError(f"--from {args.source}: it holds no {hub.BACKBONE_FILE} (the R3D-18 "
+                         "backbone) and the torch hub cache has none: give --backbone-file "
+                         "PATH, or --no-backbone to copy the weights only")
 
 
 def _cmd_weights(args: argparse.Namespace) -> int:
@@ -449,6 +469,7 @@ def _cmd_weights(args: argparse.Namespace) -> int:
         if not args.no_backbone and args.backbone_file and not Path(
                 args.backbone_file).expanduser().is_file():  # before anything is copied
             raise CGVQMError(f"--backbone-file {args.backbone_file}: no such file")
+        _backbone_beside_weights(args)
         for v in weights.VARIANTS:
             path = weights.fetch_upstream(v, source_dir=args.source)
             print(f"{v}: {path} (sha256 verified)")
@@ -532,7 +553,8 @@ def main(argv: list[str] | None = None) -> int:
         lg.propagate = False
     try:
         return run_command("cgvqm", lambda: _dispatch(args), extra="metric",
-                           interrupted="interrupted (batch runs resume where they stopped)")
+                           interrupted="interrupted (batch runs resume where they stopped)",
+                           sigterm_interrupts=True)
     finally:
         for lg, (level, propagate) in zip(loggers, saved, strict=True):
             lg.removeHandler(handler)

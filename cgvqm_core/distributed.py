@@ -32,7 +32,6 @@ from typing import Any, TypeVar
 
 import ray
 import ray.exceptions
-from tqdm.auto import tqdm
 
 from stimuli_manifests.cli_runner import one_line
 from stimuli_manifests.errors import ToolkitError
@@ -55,6 +54,7 @@ from .batch import (
 )
 from .errors import CGVQMError
 from .metrics.registry import MetricOptions, build_scorers
+from .progress import Progress, progress_bar
 from .ray_options import LOCAL, RaySettings
 
 log = logging.getLogger(__name__)
@@ -271,7 +271,7 @@ def _worker_plan(metrics: Sequence[str], options: MetricOptions, settings: RaySe
 
 
 def score_units(units: Sequence[WorkUnit], out: str | Path, settings: RaySettings, *,
-                progress: bool = True) -> RaySummary:
+                progress: Progress = True) -> RaySummary:
     """Run the units whose rows are not all in ``out`` as Ray tasks; append rows as each
     finishes. Needs a connected Ray (:func:`connected`)."""
     with scores_lock(out):
@@ -279,7 +279,7 @@ def score_units(units: Sequence[WorkUnit], out: str | Path, settings: RaySetting
 
 
 def _score_units(units: Sequence[WorkUnit], out: Path, settings: RaySettings, *,
-                 progress: bool) -> RaySummary:
+                 progress: Progress) -> RaySummary:
     state = read_scores(out)
     summary = RaySummary(units=len(units))
     if not units:
@@ -303,8 +303,8 @@ def _score_units(units: Sequence[WorkUnit], out: Path, settings: RaySettings, *,
     summary.submitted = len(pending)
     summary.skipped = skipped
     appender = Appender(out, state)
-    bar = tqdm(total=sum(len(u.tests) for u in units), initial=skipped, desc="cgvqm batch (ray)",
-               unit="video", disable=not progress)
+    bar = progress_bar(sum(len(u.tests) for u in units), "cgvqm batch (ray)", "video", progress,
+                       initial=skipped)
     try:
         for (u, keys), result, why in as_completed(pending, settings):
             bar.update(len(u.tests))
@@ -359,7 +359,7 @@ def score_manifest(manifest: str | Path, out: str | Path, metrics: Sequence[str]
                    options: MetricOptions, settings: RaySettings, *,
                    include_references: bool = False, root: str | Path | None = None,
                    group_size: int = 4, allow_resample: bool = False,
-                   on_conversion: str = "warn", progress: bool = True,
+                   on_conversion: str = "warn", progress: Progress = True,
                    strict: bool = False) -> RaySummary:
     """:func:`cgvqm_core.batch.score_manifest` on Ray (same units, keys, rows and CSV)."""
     read_scores(Path(out))  # a folder or a file of another layout: refused before any work

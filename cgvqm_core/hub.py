@@ -61,7 +61,7 @@ def sha256_file(path: Path) -> str:
     return h.hexdigest()
 
 
-def _offline_message(why: str) -> str:
+def offline_message(why: str) -> str:
     return (
         f"the R3D-18 backbone ({BACKBONE_FILE}, torchvision's Kinetics-400 weights) is not "
         f"available ({why}); copy the file to {hub_checkpoint_path()}, or pass --backbone PATH "
@@ -92,7 +92,7 @@ def load_backbone_file(path: str | Path, arch: str = "r3d_18") -> Backbone:
         raise CGVQMError(f"{path}: is a folder; give the backbone's state dict file "
                          f"({BACKBONE_FILE})")
     if not path.is_file():
-        raise CGVQMError(f"{path}: no such backbone file; {_offline_message('file missing')}")
+        raise CGVQMError(f"{path}: no such backbone file; {offline_message('file missing')}")
     if path.stat().st_size == 0:
         raise CGVQMError(f"{path}: the backbone file is empty (an interrupted copy?); copy "
                          f"{BACKBONE_FILE} again")
@@ -183,14 +183,14 @@ def fetch_backbone(*, source: str | Path | None = None) -> Path:
     if target.is_file():
         return target
     if offline():
-        raise CGVQMError(_offline_message("CGVQM_OFFLINE is set"))
+        raise CGVQMError(offline_message("CGVQM_OFFLINE is set"))
     try:
         torch.hub.load_state_dict_from_url(BACKBONE_URL, map_location="cpu", check_hash=True,
                                            weights_only=True)
     except RuntimeError as exc:  # torch.hub's hash mismatch
         raise CGVQMError(f"downloaded backbone failed its hash check ({exc})") from None
     except OSError as exc:
-        raise CGVQMError(_offline_message(f"download failed: {exc}")) from None
+        raise CGVQMError(offline_message(f"download failed: {exc}")) from None
     return target
 
 
@@ -215,6 +215,6 @@ def resolve_backbone(spec: str | Path | Backbone | Mapping[str, torch.Tensor] | 
     path = hub_checkpoint_path()
     if not path.is_file():
         if not allow_download:
-            raise CGVQMError(_offline_message("not in the torch hub cache"))
+            raise CGVQMError(offline_message("not in the torch hub cache"))
         path = fetch_backbone()
     return load_backbone_file(path, arch)

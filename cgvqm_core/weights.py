@@ -351,7 +351,7 @@ def _read(path: Path) -> bytes:
         raise CGVQMError(f"{path}: cannot read ({exc})") from None
 
 
-def _candidates(variant: Variant) -> list[Path]:
+def candidates(variant: Variant) -> list[Path]:
     out = [cache_dir() / variant.file_name]
     extra = os.environ.get("CGVQM_WEIGHTS_DIR")
     if extra:
@@ -375,14 +375,14 @@ def fetch_upstream(variant: str, *, source_dir: str | Path | None = None,
         origin = str(src)
     else:
         if offline():
-            raise CGVQMError(_missing_message(v, "CGVQM_OFFLINE is set"))
+            raise CGVQMError(missing_message(v, "CGVQM_OFFLINE is set"))
         url = UPSTREAM_URL.format(name=v.file_name)
         log.info("downloading %s", url)
         try:
             with urllib.request.urlopen(url, timeout=60) as resp:
                 data = resp.read()
         except OSError as exc:
-            raise CGVQMError(_missing_message(v, f"download failed: {exc}")) from None
+            raise CGVQMError(missing_message(v, f"download failed: {exc}")) from None
         origin = url
     digest = sha256_bytes(data)
     if digest != v.sha256:
@@ -402,7 +402,7 @@ def _variant(name: str) -> Variant:
         raise CGVQMError(f"unknown variant {name!r}; choose {' or '.join(VARIANTS)}") from None
 
 
-def _missing_message(v: Variant, why: str) -> str:
+def missing_message(v: Variant, why: str) -> str:
     return (
         f"the published {v.name} weights ({v.file_name}) are not available ({why}); "
         f"run `cgvqm weights fetch` online, or `cgvqm weights fetch --from DIR` with a folder "
@@ -413,11 +413,11 @@ def _missing_message(v: Variant, why: str) -> str:
 def published_weights(variant: str, *, allow_download: bool = True) -> FeatureWeights:
     """The authors' weights of ``variant``: from the cache or $CGVQM_WEIGHTS_DIR, else fetched."""
     v = _variant(variant)
-    for path in _candidates(v):
+    for path in candidates(v):
         if path.is_file():
             return load_upstream_pickle(path, expected_sha256=v.sha256)
     if not allow_download:
-        raise CGVQMError(_missing_message(v, "not in the cache"))
+        raise CGVQMError(missing_message(v, "not in the cache"))
     return load_upstream_pickle(fetch_upstream(variant), expected_sha256=v.sha256)
 
 

@@ -4,15 +4,20 @@
 :func:`run_command` with the work to do. Anything derived from :class:`ToolkitError`, an
 optional library that is not installed, or an operating-system error on a path the user gave
 (a folder where a file was expected, a name too long, no permission) is printed as
-``<prog>: error: <message>`` on one line; Ctrl-C exits 130. Programming errors still raise.
+``<prog>: error: <message>`` on one line; Ctrl-C exits 130 (and, where the command asks,
+SIGTERM from a job scheduler or ``timeout`` exits 143 with the same message). Programming errors
+still raise.
 """
 
 from __future__ import annotations
 
 import argparse
 import errno
+import signal
 import sys
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import NoReturn
 
 from .errors import ToolkitError
@@ -20,6 +25,30 @@ from .extras import explain_missing
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 128 + signal.SIGTERM
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C's KeyboardInterrupt would be, so the same clean-up runs."""
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise Terminated
+
+
+@contextmanager
+def _sigterm_raises() -> Iterator[None]:
+    """SIGTERM raises :class:`Terminated` inside (main thread only; a handler someone else
+    installed is left alone)."""
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL):
+        yield
+        return
+    signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def one_line(message: object) -> str:
@@ -59,9 +88,13 @@ def _os_error_text(exc: OSError) -> str:
 
 
 def run_command(prog: str, work: Callable[[], int], *, extra: str | None = None,
-                interrupted: str = "interrupted") -> int:
-    """Run ``work`` and return its exit code, or 2 / 130 as described in the module doc."""
+                interrupted: str = "interrupted", sigterm_interrupts: bool = False) -> int:
+    """Run ``work`` and return its exit code, or 2 / 130 (143) as described in the module
+    doc. ``sigterm_interrupts``: SIGTERM ends the work as Ctrl-C does, said, not silently."""
     try:
+        if sigterm_interrupts:
+            with _sigterm_raises():
+                return int(work())
         return int(work())
     except ToolkitError as exc:
         message = one_line(exc)
@@ -72,6 +105,9 @@ def run_command(prog: str, work: Callable[[], int], *, extra: str | None = None,
         message = one_line(missing)
     except OSError as exc:
         message = one_line(_os_error_text(exc))
+    except Terminated:
+        print(f"{prog}: stopped by SIGTERM: {interrupted}", file=sys.stderr)
+        return EXIT_TERMINATED
     except KeyboardInterrupt:
         print(f"{prog}: {interrupted}", file=sys.stderr)
         return EXIT_INTERRUPTED

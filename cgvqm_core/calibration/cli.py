@@ -14,7 +14,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from stimuli_manifests import StimuliError
-from stimuli_manifests.cli_runner import OneLineParser, one_line
+from stimuli_manifests.cli_runner import (
+    EXIT_INTERRUPTED,
+    EXIT_TERMINATED,
+    OneLineParser,
+    Terminated,
+    one_line,
+)
 
 from ..errors import CGVQMError
 from ..ray_options import add_ray_arguments, ray_settings
@@ -253,10 +259,11 @@ def run(args: argparse.Namespace) -> int:
     except (CGVQMError, StimuliError) as exc:
         print(f"cgvqm: error: {one_line(exc)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("cgvqm: interrupted; features computed so far are cached, rerun to continue",
+    except KeyboardInterrupt as exc:
+        how = "stopped by SIGTERM" if isinstance(exc, Terminated) else "interrupted"
+        print(f"cgvqm: {how}; features computed so far are cached, rerun to continue",
               file=sys.stderr)
-        return 130
+        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -15,6 +15,7 @@ from .registry import (
     CGVQM_ITSELF,
     HIGHER,
     VIDEO,
+    Availability,
     Entry,
     MetricOptions,
     MetricScore,
@@ -131,12 +132,52 @@ def _per_frame(res: Any, pool: str) -> list[float]:
     return [pool_errors(row, pool) for row in flat]
 
 
+def _files_to_fetch(variant: str, options: MetricOptions) -> list[str]:
+    """The published files this run would need but are in no cache: the variant's weights
+    (unless the run gives its own) and the Kinetics-400 backbone (unless given, or random)."""
+    import os
+
+    from .. import hub, weights
+
+    out = []
+    v = weights.VARIANTS[variant]
+    if options.weights is None and not any(p.is_file() for p in weights.candidates(v)):
+        out.append("weights")
+    if (options.random_backbone is None and not options.backbone
+            and not os.environ.get(hub.BACKBONE_ENV) and not hub.hub_checkpoint_path().is_file()):
+        out.append("backbone")
+    return out
+
+
 class CGVQMEntry(Entry):
     def __init__(self, variant: str, levels: str) -> None:
         self.spec = _spec(variant, levels)
 
-    def availability(self):  # type: ignore[no-untyped-def]
-        return module_available("torch")
+    def availability(self) -> Availability:
+        return self.availability_for(MetricOptions())
+
+    def availability_for(self, options: MetricOptions) -> Availability:
+        """Torch, and the published weights and the backbone unless the run gives its own:
+        found in their caches, or fetchable (not with CGVQM_OFFLINE set). Files the run names
+        are checked when the metric is built."""
+        a = module_available("torch")
+        if not a.ok:
+            return a
+        from .. import hub, weights
+
+        missing = _files_to_fetch(self.spec.name, options)
+        if not missing:
+            return Availability(True)
+        if not weights.offline():
+            what = " and ".join({"weights": "the published weights",
+                                 "backbone": "the R3D-18 backbone"}[m] for m in missing)
+            return Availability(True, f"downloads {what} on first use")
+        why = "not in the cache, and CGVQM_OFFLINE is set"
+        if missing[0] == "weights":
+            return Availability(False, weights.missing_message(
+                weights.VARIANTS[self.spec.name], why))
+        return Availability(False, hub.offline_message(
+            "not in the torch hub cache, and CGVQM_OFFLINE is set"))
 
     def build(self, options: MetricOptions) -> CGVQMScorer:
         return CGVQMScorer(self.spec, options)

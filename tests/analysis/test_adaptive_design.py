@@ -166,6 +166,7 @@ def test_adaptive_sessions_are_complete(adaptive, tmp_path: Path) -> None:
     np.testing.assert_allclose(rs.completeness(), 1.0)
 
 
+@pytest.mark.slow  # about 7 s here: CI runs it after `make test` (.ci/run)
 def test_report_states_the_policy_and_counts(adaptive) -> None:
     frame, rs = adaptive
     a = run_analysis(rs, AnalysisConfig(outliers="none", n_boot=20, n_splits=20, ci_draws=4),

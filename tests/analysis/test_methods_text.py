@@ -139,6 +139,7 @@ def _ratings(root: Path) -> pd.DataFrame:
     return pd.read_csv(root / "ratings.csv", dtype={"participant": str})
 
 
+@pytest.mark.slow  # about 15 s here: CI runs it after `make test` (.ci/run)
 def test_an_impairment_scale_is_said_to_be_mirrored_and_changes_no_number(study, tmp_path):
     """The same study on a lower-is-better scale (ratings 100 - r): the text says how the
     participants rated and that the numbers are on the mirrored scale; every number stays."""
@@ -179,6 +180,7 @@ def test_without_hidden_references_no_dmos_is_claimed(study, tmp_path):
     assert "not formed: no hidden reference was rated" in html
 
 
+@pytest.mark.slow  # about 11 s here: CI runs it after `make test` (.ci/run)
 def test_each_metric_is_given_its_own_stimuli_and_pairs_their_shared_ones(study, tmp_path):
     """A metric scored on fewer stimuli: its count in the text is the metric table's, and a
     significant difference involving it names the stimuli both metrics scored."""
@@ -223,6 +225,7 @@ def test_raters_the_bt500_model_rejects_are_left_out_of_every_number(study, tmp_
     assert "rejected by the score model" in (out / "report.html").read_text()
 
 
+@pytest.mark.slow  # about 6 s here: CI runs it after `make test` (.ci/run)
 def test_with_fewer_than_four_hrcs_the_p913_rule_is_r1_alone(tmp_path):
     """Three HRCs (two levels and the hidden reference): P.913's r2 cannot be computed,
     and the text does not claim it."""

@@ -130,6 +130,7 @@ def test_mixed_panel_on_nflx_with_injected_raters(sureal_dir: Path, tmp_path: Pa
     assert "20 of 79 planned trials" in partial_row["reason"]
 
 
+@pytest.mark.slow  # about 10 s here: CI runs it after `make test` (.ci/run)
 def test_mixed_panel_generated(tmp_path: Path) -> None:
     """The same scenario on a generated panel (runs without ../shared)."""
     st = synthetic_study(n_scenes=4, methods=("blur", "noise"), levels=3, n_raters=10,

@@ -118,6 +118,7 @@ def panel_study(tmp_path_factory):
     return path, sessions
 
 
+@pytest.mark.slow  # about 10 s here: CI runs it after `make test` (.ci/run)
 def test_report_panel_from_simulated_sessions(panel_study, tmp_path):
     manifest, sessions = panel_study
     # an independent count straight from the session files

@@ -154,6 +154,7 @@ def test_a_rerun_leaves_nothing_of_the_last_and_figures_come_as_pdf(study_files,
                                                  "comparisons"))], left
 
 
+@pytest.mark.slow  # about 11 s here: CI runs it after `make test` (.ci/run)
 def test_a_metric_lacking_stimuli_is_named(study_files, tmp_path, capsys):
     out = tmp_path / "report"
     assert _report(study_files, out, "--metric", str(study_files["partial"])) == 0
@@ -163,6 +164,7 @@ def test_a_metric_lacking_stimuli_is_named(study_files, tmp_path, capsys):
     assert all(s in said["message"].iloc[0] for s in study_files["missing"])
 
 
+@pytest.mark.slow  # about 9 s here: CI runs it after `make test` (.ci/run)
 def test_axes_show_whole_whiskers_and_log_ticks_are_plain(study_files, tmp_path, monkeypatch):
     drawn: dict[str, object] = {}
     save = figures_module._save

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import signal
+import time
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +59,62 @@ def test_an_interrupt_keeps_the_groups_already_scored(tmp_path, monkeypatch):
     monkeypatch.setattr(engine, "score_reference", real)
     s = score_manifest(manifest, out, ["psnr"], group_size=1, progress=False)
     assert (s.scored, s.skipped) == (3, 1) and len(_rows(out)) == 4
+
+
+def test_sigterm_stops_a_batch_as_ctrl_c_does_and_says_so(tmp_path, capsys, monkeypatch):
+    """A job scheduler or `timeout` sends SIGTERM: the batch ends with the same line as
+    Ctrl-C (exit 143), the groups already scored stay, and the handler is gone afterwards."""
+    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        pytest.skip("this test runner handles SIGTERM itself")
+    manifest = _study(tmp_path)
+    out = tmp_path / "s.csv"
+    real = engine.score_reference
+    calls = {"n": 0}
+
+    def terminated_second(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(30)  # the handler raises here at once
+        return real(*a, **k)
+
+    monkeypatch.setattr(engine, "score_reference", terminated_second)
+    args = ["batch", "--manifest", manifest, "--out", out, "--metrics", "psnr",
+            "--group-size", "1"]
+    rc, _, err = _run(capsys, *args)
+    assert rc == 128 + signal.SIGTERM
+    assert err.splitlines()[-1] == ("cgvqm: stopped by SIGTERM: interrupted (batch runs "
+                                    "resume where they stopped)")
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    assert [r["stimulus"] for r in _rows(out)] == ["SRC01_HRC01"]
+    monkeypatch.setattr(engine, "score_reference", real)
+    rc, out_text, err = _run(capsys, *args)
+    assert rc == 0 and out_text.startswith("3 scored, 1 already"), err
+
+
+def test_a_batch_logged_to_a_file_gets_lines_not_bar_redraws(tmp_path, capsys, monkeypatch):
+    """stderr redirected to a log: whole lines, at most one per half minute and one at the
+    end, none of tqdm's carriage-return redraws."""
+    from cgvqm_core import progress
+
+    clock = {"t": 0.0}
+    monkeypatch.setattr(progress, "monotonic", lambda: clock["t"])
+    real = engine.score_reference
+
+    def slow(*a, **k):  # each group takes 20 s on the clock
+        clock["t"] += 20.0
+        return real(*a, **k)
+
+    monkeypatch.setattr(engine, "score_reference", slow)
+    rc, out, err = _run(capsys, "batch", "--manifest", _study(tmp_path), "--out",
+                        tmp_path / "s.csv", "--metrics", "psnr", "--group-size", "1")
+    assert rc == 0 and out.startswith("4 scored"), err
+    assert "\r" not in err
+    lines = [line for line in err.splitlines() if line.startswith("cgvqm batch:")]
+    # groups end at 20, 40, 60 and 80 s: a line at 40 s (30 s since the start), at 80 s
+    # (40 s since that line), and none at the end (nothing new since)
+    assert lines == ["cgvqm batch: 2 of 4 videos (50 %), 40 s",
+                     "cgvqm batch: 4 of 4 videos (100 %), 1 min 20 s"]
 
 
 # -- finding 4: one row per (metric, pooling, stimulus) --------------------------------------

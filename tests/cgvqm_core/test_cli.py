@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import pickle
+import shutil
 from pathlib import Path
 
 import av
@@ -15,6 +16,7 @@ import torch
 from cgvqm_core import CGVQM
 from cgvqm_core.batch import SCORE_COLUMNS
 from cgvqm_core.cli import main
+from cgvqm_core.weights import FeatureWeights, save_weights
 from stimuli_manifests import write_video
 
 FPS = 6
@@ -60,6 +62,28 @@ def test_score_json_matches_api(capsys, pair, weights_file, backbone_file, tmp_p
     with av.open(str(tmp_path / "em.mkv")) as c:
         frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
     assert len(frames) == 8 and frames[0].shape == (20, 24, 3)
+
+
+def test_score_names_the_metric_as_its_csv_row_does(capsys, pair, backbone_file, tmp_path):
+    """Calibrated weights make another metric: the terminal line and --json name it as the
+    CSV row does (the file's stem after the variant), not as plain cgvqm-2."""
+    ref, test = pair
+    omega = np.linspace(0.5, 2.0, 131, dtype=np.float32) / 131
+    calib = save_weights(tmp_path / "calib_w.json",
+                         FeatureWeights("cgvqm-2", omega, 40.0, "", "", "project", {}))
+    common = ["score", "--ref", ref, "--test", test, "--weights", calib,
+              "--backbone", backbone_file]
+    rc, out, err = _run(capsys, *common, "--csv", tmp_path / "s.csv")
+    assert rc == 0, err
+    assert out.startswith("cgvqm-2-calib_w q = "), out
+    with (tmp_path / "s.csv").open(newline="") as fh:
+        (row,) = list(csv.DictReader(fh))
+    assert row["metric"] == "cgvqm-2-calib_w"
+    rc, out, err = _run(capsys, *common, "--json")
+    assert rc == 0, err
+    doc = json.loads(out)
+    assert doc["metric"] == "cgvqm-2-calib_w" and doc["variant"] == "cgvqm-2"
+    assert doc["q"] == pytest.approx(float(row["score"]), rel=1e-6)
 
 
 def test_random_backbone_is_marked(capsys, pair, weights_file, tmp_path):
@@ -170,7 +194,7 @@ def test_batch_resumes_and_appends_variants(capsys, tmp_path, vids, weights_file
         (r["stimulus"], r["pooling"]) for r in rows)
 
 
-def test_weights_commands(capsys, weights_file, upstream_dir, backbone_file):
+def test_weights_commands(capsys, weights_file, upstream_dir, backbone_file, tmp_path):
     rc, out, _ = _run(capsys, "weights", "info", weights_file)
     assert rc == 0 and json.loads(out)["n_channels"] == 131
     rc, _, err = _run(capsys, "weights", "verify")
@@ -178,7 +202,14 @@ def test_weights_commands(capsys, weights_file, upstream_dir, backbone_file):
     rc, out, err = _run(capsys, "weights", "fetch", "--from", upstream_dir, "--no-backbone")
     assert rc == 0 and out.count("sha256 verified") == 2
     rc, out, err = _run(capsys, "weights", "fetch", "--from", upstream_dir)
-    assert rc == 2 and "--backbone PATH" in err  # offline, no backbone file: one clear line
+    assert rc == 2 and not out  # no backbone in DIR nor cached: refused before any copy
+    assert "holds no r3d_18-b3b3357e.pth" in err and "--no-backbone" in err
+    own = tmp_path / "own"  # --from DIR takes DIR's backbone (a copy: shared data is read only)
+    shutil.copytree(upstream_dir, own)
+    beside = own / "r3d_18-b3b3357e.pth"
+    beside.write_bytes(Path(backbone_file).read_bytes())
+    rc, out, err = _run(capsys, "weights", "fetch", "--from", own)
+    assert rc == 2 and f"{beside}: sha256" in err and "does not start with b3b3357e" in err
     rc, out, err = _run(capsys, "weights", "fetch", "--from", upstream_dir, "--backbone-file",
                         backbone_file)
     assert rc == 2 and "is not the one of r3d_18-b3b3357e.pth" in err

@@ -179,7 +179,7 @@ def test_score_warns_how_many_frames_were_invented(capsys, tmp_path, vids, test_
             f"frame{'s were' if invented > 1 else ' was'} invented by repeating test "
             "frames") in line
     assert "no interpolation" in line and "--strict" in line
-    assert "cgvqm-2 q =" in out
+    assert "cgvqm-2-uniform q =" in out
 
 
 def test_score_warns_how_many_frames_were_dropped(capsys, tmp_path, vids):
@@ -223,7 +223,7 @@ def test_score_strict_refuses_a_frame_count_mismatch(capsys, tmp_path, vids):
     same = write_video(tmp_path / "same.mkv", vids.smooth(4, N_REF, HW, HW), FPS)
     rc, out, err = _run(capsys, "score", "--ref", r, "--test", same, "--random-backbone", 0,
                         "--weights", "uniform", "--strict")
-    assert rc == 0 and "cgvqm-2 q =" in out, err
+    assert rc == 0 and "cgvqm-2-uniform q =" in out, err
 
 
 def test_batch_strict_refuses_and_plain_batch_warns(capsys, tmp_path, vids):
@@ -275,7 +275,7 @@ def test_weights_of_another_variant_than_the_one_asked_for_are_refused(capsys, t
     _refused(rc, _no_warnings(err), "holds cgvqm-5", "cgvqm-2 was asked for")
     assert out == ""
     rc, out, err = _run(capsys, *args)  # no variant named: the file's is used
-    assert rc == 0 and "cgvqm-5 q =" in out, err
+    assert rc == 0 and "cgvqm-5-five q =" in out, err  # named as its CSV rows are
 
 
 def test_backbone_files_that_are_no_state_dict_are_named_so(capsys, tmp_path, npy_pair):
@@ -322,6 +322,10 @@ def test_weights_verify_and_fetch_name_the_missing_file(capsys, tmp_path, monkey
                       tmp_path / "nope.pth")
     _refused(rc, err, "--backbone-file", "no such file")
     assert not (tmp_path / "cache").exists()  # nothing copied before the refusal
+    (src / "cgvqm-2.pickle").write_bytes(b"x")
+    rc, _, err = _run(capsys, "weights", "fetch", "--from", src)
+    _refused(rc, err, f"--from {src}: it holds no r3d_18-b3b3357e.pth", "--no-backbone")
+    assert not (tmp_path / "cache").exists()
 
 
 def test_score_takes_one_pooling(capsys, npy_pair):

@@ -85,6 +85,7 @@ def test_unit_norm_reads_low_precision_directly(dtype):
     assert got[0, :, 0, 0, 0].abs().max() == 0
 
 
+@pytest.mark.slow  # about 11 s here: CI runs it after `make test` (.ci/run)
 def test_scores_with_a_padded_stem_and_fused_stages(vids, backbone, monkeypatch):
     """Whole scores through FeatureNet: the padded stem, and fused stages (cuDNN's operation
     stood in for by ordinary operators), against the plain network."""

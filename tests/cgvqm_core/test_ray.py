@@ -166,6 +166,7 @@ def test_ray_batch_gives_the_local_numbers(study, local_scores, cluster, tmp_pat
     assert scores(out) == expected  # bitwise: same device, precision and thread count
 
 
+@pytest.mark.slow  # a Ray cluster (about 13 s here, its start 7 s): CI runs it after `make test`
 @needs_ray
 def test_ray_resume_submits_only_missing_units(study, local_scores, cluster, tmp_path):
     from cgvqm_core import distributed
@@ -187,6 +188,7 @@ def test_ray_resume_submits_only_missing_units(study, local_scores, cluster, tmp
     assert (again.submitted, again.rows) == (0, 0)
 
 
+@pytest.mark.slow  # a Ray cluster (about 4 s here, its start 7 s): CI runs it after `make test`
 @needs_ray
 def test_a_killed_worker_costs_only_its_unit(study, local_scores, cluster, tmp_path, capsys):
     marker = tmp_path / "killed-once"
@@ -203,6 +205,7 @@ def test_a_killed_worker_costs_only_its_unit(study, local_scores, cluster, tmp_p
     assert scores(out) == scores(local_scores)
 
 
+@pytest.mark.slow  # a Ray cluster (about 8 s here, its start 7 s): CI runs it after `make test`
 @needs_ray
 def test_a_unit_failing_every_time_is_named_and_the_others_land(local_scores, cluster,
                                                                 tmp_path, capsys):
@@ -258,6 +261,7 @@ def test_bad_ray_options_are_one_line(capsys, tmp_path):
         assert err.count("\n") == 1 and words in err, err
 
 
+@pytest.mark.slow  # a Ray cluster (about 1 s here, its start 7 s): CI runs it after `make test`
 @needs_ray
 def test_a_request_no_node_meets_is_refused_at_once(study, cluster, tmp_path, capsys):
     assert batch(study, tmp_path / "s.csv", "--ray", "--ray-cpus-per-unit", "3") == 2
@@ -265,6 +269,7 @@ def test_a_request_no_node_meets_is_refused_at_once(study, cluster, tmp_path, ca
     assert err.count("cgvqm: error:") == 1 and "no node of the cluster has 3 CPU(s)" in err
 
 
+@pytest.mark.slow  # a Ray cluster (about 9 s here, its start 7 s): CI runs it after `make test`
 @needs_ray
 def test_calibrate_ray_fills_the_same_cache(study, cluster, tmp_path, capsys):
     def features(cache: Path, *extra: str) -> dict[str, np.ndarray]:

@@ -70,6 +70,7 @@ def test_a_split_stem_computes_the_fp32_stem(split, channels_last):
     assert tf32 > 50 * got  # what the split is for
 
 
+@pytest.mark.slow  # about 11 s here: CI runs it after `make test` (.ci/run)
 def test_scores_with_a_split_stem_are_fp32_scores(vids, backbone):
     """Whole scores: each split stem within fp32 rounding of the plain network; the TF32
     stem it replaces visibly not."""

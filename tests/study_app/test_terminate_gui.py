@@ -25,6 +25,7 @@ def _events(path) -> list[dict]:
         return store.events()
 
 
+@pytest.mark.slow  # about 26 s here: CI runs it after `make test` (.ci/run)
 def test_signals_end_the_run_as_a_confirmed_quit(tmp_path, xdisplay, study_factory,
                                                   app_driver):
     study = study_factory(tmp_path / "study")

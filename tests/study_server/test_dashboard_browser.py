@@ -186,6 +186,7 @@ def test_the_dashboard_after_a_new_version_counts_only_its_sessions(
     _full_page_screenshot(browser, "dashboard_new_version.png")
 
 
+@pytest.mark.slow  # about 12 s here: CI runs it after `make test` (.ci/run)
 def test_the_page_survives_a_server_outage_and_recovers(browser, tmp_path, invites,
                                                          server_factory):
     """While the server is down the page keeps what it showed under a banner saying since

@@ -199,6 +199,7 @@ def test_fetch_study_shows_the_size_and_falls_back_to_the_downloaded_copy(
     assert "Errno" not in str(e.value) and "connection refused" in str(e.value)
 
 
+@pytest.mark.slow  # about 9 s here: CI runs it after `make test` (.ci/run)
 def test_a_rate_limited_download_waits_and_completes(tmp_path, invites, server_factory):
     study = make_served_study(tmp_path / "many", refs=3, conds=3, file_bytes=2048)  # 15 files
     [inv] = invites(1, study=study)

@@ -22,6 +22,7 @@ pytestmark = pytest.mark.gui
 ARTIFACTS = REPO / "test-artifacts" / "server" / "app-e2e"
 
 
+@pytest.mark.slow  # about 15 s here: CI runs it after `make test` (.ci/run)
 def test_the_app_downloads_and_uploads_to_the_server(tmp_path, xdisplay, invites,
                                                      server_factory):
     study = make_study(tmp_path / "served", min_display=(640, 480))  # 3 stimuli, 64x64, 1 s
@@ -65,6 +66,7 @@ def test_the_app_downloads_and_uploads_to_the_server(tmp_path, xdisplay, invites
     assert "Your session is finished" in again.stdout and "have arrived" in again.stdout
 
 
+@pytest.mark.slow  # about 9 s here: CI runs it after `make test` (.ci/run)
 def test_run_from_a_server_refuses_clearly(tmp_path, served_study, invites, server_factory):
     [inv] = invites(1)
     srv = server_factory(served_study)

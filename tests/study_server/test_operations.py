@@ -116,6 +116,7 @@ def test_sessions_stay_on_their_version(served_study, tmp_path, invites, server_
     assert status == 200 and b"v1" in page and new_sha[:16].encode() in page
 
 
+@pytest.mark.slow  # about 7 s here: CI runs it after `make test` (.ci/run)
 def test_withdraw_while_serving(served_study, tmp_path, invites, server_factory):
     inv = invites(2)
     srv = server_factory(served_study)
@@ -162,6 +163,7 @@ def test_withdraw_while_serving(served_study, tmp_path, invites, server_factory)
     assert proc.returncode == 2 and "withdrawn already" in proc.stderr
 
 
+@pytest.mark.slow  # about 8 s here: CI runs it after `make test` (.ci/run)
 def test_a_pull_after_a_withdrawal_writes_earlier_tables_again(served_study, tmp_path,
                                                               invites, server_factory):
     """Tables an earlier pull wrote kept a withdrawn participant's rows (the pull only said
@@ -247,6 +249,7 @@ def test_pull_with_a_wrong_token_is_one_line(served_study, server_factory, tmp_p
     assert proc.returncode == 2 and "cannot reach" in proc.stderr
 
 
+@pytest.mark.slow  # about 10 s here: CI runs it after `make test` (.ci/run)
 def test_addresses_are_kept_only_when_wanted(served_study, tmp_path, invites, server_factory):
     inv = invites(2)
     for args, expected in (((), "127.0.0.1"), (("--no-addresses",), None)):

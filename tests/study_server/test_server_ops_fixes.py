@@ -25,6 +25,7 @@ def _one_error_line(proc: subprocess.CompletedProcess) -> str:
     return lines[0]
 
 
+@pytest.mark.slow  # about 8 s here: CI runs it after `make test` (.ci/run)
 def test_a_second_server_on_the_same_study_is_refused(served_study, server_factory):
     first = server_factory(served_study)
     second = run_cli("serve", str(served_study), "--port", "0", timeout=120)
@@ -35,6 +36,7 @@ def test_a_second_server_on_the_same_study_is_refused(served_study, server_facto
     server_factory(served_study).stop()
 
 
+@pytest.mark.slow  # about 6 s here: CI runs it after `make test` (.ci/run)
 @pytest.mark.parametrize("loss", ["missing", "empty"])
 def test_a_lost_database_is_not_taken_for_a_new_study(served_study, server_factory, loss):
     server_factory(served_study).stop()

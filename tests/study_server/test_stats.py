@@ -70,6 +70,7 @@ def test_statistics_match_the_analysis_of_the_same_ratings(panel):
     assert snap.figures["dmos"][:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow  # about 9 s here: CI runs it after `make test` (.ci/run)
 def test_recomputed_at_most_every_n_seconds_and_only_on_change(panel):
     study, local = panel
     st = ServerState.open(ServerConfig(study, stats_every_s=2.0))

@@ -80,6 +80,7 @@ def test_width_history_forgets_points_with_more_raters_than_now(tmp_path):
         assert store.width_history() == [(3, 72, 40.0, 80.0), (4, 96, 31.3, 60.0)]
 
 
+@pytest.mark.slow  # about 9 s here: CI runs it after `make test` (.ci/run)
 def test_a_study_closes_to_new_participants_at_its_target(tmp_path, invites, server_factory):
     study = make_served_study(tmp_path / "study", refs=3, conds=2, repetitions=2,
                               file_bytes=256)  # 9 stimuli x 2 = 18 trials

@@ -67,6 +67,7 @@ EDITS = {
 }
 
 
+@pytest.mark.slow  # about 7 s here: CI runs it after `make test` (.ci/run)
 def test_edits_after_upload_are_flagged_and_the_server_copy_is_unchanged(
         served_study, tmp_path, invites, server_factory):
     inv = invites(len(EDITS))

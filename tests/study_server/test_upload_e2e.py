@@ -124,7 +124,7 @@ def test_sigkill_mid_study_then_restart_loses_nothing(tmp_path, invites, server_
 
 
 @pytest.mark.parametrize("outage_s", [
-    pytest.param(4.0, id="4s"),
+    pytest.param(4.0, id="4s", marks=pytest.mark.slow),  # about 14 s here: CI runs it
     pytest.param(30.0, id="30s", marks=pytest.mark.slow),
 ])
 def test_server_down_clients_queue_and_catch_up(tmp_path, invites, server_factory, outage_s):

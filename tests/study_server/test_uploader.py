@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import time
 
+import pytest
+
 from session_store import TrialResult, utc_now
 from study_app.remote import ServerClient, Uploader, UploadStatus
 
@@ -95,6 +97,7 @@ def test_end_screen_text_with_and_without_everything_arrived(tmp_path):
     assert "Send this one file" in plain.body and "server" not in plain.body
 
 
+@pytest.mark.slow  # about 7 s here: CI runs it after `make test` (.ci/run)
 def test_the_count_left_comes_from_the_file_when_no_pass_succeeds(
         served_study, tmp_path, invites, server_factory):
     """A run that starts with the server down knows what earlier runs had sent: the answers

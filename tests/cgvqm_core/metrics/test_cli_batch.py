@@ -20,7 +20,7 @@ from .conftest import blurred, noisy, real_video
 
 FPS = 8
 DONE_WHEN = ["psnr", "ssim", "ms-ssim", "iw-ssim", "vif", "fsim", "sr-sim", "gmsd", "ms-gmsd",
-             "vsi", "dss", "haarpsi", "mdsi", "flip", "cvvdp", "cgvqm-2", "cgvqm-5"]
+             "vsi", "dss", "haarpsi", "mdsi", "flip", "cvvdp"]
 
 
 def _run(capsys, *args) -> tuple[int, str, str]:
@@ -62,6 +62,37 @@ def test_metrics_lists_registry_with_availability(capsys):
         assert name in rows and (rows[name]["available"] or rows[name]["reason"])
     rc, out, _ = _run(capsys, "metrics")
     assert rc == 0 and "ms-ssim" in out and "lower-better" in out
+
+
+def _cgvqm_rows(capsys) -> dict[str, str]:
+    rc, out, _ = _run(capsys, "metrics")
+    assert rc == 0
+    return {line.split()[0]: line.split(None, 4)[4] for line in out.splitlines()
+            if line.startswith("cgvqm-")}
+
+
+def test_metrics_says_where_cgvqm_files_are_missing_offline(capsys, tmp_path, monkeypatch):
+    """Offline, CGVQM is available only once its published weights and the backbone are in
+    their caches (or given): each missing file is named, in the order score would meet them;
+    online, missing files are fetched on first use, and said so."""
+    rows = _cgvqm_rows(capsys)  # the test's caches are empty and CGVQM_OFFLINE is set
+    assert rows["cgvqm-2"].startswith("no: the published cgvqm-2 weights (cgvqm-2.pickle)")
+    assert "cgvqm weights fetch --from DIR" in rows["cgvqm-2"]
+    cache = tmp_path / "cgvqm-cache"
+    cache.mkdir(exist_ok=True)
+    (cache / "cgvqm-2.pickle").write_bytes(b"placed by the test")
+    rows = _cgvqm_rows(capsys)
+    assert rows["cgvqm-2"].startswith("no: the R3D-18 backbone (r3d_18-b3b3357e.pth")
+    assert rows["cgvqm-5"].startswith("no: the published cgvqm-5 weights")
+    monkeypatch.setenv("CGVQM_BACKBONE", str(tmp_path / "backbone.pth"))
+    rows = _cgvqm_rows(capsys)
+    assert rows["cgvqm-2"] == "yes" and rows["cgvqm-5"].startswith("no: the published cgvqm-5")
+    monkeypatch.delenv("CGVQM_BACKBONE")
+    monkeypatch.delenv("CGVQM_OFFLINE")
+    rows = _cgvqm_rows(capsys)
+    assert rows["cgvqm-2"] == "yes (downloads the R3D-18 backbone on first use)"
+    assert rows["cgvqm-5"] == ("yes (downloads the published weights and the R3D-18 backbone "
+                               "on first use)")
 
 
 def test_score_peer_metric(capsys, tmp_path):

@@ -170,6 +170,7 @@ def _load_part(part: str, path: Path) -> files.WeightsFile:
     return files.load(part, {part: str(path)})
 
 
+@pytest.mark.slow  # about 7 s here: CI runs it after `make test` (.ci/run)
 def test_torchvision_state_dicts_load_strictly(tmp_path, wfiles):
     sd = wfiles.content["vgg16"]
     full = vgg.expected_keys()
@@ -372,6 +373,7 @@ def test_lpips_equals_the_authors_formulation(monkeypatch, wfiles, name, net):
     np.testing.assert_allclose(mine, theirs, rtol=1e-5)
 
 
+@pytest.mark.slow  # about 7 s here: CI runs it after `make test` (.ci/run)
 def test_identity_and_symmetry(wfiles):
     t, r = _frames(80, 96)
     opts = wfiles.options()

@@ -15,6 +15,7 @@ def _tree_bytes(root):
             for p in sorted(root.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.slow  # about 7 s here: CI runs it after `make test` (.ci/run)
 def test_same_seed_same_bytes_other_seed_other_noise(egl, tmp_path, tiny_study, tiny_options):
     opts = SynthOptions(**tiny_options)
     again = synthesize(tmp_path / "again", opts, progress=False)

@@ -13,6 +13,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import LogFormatter, MaxNLocator, NullFormatter
 
 from .data import RatingSet
+from .intervals import MIN_RATERS_FOR_INTERVAL
 from .panel_figure import draw_survey
 from .pipeline import Analysis
 from .quality import THRESHOLDS
@@ -100,6 +101,9 @@ def dmos_per_scene(a: Analysis, path: Path) -> Path:
     if preds:
         h, lab = fig.axes[0].get_legend_handles_labels()
         handles, labels = handles + h, labels + lab
+    if (d["dmos"].notna() & d["ci95_low"].isna()).any():  # a point without a bar is no certainty
+        handles.append(fig.axes[0].plot([], [], ls="none")[0])
+        labels.append(f"no bar: fewer than {MIN_RATERS_FOR_INTERVAL} raters")
     # above the panels: below them it would cover the rotated stimulus labels
     fig.legend(handles, labels, loc="upper center", ncol=min(6, len(labels)), fontsize=7,
                bbox_to_anchor=(0.5, 1.0), frameon=False)

@@ -29,6 +29,20 @@ from scipy import stats
 from .data import RatingSet
 from .errors import check_resamples
 
+MIN_RATERS_FOR_INTERVAL = 3
+"""Raters behind a DMOS (they rated the stimulus and its reference) below which the report
+gives it no interval. Two raters give a bootstrap of three outcomes and a t quantile of 12.7:
+an interval past both ends of the scale, or of zero width where the two agree, which reads
+as certainty. The allocation still uses those widths: there they only rank stimuli."""
+
+
+def reported_halfwidth(boot: RaterBootstrap, halfwidth: np.ndarray,
+                       hidden: np.ndarray) -> np.ndarray:
+    """``halfwidth`` with NaN for the conditions behind fewer than
+    :data:`MIN_RATERS_FOR_INTERVAL` raters (hidden references keep their exact 0)."""
+    few = ~np.asarray(hidden, dtype=bool) & (boot.n_raters < MIN_RATERS_FOR_INTERVAL)
+    return np.where(few, np.nan, np.asarray(halfwidth, dtype=float))
+
 
 @dataclass
 class RaterWeights:

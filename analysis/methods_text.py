@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from .intervals import MIN_RATERS_FOR_INTERVAL
 from .metrics import CEILING_ROW
 from .pipeline import MODEL_REJECTION, Analysis
 from .presentation_text import metric_viewing_text, presentation_paragraph
@@ -218,9 +219,25 @@ def _scores(a: Analysis, s: dict[str, Any]) -> str:
                      f"{_count(int((~has).sum()), 'stimulus', 'stimuli')} of "
                      f"{'that content have' if len(missing) == 1 else 'those contents have'} "
                      "no DMOS and are left out of the metric comparison.")
+    text += _without_interval(a)
     if s.get("model_fallback"):
         text += f" {s['model_fallback']}"
     return text
+
+
+def _without_interval(a: Analysis) -> str:
+    """The DMOS given without an interval because too few raters stand behind them."""
+    d = a.dmos()
+    cond = ~d["is_hidden_reference"].astype(bool) & d["dmos"].notna()
+    n = int((cond & d["ci95_low"].isna()).sum())
+    if not n:
+        return ""
+    why = (f"fewer than {MIN_RATERS_FOR_INTERVAL} raters (a bootstrap over two raters has "
+           "three outcomes, and its t quantile of 12.7 spans the scale)")
+    if n == int(cond.sum()):
+        return f" No DMOS has an interval: every stimulus was rated, with its reference, by {why}."
+    return (f" {_count(n, 'stimulus', 'stimuli')} {'has' if n == 1 else 'have'} no DMOS "
+            f"interval: rated, with {'its' if n == 1 else 'their'} reference, by {why}.")
 
 
 def _reliability(a: Analysis, s: dict[str, Any]) -> str:

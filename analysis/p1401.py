@@ -31,7 +31,8 @@ def rmse_dof(y: np.ndarray, pred: np.ndarray, d: int) -> float:
 def _with_interval(y: np.ndarray, pred: np.ndarray, ci95: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
     """|y - pred| and the CI half-width of the stimuli that have one: a stimulus behind which
-    fewer than two raters stand has no interval, so it can be neither inside nor outside it."""
+    fewer than three raters stand has no interval (``MIN_RATERS_FOR_INTERVAL``), so it can
+    be neither inside nor outside it."""
     e = np.abs(np.asarray(y, dtype=float) - np.asarray(pred, dtype=float))
     ci = np.asarray(ci95, dtype=float)
     has = np.isfinite(ci)

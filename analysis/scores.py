@@ -25,7 +25,12 @@ import pandas as pd
 
 from .data import InputProblem, RatingSet
 from .errors import AnalysisError
-from .intervals import dmos_from_quality_matrix, estimator_weights, rater_bootstrap
+from .intervals import (
+    dmos_from_quality_matrix,
+    estimator_weights,
+    rater_bootstrap,
+    reported_halfwidth,
+)
 from .subject_models import (
     bt500_rejection,
     implausible,
@@ -244,14 +249,17 @@ def dmos_table(rs: RatingSet, res: ScoreResult) -> pd.DataFrame:
     """The DMOS table (cgvq-dmos/1, docs/file-formats.md): its columns first, then scene,
     quality and its CI."""
     st = rs.stimuli
+    half = res.dmos_halfwidth
+    if res.bootstrap is not None:  # too few raters: no interval (see MIN_RATERS_FOR_INTERVAL)
+        half = reported_halfwidth(res.bootstrap, half, rs.hidden_reference_mask)
     return pd.DataFrame({
         "stimulus": st.index.astype(str),
         "reference": st["reference"].to_numpy(),
         "method": st["method"].to_numpy(),
         "level": pd.array(st["level"], dtype="Int64"),
         "dmos": res.dmos,
-        "ci95_low": res.dmos - res.dmos_halfwidth,
-        "ci95_high": res.dmos + res.dmos_halfwidth,
+        "ci95_low": res.dmos - half,
+        "ci95_high": res.dmos + half,
         "mos": res.mos,
         "n_ratings": res.n_ratings.astype(int),
         "model": res.model_name,

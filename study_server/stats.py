@@ -310,7 +310,9 @@ class StatsWorker:
             return None
         cond = d[~d["is_hidden_reference"].astype(bool)]
         width = (cond["ci95_high"] - cond["ci95_low"]).astype(float)
-        width = width[width.abs() < float("inf")]  # NaN and inf left out
+        if (cond["dmos"].notna() & width.isna()).any():
+            return None  # a DMOS with too few raters for an interval: no width to judge yet
+        width = width[width.abs() < float("inf")]  # no DMOS (its reference unrated): left out
         if not len(width) or snap.study.n_raters < 2:
             return None
         point = WidthPoint(snap.study.n_raters, snap.study.n_ratings, float(width.mean()),

@@ -125,3 +125,25 @@ def test_diverging_mle_falls_back_to_p910() -> None:
     assert any("fell back" in p.message for p in res.problems)
     assert np.isfinite(res.quality).all()
     assert np.abs(res.quality - st.quality[rs.stimulus_ids].to_numpy()).max() < 3.0
+
+
+@pytest.mark.parametrize("model", ["mos", "mle"])
+def test_a_dmos_behind_fewer_than_three_raters_has_no_interval(clean, model: str) -> None:
+    """Two raters' bootstrap has three outcomes and a t quantile of 12.7: its 'interval'
+    left the scale, or had zero width where they agreed. Such a DMOS gets none; three raters
+    do, and the hidden references keep their exact zero width."""
+    st, _ = clean
+    r = st.ratings
+    raters = sorted(r["participant"].unique())
+    two = (r["stimulus"] == "SRC01_HRC01") & ~r["participant"].isin(raters[:2])
+    three = (r["stimulus"] == "SRC02_HRC02") & ~r["participant"].isin(raters[:3])
+    rs = ratings_from_frame(r[~two & ~three], st.manifest)
+    table = dmos_table(rs, fit_scores(rs, model, n_boot=200)).set_index("stimulus")
+    assert np.isfinite(table.loc["SRC01_HRC01", "dmos"])
+    assert table.loc["SRC01_HRC01", ["ci95_low", "ci95_high"]].isna().all()
+    row = table.loc["SRC02_HRC02"]
+    assert row["ci95_low"] < row["dmos"] < row["ci95_high"]
+    others = table[~table.index.isin(["SRC01_HRC01"]) & ~table["is_hidden_reference"]]
+    assert others["ci95_low"].notna().all() and others["ci95_high"].notna().all()
+    hidden = table[table["is_hidden_reference"]]
+    assert (hidden["ci95_low"] == hidden["dmos"]).all()

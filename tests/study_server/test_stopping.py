@@ -126,3 +126,28 @@ def test_a_ratings_budget_not_met_asks_for_the_participants_it_takes():
     st = evaluate(StoppingTarget(ratings=801), points, 800, now)
     assert st.more_raters == 1
     assert evaluate(StoppingTarget(ratings=800), points, 800, now).more_raters == 0
+
+
+def test_no_width_is_recorded_while_a_dmos_has_too_few_raters_for_an_interval():
+    """A DMOS behind fewer than 3 raters has no interval. Leaving it out of the mean and
+    the widest width would let a width target be met while it is unknown: no point is
+    recorded until every DMOS has an interval (stimuli without DMOS stay out, as before)."""
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from study_server.stats import StatsWorker
+
+    recorded = []
+    worker = StatsWorker.__new__(StatsWorker)  # only the store is used here
+    worker.store = SimpleNamespace(record_widths=lambda *a: recorded.append(a[:4]))
+    dmos = pd.DataFrame({"dmos": [70.0, 80.0, 60.0, 100.0],
+                         "ci95_low": [65.0, 76.0, None, 100.0],
+                         "ci95_high": [75.0, 84.0, None, 100.0],
+                         "is_hidden_reference": [False, False, False, True]})
+    snap = SimpleNamespace(study=SimpleNamespace(dmos=dmos, n_raters=4, n_ratings=40))
+    assert worker._record_widths(snap) is None and recorded == []
+    dmos.loc[2, "dmos"] = None  # its reference unrated: no DMOS, left out as before
+    point = worker._record_widths(snap)
+    assert (point.raters, point.mean_width, point.max_width) == (4, 9.0, 10.0)
+    assert recorded == [(4, 40, 9.0, 10.0)]

@@ -197,6 +197,7 @@ def test_report_states_the_policy_and_counts(adaptive) -> None:
     assert "mean over repetitions" not in text and "metrics are compared on" not in text
 
 
+@pytest.mark.slow  # about 6 s here: CI runs it after `make test` (.ci/run)
 def test_balanced_input_is_unchanged() -> None:
     loaded = _manifest("full", repetitions=1)
     frame = _ratings(loaded, extra=False)

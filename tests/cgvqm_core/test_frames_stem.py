@@ -80,7 +80,10 @@ def test_a_temporally_strided_convolution_is_refused():
         FramesStem(_stem(stride=(2, 2, 2)), True)
 
 
-@pytest.mark.parametrize("option", ["stem_2d", "stem_s2d"])
+@pytest.mark.parametrize("option", [
+    pytest.param("stem_2d", marks=pytest.mark.slow),  # about 8 s here: CI runs it
+    "stem_s2d",
+])
 def test_scores_with_a_2d_stem_are_fp32_scores(vids, backbone, option):
     """The 2D stem, and the 2D stem over its stride phases (space-to-depth)."""
     ref = vids.smooth(3, 10, 40, 36)

@@ -234,6 +234,7 @@ def _no_ray_site(tmp_path: Path) -> Path:
     return site
 
 
+@pytest.mark.slow  # about 11 s here: CI runs it after `make test` (.ci/run)
 def test_ray_without_the_extra_is_one_line(tmp_path):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(_no_ray_site(tmp_path)), str(REPO)]),
            "CGVQM_OFFLINE": "1"}

@@ -89,6 +89,7 @@ def test_plates_follow_the_seed_and_the_series_is_balanced():
         make_plate("monochromat", "1")  # type: ignore[arg-type]
 
 
+@pytest.mark.slow  # about 7 s here: CI runs it after `make test` (.ci/run)
 def test_contact_sheets_for_the_eye():
     """Saved for a person to look at: the plates as drawn, and as each dichromat sees them."""
     plates = [make_plate(k, d, seed=7) for k, d in

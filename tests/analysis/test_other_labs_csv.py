@@ -191,6 +191,7 @@ def test_the_dmos_figure_says_why_a_scene_has_no_dmos(study, tmp_path, monkeypat
     monkeypatch.setattr(figures, "_save", lambda fig, p, **kw: built.append(fig) or
                         real(fig, p, **kw))
     out = Path(__file__).resolve().parents[2] / "test-artifacts" / "analysis"
+    out.mkdir(parents=True, exist_ok=True)
     assert figures.dmos_per_scene(analysis, out / "dmos_without_a_hidden_reference.png") \
         .is_file()
     panels = {ax.get_title(): [t.get_text() for t in ax.texts] for ax in built[0].axes}

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -56,6 +57,77 @@ def _stimulus_ticks(sd: pd.DataFrame) -> list[str]:
     return short if len(set(short)) == len(short) else [str(s) for s in sd["stimulus"]]
 
 
+_GROUP_FONT = 8
+"""Points of the level ticks and method names under a scene's DMOS panel."""
+_PANEL_WIDTH_PT = 3.3 * 72
+"""About how wide one scene's axes are (4.2 in less its margins), for the fit estimate."""
+
+
+def _two_lines(name: str) -> str:
+    """A method name broken at the separator ("_", "-" or a space) nearest its middle."""
+    cuts = [i for i, c in enumerate(name) if c in "_- "]
+    if not cuts:
+        return name
+    cut = min(cuts, key=lambda i: abs(2 * i - len(name)))
+    return f"{name[:cut + (name[cut] != ' ')]}\n{name[cut + 1:]}"
+
+
+def _level_groups(sd: pd.DataFrame) -> tuple[list[str], list[tuple[str, int, int]]] | None:
+    """Horizontal level ticks ("L1", or "1" where that is too wide) with each method named
+    once under its group of levels (on two lines where one is too wide), or None where they
+    would not read: a stimulus without a level, a method and level that repeat, or labels
+    estimated wider than their share of the panel (then each stimulus's whole label is drawn
+    turned on end, as ``_stimulus_ticks``)."""
+    if sd.empty or sd["level"].isna().any():
+        return None
+    methods = [str(m) for m in sd["method"]]
+    levels = [int(lv) for lv in sd["level"]]
+    if len(set(zip(methods, levels, strict=True))) != len(sd):
+        return None
+    slot = _PANEL_WIDTH_PT / len(sd)
+    char = 0.6 * _GROUP_FONT  # a generous average glyph width
+
+    def width(text: str) -> float:
+        return max(len(line) for line in text.split("\n")) * char
+
+    for ticks in ([f"L{lv}" for lv in levels], [str(lv) for lv in levels]):
+        if max(width(t) for t in ticks) <= 0.9 * slot:
+            break
+    else:
+        return None
+    groups: list[tuple[str, int, int]] = []  # a method (as drawn), its first and last position
+    start = 0
+    for i in range(1, len(methods) + 1):
+        if i == len(methods) or methods[i] != methods[start]:
+            room = 0.95 * slot * (i - start)
+            name = methods[start] if width(methods[start]) <= room else _two_lines(methods[start])
+            if width(name) > room:
+                return None
+            groups.append((name, start, i - 1))
+            start = i
+    return ticks, groups
+
+
+def _label_stimuli(ax: Any, sd: pd.DataFrame) -> None:
+    """A scene panel's x labels: levels with their method under them where they fit,
+    otherwise each stimulus's whole label turned on end (small)."""
+    x = np.arange(len(sd))
+    ax.set_xticks(x)
+    ax.set_xlim(-0.6, len(sd) - 0.4)  # every point off the frame, however few there are
+    grouped = _level_groups(sd)
+    if grouped is None:
+        ax.set_xticklabels(_stimulus_ticks(sd), rotation=90, fontsize=6)
+        return
+    ticks, groups = grouped
+    ax.set_xticklabels(ticks, fontsize=_GROUP_FONT)
+    for method, first, last in groups:
+        ax.annotate(method, xy=((first + last) / 2, 0), xycoords=ax.get_xaxis_transform(),
+                    xytext=(0, -2.6 * _GROUP_FONT), textcoords="offset points", ha="center",
+                    va="top", fontsize=_GROUP_FONT, color="0.25")
+        if first:  # a faint line between two methods' groups
+            ax.axvline(first - 0.5, color="0.88", lw=0.8, zorder=0)
+
+
 def dmos_per_scene(a: Analysis, path: Path) -> Path:
     """DMOS with 95% CI per scene, grouped by method and level; metric predictions on top."""
     d = a.dmos()
@@ -87,8 +159,7 @@ def dmos_per_scene(a: Analysis, path: Path) -> Path:
             y = [p.get(s, np.nan) for s in sd["stimulus"]]
             ax.plot(x, y, markers[j % len(markers)], color="k", ms=4, alpha=0.6,
                     label=name if k == 0 else None)
-        ax.set_xticks(x)
-        ax.set_xticklabels(_stimulus_ticks(sd), rotation=90, fontsize=6)
+        _label_stimuli(ax, sd)
         ax.set_title(str(scene), fontsize=9)
         ax.set_ylabel("DMOS")
         ax.set_ylim(low - pad, high + pad)
@@ -104,8 +175,8 @@ def dmos_per_scene(a: Analysis, path: Path) -> Path:
     if (d["dmos"].notna() & d["ci95_low"].isna()).any():  # a point without a bar is no certainty
         handles.append(fig.axes[0].plot([], [], ls="none")[0])
         labels.append(f"no bar: fewer than {MIN_RATERS_FOR_INTERVAL} raters")
-    # above the panels: below them it would cover the rotated stimulus labels
-    fig.legend(handles, labels, loc="upper center", ncol=min(6, len(labels)), fontsize=7,
+    # above the panels: below them it would cover the stimulus labels
+    fig.legend(handles, labels, loc="upper center", ncol=min(6, len(labels)), fontsize=8,
                bbox_to_anchor=(0.5, 1.0), frameon=False)
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.4 / (3.4 * rows + 0.4)))
     return _save(fig, path, tight=False)

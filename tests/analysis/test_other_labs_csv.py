@@ -195,7 +195,8 @@ def test_the_dmos_figure_says_why_a_scene_has_no_dmos(study, tmp_path, monkeypat
     assert figures.dmos_per_scene(analysis, out / "dmos_without_a_hidden_reference.png") \
         .is_file()
     panels = {ax.get_title(): [t.get_text() for t in ax.texts] for ax in built[0].axes}
-    assert panels == {"scene1": [], "scene2": ["no DMOS: its hidden reference\nwas not rated"]}
+    assert panels == {"scene1": ["blur"],  # the method under its levels
+                      "scene2": ["blur", "no DMOS: its hidden reference\nwas not rated"]}
 
 
 def test_rater_ids_with_numbers_sort_as_numbers():

@@ -200,11 +200,13 @@ def _to_go(rows: list[dict[str, Any]], per_participant: int) -> dict[str, tuple[
 
 
 def _to_go_words(to_go: dict[str, tuple[int, int]]) -> str:
-    """ "14 from the 2 rating now, 64 from 5 who stopped, 120 from 10 not started"."""
-    words = {"rating now": "the {p} rating now", "stopped": "{p} who stopped or went quiet",
-             "not started": "{p} not started"}
-    return ", ".join(f"{n} from " + words[who].format(p=people)
-                     for who, (n, people) in to_go.items() if n)
+    """ "14 from the 2 participants rating now, 64 from 5 who stopped or went quiet, 120 from
+    10 not started" (a bare "the 1 rating now" read as one rating)."""
+    words = {"rating now": "the {p} {participants} rating now",
+             "stopped": "{p} who stopped or went quiet", "not started": "{p} not started"}
+    return ", ".join(f"{n} from " + words[who].format(
+        p=people, participants="participant" if people == 1 else "participants")
+        for who, (n, people) in to_go.items() if n)
 
 
 class Pages:

@@ -234,7 +234,10 @@ def test_what_is_still_to_come_is_split_by_who_owes_it():
     assert to_go == {"rating now": (14 + 4, 2), "stopped": (20 + 18, 2),
                      "not started": (48, 2)}
     assert dashboard._to_go_words(to_go) == (
-        "18 from the 2 rating now, 38 from 2 who stopped or went quiet, 48 from 2 not started")
+        "18 from the 2 participants rating now, 38 from 2 who stopped or went quiet, "
+        "48 from 2 not started")
+    assert dashboard._to_go_words({"rating now": (7, 1)}) == (
+        "7 from the 1 participant rating now")
 
 
 def test_stopped_came_back_and_refused_rows_in_the_list(served_study, tmp_path, invites,
@@ -285,3 +288,51 @@ def test_stopped_came_back_and_refused_rows_in_the_list(served_study, tmp_path, 
         st.stop()
     assert rows["P01"]["stalled"] and rows["P01"]["attention"] == [
         "stopped 25.0 h ago, not back since"]
+
+
+def test_a_row_says_when_its_statistics_are_older_than_its_trials(served_study, tmp_path,
+                                                                   invites, monkeypatch):
+    """Trials and state are live, the columns from s/trial to screening come from the last
+    statistics run: a row whose trials arrived after it says how many those columns saw."""
+    from session_store import TrialResult, utc_now
+    from session_store.outbox import read_entries
+    from session_store.protocol import PROTOCOL
+    from session_store.schema import open_existing
+
+    monkeypatch.setenv("CGVQ_ADMIN_TOKEN", ADMIN)
+    invites(1)
+    path = tmp_path / "P01.sqlite"
+    store = write_session(served_study, path, "P01", ratings=3)
+    st = ServerState.open(ServerConfig(served_study, stats_in_background=False))
+    sent = 0
+
+    def upload() -> None:
+        nonlocal sent
+        con = open_existing(path, readonly=True)
+        entries = read_entries(con)
+        con.close()
+        st.ingest.upload("P01", {"protocol": PROTOCOL, "client_time": utc_now(),
+                                 "session_id": entries[0].body["header"]["session_id"],
+                                 "entries": [e.as_json() for e in entries[sent:]]}, None)
+        sent = len(entries)
+
+    try:
+        upload()
+        st.stats.refresh()
+        fresh = _text(st.pages.dashboard())
+        plan = store.plan()
+        for i in range(3, 5):  # two more trials arrive before the next statistics run
+            store.record(plan[i].index, TrialResult(
+                rating=40.0, rt_ms=5000.0, n_toggles=2, ms_on_reference=2000.0,
+                ms_on_test=3000.0, presented_at=utc_now(), frames_presented=300,
+                dropped_frames=0, details={"vsync": True}))
+        upload()
+        behind = _text(st.pages.dashboard())
+        st.stats.refresh()
+        caught_up = _text(st.pages.dashboard())
+    finally:
+        store.close()
+        st.stop()
+    assert st.stats.snapshot().participants["P01"].n_ratings == 5
+    assert "statistics: first" not in fresh and "statistics: first" not in caught_up
+    assert "5 / " in behind and "statistics: first 3" in behind

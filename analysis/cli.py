@@ -265,6 +265,12 @@ def _run(args: argparse.Namespace) -> int:
     metrics = None
     if getattr(args, "metric", None):
         metrics = load_metric_scores(args.metric)
+        if args.manifest:  # a SUREAL dataset has no videos to compare with
+            from .inputs import read_manifest
+            from .scored_videos import check_scored_videos
+
+            check_scored_videos(metrics, read_manifest(args.manifest).manifest.stimuli(
+                include_hidden_references=True), args.manifest)
     analysis = run_analysis(rs, config, metrics, progress=sys.stderr.isatty())
     _say([str(x) for x in analysis.exclusions if x not in rs.exclusions], "excluded")
     _say([str(p) for p in analysis.screened.problems if p not in rs.problems], "input problem")

@@ -354,6 +354,13 @@ def methods_paragraphs(a: Analysis, s: dict[str, Any]) -> list[str]:
     warning = (f"[Not for a paper as it stands: {len(pilots)} of the {s['n_raters_used']} "
                f"raters ran pilots, paced without vsync ({_names(pilots)}); they are not "
                "participant data.]" if pilots else "")
+    flagged = s.get("untrained_backbone") or {}
+    if flagged:  # what a paper could paste must not pass for the published metric
+        warning = " ".join(filter(None, [warning, "[Not the published metric: " + "; ".join(
+            f"{name} ran with {why}" for name, why in flagged.items())
+            + (". Its numbers here are not those of the metric it is named after.]"
+               if len(flagged) == 1 else
+               ". Their numbers here are not those of the metrics they are named after.]")]))
     todo = ("[To add, which no file records: the room and its lighting; how the ethics "
             "approval and the participants' informed consent were obtained; the "
             "compensation.]" if shown else "")

@@ -491,8 +491,8 @@ def validate_metrics(
         known = m["stimulus"].isin(dmos["stimulus"].astype(str))
         for _, row in m[~known].iterrows():
             problems.append(InputProblem(row["_source"], int(row["_row"]),
-                                         f"{name}: stimulus {row['stimulus']!r} has no DMOS; "
-                                         "left out"))
+                                         f"{name}: stimulus {row['stimulus']!r} is not one of "
+                                         "the study's rated stimuli; left out"))
         m = m[m["stimulus"].isin(sid)]
         if len(m) < 3:
             why = (f"no stimulus id of its {int(known.size)} score row(s) is in the DMOS table "

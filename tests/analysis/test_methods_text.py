@@ -53,6 +53,7 @@ def test_the_text_states_the_study_as_generated_and_recomputed(study, tmp_path):
     st, root = study
     out = tmp_path / "report"
     text = _report(root, out, "--metric", str(root / "scores.csv"))
+    assert "Not the published metric" not in text
     n_stim = len(st.quality)
     # the design as generated: 3 scenes, 2 methods x 3 levels, one hidden reference each;
     # the manifest's default labels
@@ -244,3 +245,17 @@ def test_numbers_are_printed_as_a_paper_prints_them():
     assert percent(0.995) == "99.5%" and percent(0.83) == "83%" and percent(1.0) == "100%"
     assert percent(0.004) == "0.4%"
     assert fixed(-0.0001) == "0.000" and fixed(-0.01) == "-0.010"
+
+
+def test_a_metric_that_is_not_the_published_one_is_named_so_in_the_text(study, tmp_path):
+    """The first screen flagged a random backbone; the text meant for the paper did not."""
+    _, root = study
+    scores = pd.read_csv(root / "scores.csv")
+    scores["backbone"] = np.where(scores["metric"] == "weak", "random(seed=0)", "")
+    scores.to_csv(tmp_path / "scores.csv", index=False)
+    text = _report(root, tmp_path / "flagged", "--outliers", "none", "--metric",
+                   str(tmp_path / "scores.csv"))
+    assert ("[Not the published metric: weak ran with random (untrained) backbone: "
+            "random(seed=0). Its numbers here are not those of the metric it is named "
+            "after.]") in text
+    assert "good ran with" not in text  # (and no such line without flags: the first test)

@@ -26,6 +26,19 @@ from .screens.form_layout import FormLayout, form_layout
 from .screens.form_state import FormState
 
 KEY_HINT = "Tab: next question   1-9 or arrows: choose   Enter: next page"
+PREFER_KEYS = {"single": "0", "likert": "0", "multiple": "0", "number": "Ctrl+P"}
+"""The key that chooses "Prefer not to say" on a focused question of each kind (a number
+field types digits, so there it is Ctrl+P; a text field offers no such choice by key)."""
+
+
+def key_hint(field: Any) -> str:
+    """The key line under the page, naming the "Prefer not to say" key where the focused
+    question offers it."""
+    key = PREFER_KEYS.get(field.kind) if field.question.offers_prefer_not_to_say else None
+    if key is None:
+        return KEY_HINT
+    choose = "type a number" if field.kind == "number" else "1-9 or arrows: choose"
+    return f"Tab: next question   {choose}   {key}: prefer not to say   Enter: next page"
 OPTION_FILL = (0.26, 0.28, 0.31, 1.0)
 FIELD_FILL = (0.08, 0.09, 0.10, 1.0)
 OnAnswer = Callable[[int, str, Any], None]
@@ -152,6 +165,9 @@ class FormScreen:
         if event.type == pg.TEXTINPUT:
             if kind in ("number", "text"):
                 fs.type(focus, event.text)
+            elif event.text == PREFER_KEYS.get(kind):
+                fs.toggle_prefer_not(focus)
+                return f"commit:{focus}"
             elif event.text.isdigit() and kind in ("single", "likert", "multiple"):
                 options = fs.fields[focus].options()
                 k = int(event.text) - 1
@@ -178,6 +194,9 @@ class FormScreen:
         if event.type != pg.KEYDOWN:
             return None
         key, shift = event.key, bool(event.mod & pg.KMOD_SHIFT)
+        if key == pg.K_p and event.mod & pg.KMOD_CTRL and kind != "text":
+            fs.toggle_prefer_not(focus)
+            return f"commit:{focus}"
         if key == pg.K_TAB:
             fs.move_focus(-1 if shift else 1)
             return f"commit:{focus}"
@@ -257,11 +276,12 @@ def draw_form(r: Any, lay: FormLayout, fs: FormState, offset: int) -> None:
             r.text(f.error, col.x, col.y + q.error_y - offset, px=lay.px - 2, color=MARKER,
                    style="bold")
     hint_y = col.y + col.h + 4
-    hint = KEY_HINT if offset == 0 and offset >= lay.max_offset() else (
+    keys = key_hint(fs.fields[fs.focus])
+    hint = keys if offset == 0 and offset >= lay.max_offset() else (
         "more below (Page Down)" if offset < lay.max_offset() else "more above (Page Up)")
     tw, _ = r.text_size(hint, lay.px - 4)
     r.text(hint, lay.window[0] / 2 - tw / 2, hint_y, px=lay.px - 4,
-           color=MUTED if hint == KEY_HINT else ACCENT)
+           color=MUTED if hint == keys else ACCENT)
     for b in lay.buttons:
         draw_button(r, b, primary=b.action == "next")
 

@@ -112,16 +112,31 @@ class FormState:
         f.error = None
 
     def step(self, qi: int, delta: int) -> None:
-        """Left/Right: move a single choice or Likert point by ``delta``."""
+        """Left/Right: move a single choice or Likert point by ``delta``; "Prefer not to say",
+        where offered, is the last stop (drawn after the options), so the keyboard reaches
+        every choice the mouse does."""
         f = self.fields[qi]
         if f.kind not in ("single", "likert"):
             return
         values = [v for v, _ in f.options()]
-        if f.choice in values:
-            k = min(max(values.index(f.choice) + delta, 0), len(values) - 1)
+        last = len(values) if f.question.offers_prefer_not_to_say else len(values) - 1
+        if f.prefer_not:
+            k = min(max(len(values) + delta, 0), last)
+        elif f.choice in values:
+            k = min(max(values.index(f.choice) + delta, 0), last)
         else:
-            k = 0 if delta > 0 else len(values) - 1
-        self.choose(qi, values[k])
+            k = 0 if delta > 0 else last
+        if k == len(values):
+            self.prefer_not_to_say(qi)
+        else:
+            self.choose(qi, values[k])
+
+    def prefer_not_to_say(self, qi: int) -> None:
+        """Choose "Prefer not to say" (where the question offers it)."""
+        f = self.fields[qi]
+        if f.question.offers_prefer_not_to_say:
+            self.focus = qi
+            f.prefer_not, f.error = True, None
 
     def toggle_prefer_not(self, qi: int) -> None:
         f = self.fields[qi]
@@ -143,6 +158,8 @@ class FormState:
             limit = MAX_NUMBER_CHARS
         else:
             limit = f.question.max_length
+        if not clean:  # a letter in a number field: nothing typed, no choice undone
+            return
         f.text = (f.text + clean)[:limit]
         f.prefer_not = False
         f.error = None

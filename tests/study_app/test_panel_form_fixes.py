@@ -211,3 +211,58 @@ def test_skip_takes_back_a_required_answer_of_a_voluntary_questionnaire():
     next(q for q in strict["questionnaires"] if q["id"] == "post_study")["voluntary"] = False
     with pytest.raises(Exception, match="an answer is required"):
         Panel.model_validate(strict).check("post_study", first["id"], None)
+
+
+# -- "Prefer not to say" from the keyboard ----------------------------------------------------
+def test_arrows_reach_prefer_not_to_say_after_the_last_option_and_come_back():
+    """Left/Right stopped at the last option, and a participant arrowing on stored it."""
+    from stimuli_manifests.panel import PREFER_NOT_TO_SAY
+
+    demographics = PANEL.questionnaires[0]
+    questions = list(demographics.pages[0].questions)
+    gender = next(i for i, q in enumerate(questions) if q.id == "gender")
+    fs = FormState.for_page(questions, {})
+    n = len(fs.fields[gender].options())
+    for _ in range(n):
+        fs.step(gender, 1)
+    assert fs.fields[gender].choice == fs.fields[gender].options()[-1][0]
+    fs.step(gender, 1)
+    assert fs.confirmed(gender) == PREFER_NOT_TO_SAY
+    fs.step(gender, 1)  # the last stop stays the last
+    assert fs.fields[gender].prefer_not
+    fs.step(gender, -1)
+    assert not fs.fields[gender].prefer_not
+    assert fs.confirmed(gender) == fs.fields[gender].options()[-1][0]
+
+
+def test_zero_and_ctrl_p_choose_prefer_not_to_say_and_the_hint_says_so(monkeypatch, tmp_path):
+    """A Likert point by '0'; the survey's first question is stored as Prefer not to say."""
+    from stimuli_manifests.panel import PREFER_NOT_TO_SAY
+
+    first = SURVEY.pages[0].questions[0]
+    assert first.offers_prefer_not_to_say
+    batches = [[_text("3")], [_text("0")], [_click_button(0, "skip", {})]]
+    _, last = _run_survey(monkeypatch, tmp_path, batches, start_page=0, answered={})
+    # stored as the keys were pressed (Skip then takes the page's answers back)
+    rows = [r for r in read_session(tmp_path / "s.sqlite").answers if r["question"] == first.id]
+    assert [r["value"] for r in rows] == [3, PREFER_NOT_TO_SAY, None]
+
+    demographics = PANEL.questionnaires[0]
+    fs = FormState.for_page(list(demographics.pages[0].questions), {})
+    age = next(i for i, f in enumerate(fs.fields) if f.kind == "number")
+    assert fs.fields[age].question.offers_prefer_not_to_say
+    screen = form_screen.FormScreen(_display([]), lambda *a, **k: None, lambda n: False,
+                                    lambda: None)
+    fs.focus = age
+    ctrl_p = pygame.event.Event(pygame.KEYDOWN, key=pygame.K_p, mod=pygame.KMOD_LCTRL)
+    assert screen._event(ctrl_p, fs, None, 0) == f"commit:{age}"
+    fs.type(age, "p")  # the letter a text input may also deliver: no digit, nothing undone
+    assert fs.confirmed(age) == PREFER_NOT_TO_SAY
+    assert "Ctrl+P: prefer not to say" in form_screen.key_hint(fs.fields[age])
+    gender = next(i for i, q in enumerate(fs.fields) if q.question.id == "gender")
+    assert "0: prefer not to say" in form_screen.key_hint(fs.fields[gender])
+    fonts = Fonts()
+    for width in (800, 1024):  # the longest hint fits the smallest windows' width
+        px = form_layout((width, 600), fonts, title="t", intro=None, state=fs,
+                         buttons=screen._buttons(demographics, 0)).px - 4
+        assert fonts.size(form_screen.key_hint(fs.fields[gender]), px)[0] < width - 20

@@ -88,6 +88,16 @@ class AcuityCheckScreen:
     state: Callable[..., None]
     shot: Callable[[str], bool]
     on_close: Callable[[], None]
+    on_pause: Callable[[], None] = lambda: None
+    """Esc or P: the app's pause menu (continue, stop, withdraw); returns to continue."""
+
+    def _paused(self, event: Any) -> bool:
+        """Esc or P pressed: the pause menu was shown and the participant continues."""
+        pg = self.display.pg
+        if event.type == pg.KEYDOWN and event.key in (pg.K_ESCAPE, pg.K_p):
+            self.on_pause()
+            return True
+        return False
 
     # -- 1. the card ------------------------------------------------------------------
     def calibrate(self, distance_cm: float) -> tuple[Geometry, int]:
@@ -110,6 +120,9 @@ class AcuityCheckScreen:
         try:
             while True:
                 for event in pg.event.get():
+                    if self._paused(event):
+                        self.state("acuity-card")
+                        continue
                     action = self._card_event(event, card, lay.buttons)
                     if action == "done":
                         error = self._confirm(card.width, distance_cm)
@@ -215,6 +228,8 @@ class AcuityCheckScreen:
             for event in d.pg.event.get():
                 if event.type == d.pg.QUIT:
                     self.on_close()
+                elif self._paused(event):
+                    end = time.perf_counter() + BLANK_S  # a whole blank before the next one
             d.renderer.clear(self._background())
             d.flip()
 
@@ -236,6 +251,8 @@ class AcuityCheckScreen:
                     given = None
                     if event.type == pg.QUIT:
                         self.on_close()
+                    elif self._paused(event):
+                        start = None  # timed again from the next frame shown
                     elif event.type == pg.KEYDOWN and event.key in keys:
                         given = keys[event.key]
                     elif event.type == pg.MOUSEBUTTONDOWN and event.button == 1:

@@ -449,7 +449,8 @@ class App:
             for test in progress.vision_todo:
                 if checks[test]() == "failed" and panel.vision_screening.on_fail == "end":
                     raise _ScreenedOutError(test)
-        screen = FormScreen(self.display, self._state, self._shot, self._on_close)
+        screen = FormScreen(self.display, self._state, self._shot, self._on_close,
+                            lambda: self._pause_outside_trials("questions"))
         for item in progress.before if when == "before" else progress.after:
             qn = item.questionnaire
 
@@ -463,11 +464,13 @@ class App:
     def _colour_check(self) -> str:
         """The generated plates (seeded by the session), scored and stored; the outcome."""
         plates = plate_series(self.store.info.seed, size=plate_size(self.display.size))
-        self._screen(content.colour_check_intro(len(plates), self._name_keys))
+        ends = self.m.panel.vision_screening.on_fail == "end"
+        self._screen(content.colour_check_intro(len(plates), self._name_keys, ends_study=ends))
         self.display.pg.key.start_text_input()
         try:
             answers = ColourCheckScreen(self.display, self._state, self._shot,
-                                        self._on_close).run(plates)
+                                        self._on_close,
+                                        lambda: self._pause_outside_trials("check")).run(plates)
         finally:
             self.display.pg.key.stop_text_input()
         outcome, result = score_colour(answers)
@@ -480,8 +483,10 @@ class App:
         scored and stored; the outcome."""
         vs = self.m.panel.vision_screening
         distance = vs.viewing_distance_cm
-        screen = AcuityCheckScreen(self.display, self._state, self._shot, self._on_close)
-        self._screen(content.acuity_check_intro(distance, self._name_keys))
+        screen = AcuityCheckScreen(self.display, self._state, self._shot, self._on_close,
+                                   lambda: self._pause_outside_trials("check"))
+        self._screen(content.acuity_check_intro(distance, self._name_keys,
+                                                ends_study=vs.on_fail == "end"))
         geometry, card_px = screen.calibrate(distance)
         try:
             plan = acuity_plan(geometry, self.store.info.seed, kind=vs.optotype,
@@ -559,6 +564,13 @@ class App:
         answered, total = self.store.progress()
         self.store.log_event("pause", answered=answered)
         self._pause_menu(content.pause(answered, total, self._name_keys))
+
+    def _pause_outside_trials(self, during: str) -> None:
+        """Esc (or P) in a questionnaire or a vision check: the pause menu a trial has, so a
+        participant can stop or withdraw there too (full screen has no close button)."""
+        answered, total = self.store.progress()
+        self.store.log_event("pause", answered=answered, during=during)
+        self._pause_menu(content.pause(answered, total, self._name_keys, during=during))
 
     def _pause_menu(self, spec: content.ScreenSpec) -> None:
         """Pause or break: continue, stop (confirmed) or withdraw (confirmed)."""

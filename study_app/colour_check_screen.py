@@ -34,6 +34,8 @@ class ColourCheckScreen:
     state: Callable[..., None]
     shot: Callable[[str], bool]
     on_close: Callable[[], None]
+    on_pause: Callable[[], None] = lambda: None
+    """Esc or P: the app's pause menu (continue, stop, withdraw); returns to continue."""
 
     def run(self, plates: list[Plate]) -> list[PlateAnswer]:
         return [self._plate(k, plate, len(plates)) for k, plate in enumerate(plates)]
@@ -63,6 +65,11 @@ class ColourCheckScreen:
                     if given == "close":
                         self.on_close()
                         continue
+                    if given == "pause":
+                        self.on_pause()
+                        self.state("colour-plate", index=k + 1, of=n, kind=plate.kind)
+                        start = time.perf_counter()  # the pause is no reading time
+                        continue
                     if given is not None:
                         ms = (time.perf_counter() - start) * 1000.0
                         self.state("colour-plate-answered", index=k + 1)
@@ -84,6 +91,8 @@ class ColourCheckScreen:
         pg = self.display.pg
         if event.type == pg.QUIT:
             return "close"
+        if event.type == pg.KEYDOWN and event.key in (pg.K_ESCAPE, pg.K_p):
+            return "pause"
         if event.type == pg.TEXTINPUT:
             if event.text.isdigit() and len(event.text) == 1:
                 return event.text

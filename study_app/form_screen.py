@@ -25,10 +25,14 @@ from .screens.draw import ACCENT, BODY, DARK, MARKER, MUTED, SCREEN_BG, TITLE, d
 from .screens.form_layout import FormLayout, form_layout
 from .screens.form_state import FormState
 
-KEY_HINT = "Tab: next question   1-9 or arrows: choose   Enter: next page"
+KEY_HINT = "Tab: next question   1-9 or arrows: choose   Enter: next page   Esc: pause"
 PREFER_KEYS = {"single": "0", "likert": "0", "multiple": "0", "number": "Ctrl+P"}
 """The key that chooses "Prefer not to say" on a focused question of each kind (a number
 field types digits, so there it is Ctrl+P; a text field offers no such choice by key)."""
+
+OPTION_FILL = (0.26, 0.28, 0.31, 1.0)
+FIELD_FILL = (0.08, 0.09, 0.10, 1.0)
+OnAnswer = Callable[[int, str, Any], None]
 
 
 def key_hint(field: Any) -> str:
@@ -38,10 +42,8 @@ def key_hint(field: Any) -> str:
     if key is None:
         return KEY_HINT
     choose = "type a number" if field.kind == "number" else "1-9 or arrows: choose"
-    return f"Tab: next question   {choose}   {key}: prefer not to say   Enter: next page"
-OPTION_FILL = (0.26, 0.28, 0.31, 1.0)
-FIELD_FILL = (0.08, 0.09, 0.10, 1.0)
-OnAnswer = Callable[[int, str, Any], None]
+    return (f"Tab: next question   {choose}   {key}: prefer not to say   Enter: next page   "
+            "Esc: pause")
 
 
 @dataclass
@@ -55,6 +57,9 @@ class FormScreen:
     on_close: Callable[[], None]
     """The window's close button: the app confirms (and stops the run by raising) or
     returns, and the page goes on."""
+    on_pause: Callable[[], None] = lambda: None
+    """Esc: the app's pause menu (continue, stop, withdraw); returns to continue (P types a
+    letter here, so only Esc)."""
 
     def run(self, qn: Questionnaire, *, answered: dict[str, Any], start_page: int,
             on_answer: OnAnswer) -> str:
@@ -116,6 +121,11 @@ class FormScreen:
             for event in pg.event.get():
                 if event.type == pg.QUIT:
                     self.on_close()
+                    self.state("questionnaire", id=qn.id, page=page + 1)
+                    continue
+                if event.type == pg.KEYDOWN and event.key == pg.K_ESCAPE:
+                    commit(fs.focus)  # what the focused field holds is kept, as on Tab
+                    self.on_pause()
                     self.state("questionnaire", id=qn.id, page=page + 1)
                     continue
                 action = self._event(event, fs, lay, offset)

@@ -167,10 +167,19 @@ def welcome_back(answered: int, total: int, name_keys: NameKeys) -> ScreenSpec:
 PAUSE_KEYS = keymap(resume=["space", "enter"], quit=["q"], withdraw=["w"])
 
 
-def pause(answered: int, total: int, name_keys: NameKeys) -> ScreenSpec:
-    body = (f"Your answers so far are saved ({answered} of {total} trials done). "
-            "When you continue, the trial you were watching starts again from its "
-            "beginning.\n\n"
+PAUSED_DURING = {
+    "questions": "When you continue, you are back on the same page of questions.",
+    "check": "When you continue, the check goes on where you paused it.",
+}
+"""What continuing does, where a pause was asked outside a trial (``pause(during=...)``)."""
+
+
+def pause(answered: int, total: int, name_keys: NameKeys, during: str = "") -> ScreenSpec:
+    """The pause menu; ``during`` is ``questions`` or ``check`` when it was asked in a
+    questionnaire or a vision check rather than in a trial."""
+    then = PAUSED_DURING.get(during, "When you continue, the trial you were watching starts "
+                             "again from its beginning.")
+    body = (f"Your answers so far are saved ({answered} of {total} trials done). {then}\n\n"
             "- **Continue**: back to the study.\n"
             "- **Stop and continue later**: close the program now; start it again the same "
             "way to continue where you stopped.\n"
@@ -218,14 +227,22 @@ def confirm_withdraw(name_keys: NameKeys, *, served: bool = False) -> ScreenSpec
                  close_action="no", primary="no")
 
 
-def colour_check_intro(n: int, name_keys: NameKeys) -> ScreenSpec:
+ENDS_STUDY = ("If the check shows that this screen or your eyes do not show these "
+              "differences, the study ends after it: you will not be asked anything more. ")
+"""Said before a vision check that ends the session on a fail (``on_fail: end``)."""
+
+
+def colour_check_intro(n: int, name_keys: NameKeys, ends_study: bool = False) -> ScreenSpec:
+    """``ends_study``: a fail ends the session (``on_fail: end``), said beforehand."""
+    result = (ENDS_STUDY + "It is not a medical test." if ends_study else
+              "There are no trick questions, and a result only tells the experimenter how "
+              "well this screen and your eyes show these colours. It is not a medical test.")
     body = (f"Before the videos, a short check of colour vision: {n} circles of coloured dots, "
             "one after the other. In most of them there is a number made of dots of another "
             "colour.\n\n"
             "- Type the number you see (or click it), as soon as you see it.\n"
-            "- If you see no number, press **N** (or click *No number*).\n\n"
-            "There are no trick questions, and a result only tells the experimenter how well "
-            "this screen and your eyes show these colours. It is not a medical test.")
+            "- If you see no number, press **N** (or click *No number*).\n"
+            "- **Esc** pauses the check (to continue, stop or withdraw).\n\n" + result)
     return _spec("colour-check", "Colour vision check", body, CONTINUE, [("go", "Start")],
                  name_keys, primary="go")
 
@@ -252,7 +269,12 @@ def ended_by_server(answered: int, why: str, name_keys: NameKeys) -> ScreenSpec:
                  close_action="close", primary="close")
 
 
-def acuity_check_intro(distance_cm: float, name_keys: NameKeys) -> ScreenSpec:
+def acuity_check_intro(distance_cm: float, name_keys: NameKeys,
+                       ends_study: bool = False) -> ScreenSpec:
+    """``ends_study``: a fail ends the session (``on_fail: end``), said beforehand."""
+    result = (ENDS_STUDY + "It is not a medical test." if ends_study else
+              "A result only tells the experimenter what you could see on this screen. It is "
+              "not a medical test.")
     body = ("Next, a short check of how sharp and how faint a shape you can see on this screen."
             "\n\n"
             "**First, the size of your screen.** Have a bank card at hand (or any card of that "
@@ -260,9 +282,8 @@ def acuity_check_intro(distance_cm: float, name_keys: NameKeys) -> ScreenSpec:
             "rectangle on the next screen exactly as wide as the card.\n\n"
             f"**Then sit with your eyes about {distance_cm:g} cm from the screen** "
             f"({_card_widths(distance_cm)}) and stay there during the check. "
-            "Wear your glasses or contact lenses if you wear them to watch videos.\n\n"
-            "A result only tells the experimenter what you could see on this screen. It is not "
-            "a medical test.")
+            "Wear your glasses or contact lenses if you wear them to watch videos. **Esc** "
+            "pauses the check (to continue, stop or withdraw).\n\n" + result)
     return _spec("acuity-check", "Sharpness and contrast check", body, CONTINUE,
                  [("go", "Start")], name_keys, primary="go")
 

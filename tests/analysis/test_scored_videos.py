@@ -4,7 +4,6 @@ refused: joined by id alone it would give a plausible metric table for the wrong
 from __future__ import annotations
 
 import hashlib
-from pathlib import Path
 
 import numpy as np
 import pandas as pd

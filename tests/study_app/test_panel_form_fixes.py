@@ -242,7 +242,7 @@ def test_zero_and_ctrl_p_choose_prefer_not_to_say_and_the_hint_says_so(monkeypat
     first = SURVEY.pages[0].questions[0]
     assert first.offers_prefer_not_to_say
     batches = [[_text("3")], [_text("0")], [_click_button(0, "skip", {})]]
-    _, last = _run_survey(monkeypatch, tmp_path, batches, start_page=0, answered={})
+    _run_survey(monkeypatch, tmp_path, batches, start_page=0, answered={})
     # stored as the keys were pressed (Skip then takes the page's answers back)
     rows = [r for r in read_session(tmp_path / "s.sqlite").answers if r["question"] == first.id]
     assert [r["value"] for r in rows] == [3, PREFER_NOT_TO_SAY, None]
@@ -266,3 +266,59 @@ def test_zero_and_ctrl_p_choose_prefer_not_to_say_and_the_hint_says_so(monkeypat
         px = form_layout((width, 600), fonts, title="t", intro=None, state=fs,
                          buttons=screen._buttons(demographics, 0)).px - 4
         assert fonts.size(form_screen.key_hint(fs.fields[gender]), px)[0] < width - 20
+
+
+# -- a pause outside the trials ----------------------------------------------------------------
+def test_esc_in_a_questionnaire_opens_the_pause_menu_and_keeps_the_answer(monkeypatch,
+                                                                        tmp_path):
+    """Esc and P did nothing on questionnaire pages and vision checks, and full screen has
+    no close button: a participant could neither stop nor withdraw there."""
+    paused = []
+    monkeypatch.setattr(form_screen, "draw_form", lambda *a: None)
+    items = [ScheduleItem("S1", "S1", True)]
+    store = SessionStore.create(tmp_path / "s.sqlite", participant="p1", study_id="st",
+                                manifest_sha256="0" * 64, seed=1, app_version="test",
+                                plan=make_schedule(items, 1, 1), settings={})
+    batches = [[_text("4"), _key(pygame.K_ESCAPE)], [_click_button(0, "skip", {})]]
+    with store:
+        screen = form_screen.FormScreen(_display(batches), lambda *a, **k: None,
+                                        lambda n: False, lambda: None,
+                                        lambda: paused.append(True))
+        outcome = screen.run(SURVEY, answered={}, start_page=0, on_answer=lambda page, q, v:
+                             store.record_answer(SURVEY.id, q, v, page=page))
+    assert paused == [True] and outcome == "skipped"  # the page went on after the pause
+    first = SURVEY.pages[0].questions[0].id
+    rows = [r["value"] for r in read_session(tmp_path / "s.sqlite").answers
+            if r["question"] == first]
+    assert rows == [4, None]  # stored before the pause (Skip took it back afterwards)
+
+
+def test_esc_and_p_pause_the_vision_checks():
+    from study_app.acuity_check_screen import AcuityCheckScreen
+    from study_app.colour_check_screen import ColourCheckScreen
+
+    colour = ColourCheckScreen(_display([]), lambda *a, **k: None, lambda n: False,
+                               lambda: None)
+    for key in (pygame.K_ESCAPE, pygame.K_p):
+        assert colour._answer(_key(key), []) == "pause"
+    assert colour._answer(_key(pygame.K_q), []) is None
+    paused = []
+    acuity = AcuityCheckScreen(_display([]), lambda *a, **k: None, lambda n: False,
+                               lambda: None, lambda: paused.append(True))
+    assert acuity._paused(_key(pygame.K_ESCAPE)) and acuity._paused(_key(pygame.K_p))
+    assert not acuity._paused(_key(pygame.K_LEFT)) and paused == [True, True]
+
+
+def test_the_pause_and_check_texts_say_what_happens():
+    from study_app.screens import content
+
+    keys = lambda keymap, action: action  # noqa: E731
+    during = content.pause(3, 10, keys, during="questions").body
+    assert "back on the same page of questions" in during and "starts again" not in during
+    assert "starts again from its beginning" in content.pause(3, 10, keys).body
+    ends = content.colour_check_intro(8, keys, ends_study=True).body
+    assert "the study ends after it" in ends and "only tells the experimenter" not in ends
+    assert "only tells the experimenter" in content.colour_check_intro(8, keys).body
+    assert "Esc" in content.colour_check_intro(8, keys).body
+    acuity = content.acuity_check_intro(60, keys, ends_study=True).body
+    assert "the study ends after it" in acuity and "Esc" in acuity

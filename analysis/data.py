@@ -43,7 +43,7 @@ class Exclusion:
     """Something left out of the analysis as a whole (a session, a rater), with the rule.
 
     ``kind`` is one of ``refused session``, ``duplicate session``, ``pilot session``,
-    ``partial rater``,
+    ``partial rater``, ``altered session`` (a partial rater whose file was changed outside the app),
     ``screened out``, ``rejected by the score model``, ``ended by vision check``; ``who``
     names the file or rater, ``reason`` says why in words a reader of the report
     understands, ``rule`` names the rule and its threshold.

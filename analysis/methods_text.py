@@ -13,6 +13,7 @@ from .intervals import MIN_RATERS_FOR_INTERVAL
 from .metrics import CEILING_ROW
 from .pipeline import MODEL_REJECTION, Analysis
 from .presentation_text import metric_viewing_text, presentation_paragraph
+from .quality import ALTERED_SESSION
 
 SCREENING_PROSE = {
     "p913": "Raters were screened one at a time (ITU-T P.913, iterated): a rater was removed "
@@ -165,12 +166,21 @@ def _panel(a: Analysis, s: dict[str, Any]) -> str:
     if kinds.get("partial rater"):
         left.append(f"{_count(len(kinds['partial rater']), 'rater')} who answered less than "
                     f"{s['min_completeness']:.0%} of their trials")
+    if altered := kinds.get(ALTERED_SESSION):
+        left.append(f"{_count(len(altered), 'rater')} whose session file was altered after "
+                    f"it was recorded ({_names(altered)}), leaving less than "
+                    f"{s['min_completeness']:.0%} of their trials with intact records")
     if left:
         text += " Not analysed: " + "; ".join(left) + "."
     if s["partial_kept"]:
         kept = [f"{p['rater']}, {percent(p['completeness'])}" for p in s["partial_kept"]]
         text += (f" {_count(len(kept), 'rater')} with an incomplete session "
                  f"{'was' if len(kept) == 1 else 'were'} kept ({'; '.join(kept[:8])}).")
+    if kept := s.get("altered_kept"):
+        text += (f" {_count(len(kept), 'rater')} whose session file was altered after it was "
+                 f"recorded {'was' if len(kept) == 1 else 'were'} kept with the ratings "
+                 "recorded before the change ("
+                 + "; ".join(f"{p['rater']}: {p['altered']}" for p in kept) + ").")
     text += _screening(a, s)
     if rejected := kinds.get(MODEL_REJECTION):
         text += (f" ITU-R BT.500 rater rejection inside the score model removed "

@@ -22,7 +22,7 @@ from .panel import (
     summarise_panel,
     vision_column,
 )
-from .quality import drop_incomplete, quality_table
+from .quality import altered_at, drop_incomplete, quality_table
 from .reliability import Reliability, reliability
 from .scores import ScoreResult, check_not_constant, dmos_table, fit_scores
 from .screening import DEFAULT_METHOD, OutlierResult, check_alpha, screen_raters
@@ -85,11 +85,20 @@ class Analysis:
 
     @property
     def partial_kept(self) -> list[tuple[str, float]]:
-        """Raters kept although their sessions are incomplete: (rater, completeness)."""
+        """Raters kept although their sessions are incomplete: (rater, completeness); a
+        session file altered outside the app is not an incomplete session
+        (:attr:`altered_kept`)."""
         rs = self.used or self.screened
         comp = rs.completeness()
         return [(r, float(c)) for r, c in zip(rs.raters, comp, strict=True)
-                if np.isfinite(c) and c < 1.0 - 1e-9]
+                if np.isfinite(c) and c < 1.0 - 1e-9 and not altered_at(rs, r)]
+
+    @property
+    def altered_kept(self) -> list[tuple[str, str]]:
+        """Raters kept whose session file was altered outside the app, with the authentic
+        ratings before the change: (rater, where the file fails its check)."""
+        rs = self.used or self.screened
+        return [(r, where) for r in rs.raters if (where := altered_at(rs, r))]
 
 
 def prepare(rs: RatingSet, config: AnalysisConfig) -> tuple[RatingSet, OutlierResult,

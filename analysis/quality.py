@@ -95,6 +95,7 @@ def facts_from_sessions(records: list) -> pd.DataFrame:
             "vsync": (all(vsync) if vsync else None),
             "preflight_skipped": any(r.info.preflight_skipped for r in recs),
             "finished": all(r.info.finished_at is not None for r in recs),
+            "altered": "; ".join(r.altered for r in recs if r.altered),
             "presentations": len(pres),
             "dropped_frames": int(sum(drops)),
             "trials_with_drops": int(sum(d > 0 for d in drops)),
@@ -287,6 +288,20 @@ def rater_flags(row: pd.Series, min_completeness: float | None, *,
     return out
 
 
+ALTERED_SESSION = "altered session"
+"""The exclusion of a rater whose session file was changed outside the app, leaving too few
+authentic ratings (before the change) to pass the completeness rule."""
+
+
+def altered_at(rs: RatingSet, rater: str) -> str:
+    """Where ``rater``'s session file fails its integrity check, in words ('' if intact)."""
+    info = rs.rater_info
+    if info is None or "altered" not in info.columns or rater not in info.index:
+        return ""
+    value = info.loc[rater, "altered"]
+    return value if isinstance(value, str) else ""
+
+
 def drop_incomplete(rs: RatingSet, min_completeness: float) -> RatingSet:
     """Leave out raters whose completeness is below ``min_completeness`` (0 keeps everyone).
 
@@ -302,14 +317,21 @@ def drop_incomplete(rs: RatingSet, min_completeness: float) -> RatingSet:
     for k in drop:
         rater = rs.raters[k]
         n = planned = None
+        altered = altered_at(rs, rater)
         if info is not None and rater in info.index:
             n, planned = info.loc[rater, "n_ratings"], info.loc[rater, "n_planned"]
-            info.loc[rater, "status"] = "dropped (partial)"
+            info.loc[rater, "status"] = "dropped (altered file)" if altered else \
+                "dropped (partial)"
         done = f"{int(n)} of {int(planned)} planned trials" if n is not None and \
             np.isfinite(planned) else "part of the stimuli"
+        below = f"({comp[k]:.0%}), below --min-completeness {min_completeness:.0%}"
         exclusions.append(Exclusion(
-            "partial rater", rater,
-            f"answered {done} ({comp[k]:.0%}), below --min-completeness {min_completeness:.0%}",
+            ALTERED_SESSION, rater,
+            f"session file altered outside the app ({altered}): only the ratings before the "
+            f"change are authentic, {done} {below}",
+            f"--min-completeness {min_completeness:g} on the authentic ratings")
+            if altered else Exclusion(
+            "partial rater", rater, f"answered {done} {below}",
             f"--min-completeness {min_completeness:g}"))
     keep = [k for k in range(rs.n_raters) if k not in drop]
     if len(keep) < 2:

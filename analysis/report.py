@@ -24,7 +24,7 @@ from .panel import panel_json
 from .pilot_view import reversed_levels
 from .pipeline import Analysis
 from .presentation_text import pilot_raters, viewing_summary
-from .quality import THRESHOLDS
+from .quality import ALTERED_SESSION, THRESHOLDS
 from .reliability import Reliability
 from .report_html import write_html
 from .screening import rules as screening_rules
@@ -214,6 +214,7 @@ def summary(a: Analysis) -> dict[str, Any]:
         "n_ratings_used": rs.n_ratings,
         "exclusions": [x.__dict__ for x in a.exclusions],
         "partial_kept": [{"rater": r, "completeness": c} for r, c in a.partial_kept],
+        "altered_kept": [{"rater": r, "altered": where} for r, where in a.altered_kept],
         "removed_raters": [{k: _num(v) for k, v in r.__dict__.items()}
                            for r in a.outliers.removed],
         "screening": _records(a.outliers.table, index="rater"),
@@ -289,6 +290,12 @@ def summary_text(a: Analysis) -> str:
     if s["partial_kept"]:
         lines.append("partial raters kept: " + ", ".join(
             f"{p['rater']} ({p['completeness']:.0%})" for p in s["partial_kept"]))
+    altered = [x for x in s["exclusions"] if x["kind"] == ALTERED_SESSION]
+    if altered or s["altered_kept"]:
+        lines.append("session files altered outside the app (only the ratings before the "
+                     "change used): " + ", ".join(
+                         [f"{x['who']} (left out: too few)" for x in altered]
+                         + [f"{p['rater']} (kept)" for p in s["altered_kept"]]))
     pilots = [x for x in s["exclusions"] if x["kind"] == "pilot session"]
     if pilots:
         lines.append("pilot sessions left out (paced without vsync; --include-pilots keeps "

@@ -29,6 +29,9 @@ from .errors import AnalysisError
 log = logging.getLogger(__name__)
 
 SESSION_SUFFIXES = (".sqlite",)
+INTEGRITY_FAILURES = ("hash chain broken", "the session record counts", "sequence number",
+                      "rating row does not match the planned trial")
+"""How :mod:`session_store`'s chain check words a file changed outside the app."""
 
 
 @dataclass
@@ -46,6 +49,17 @@ class Session:
     answers: list[dict[str, Any]] = field(default_factory=list)
     screenings: list[dict[str, Any]] = field(default_factory=list)
     events: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def altered(self) -> str:
+        """Where the session file fails its own integrity check (a rating row edited, removed
+        or added outside the app), in words; empty when intact. The ratings before that point
+        are authentic and used; the ones from there on are not."""
+        for p in self.problems:
+            if p.message.startswith(INTEGRITY_FAILURES):
+                where = f" at trial {p.row}" if p.row is not None else ""
+                return f"{p.message.split(':')[0]}{where}"
+        return ""
 
     @property
     def ended_by(self) -> str:

@@ -1,0 +1,59 @@
+"""A session file changed outside the app after it was recorded: its ratings before the
+change are authentic and used, and the report says the file was altered. It used to call
+such a rater "partial" ("answered less than 50% of their trials", "an incomplete session was
+kept"), which a reader takes for a participant who stopped early."""
+
+from __future__ import annotations
+
+import sqlite3
+
+import pandas as pd
+from support.cli import analyze
+from support.sessions import player_session
+
+from stimuli_manifests import load_manifest, parse_manifest, save_manifest
+
+
+def _study(folder):
+    refs = [{"id": f"R{i}", "path": f"r{i}.mkv", "width": 256, "height": 144, "fps": 30,
+             "frames": 90} for i in range(2)]
+    conds = [{"id": f"R{i}_blur_L{lv}", "reference": f"R{i}", "path": f"r{i}_{lv}.mkv",
+              "method": "blur", "level": lv} for i in range(2) for lv in (1, 2)]
+    return save_manifest(parse_manifest({
+        "study_id": "altered", "references": refs, "conditions": conds,
+        "protocol": {"repetitions": 1}}), folder / "manifest.json")
+
+
+def test_an_altered_file_is_named_as_altered_not_as_partial(tmp_path, capsys):
+    path = _study(tmp_path)
+    loaded = load_manifest(path)
+    s = tmp_path / "s"
+    s.mkdir()
+    files = {p: player_session(s, loaded, p, seed=k + 1)
+             for k, p in enumerate(("P1", "P2", "P3", "P4", "P5"))}
+    with sqlite3.connect(files["P4"]) as con:  # the second rating edited: 1 of 6 authentic
+        con.execute("UPDATE ratings SET rating = rating + 1 WHERE seq = 2")
+    with sqlite3.connect(files["P5"]) as con:  # the last rating removed: 5 of 6 authentic
+        con.execute("PRAGMA foreign_keys=OFF")
+        con.execute("DELETE FROM ratings WHERE seq = (SELECT max(seq) FROM ratings)")
+    out = tmp_path / "r"
+    code, stdout, err = analyze(capsys, "report", "--manifest", path, "--sessions", s,
+                                "--model", "mos", "--outliers", "none", "--bootstrap", "20",
+                                "--splits", "20", "--out", out)
+    assert code == 0, err
+    methods = " ".join((out / "methods.txt").read_text().split())
+    assert ("Not analysed: 1 rater whose session file was altered after it was recorded "
+            "(P4), leaving less than 50% of their trials with intact records.") in methods
+    assert ("1 rater whose session file was altered after it was recorded was kept with the "
+            "ratings recorded before the change (P5: the session record counts 6 rating(s) "
+            "ending in a different hash than the 5 row(s) present).") in methods
+    assert "answered less than" not in methods and "incomplete session" not in methods
+    exclusions = pd.read_csv(out / "tables" / "exclusions.csv")
+    p4 = exclusions[exclusions["who"] == "P4"]
+    assert list(p4["kind"]) == ["altered session"]
+    assert "hash chain broken at trial" in p4["reason"].iloc[0]
+    assert "1 of 6 planned trials" in p4["reason"].iloc[0]
+    html = (out / "report.html").read_text()
+    assert "2 session file(s) altered outside the app" in html
+    assert "Partial session(s) kept" not in html
+    assert "session files altered outside the app" in stdout and "P5 (kept)" in stdout

@@ -291,13 +291,25 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def folder_files(folder: Path) -> list[dict[str, str]]:
+    """Every file in a sessions folder the analysis could read (session files, zips, the
+    pull's listing), by its path inside the folder, with its sha256: a folder's path alone
+    cannot tell a reviewer whether they hold the same files."""
+    from stimuli_manifests.checksums import sha256_file
+
+    return [{"name": q.relative_to(folder).as_posix(), "sha256": sha256_file(q)}
+            for q in sorted(folder.rglob("*"))
+            if q.is_file() and q.suffix in (".sqlite", ".zip", ".json")]
+
+
 def _provenance(args: argparse.Namespace) -> dict[str, object]:
     """The files a report was made from, each with its sha256, and the command line."""
     from stimuli_manifests.checksums import sha256_file
 
-    def files(paths: list[str] | None) -> list[dict[str, str]]:
+    def files(paths: list[str] | None) -> list[dict[str, object]]:
         return [{"path": str(Path(p).resolve()),
-                 **({"sha256": sha256_file(Path(p))} if Path(p).is_file() else {})}
+                 **({"sha256": sha256_file(Path(p))} if Path(p).is_file() else {}),
+                 **({"files": folder_files(Path(p))} if Path(p).is_dir() else {})}
                 for p in paths or []]
 
     out: dict[str, object] = {"command": shlex.join(["cgvq-analyze", *args.argv])}

@@ -24,7 +24,13 @@ from .errors import AnalysisError
 from .panel import panel_from_sessions
 from .presentation_text import presentation
 from .quality import facts_from_rows, facts_from_sessions
-from .sessions import SESSION_SUFFIXES, read_one, select_sessions, session_files
+from .sessions import (
+    SESSION_SUFFIXES,
+    missing_from_pull,
+    read_one,
+    select_sessions,
+    session_files,
+)
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +56,7 @@ def _frame_from_sessions(
             except AnalysisError as exc:
                 problems.append(InputProblem(source.origin, None,
                                              str(exc).removeprefix(f"{source.origin}: ")))
+    problems += missing_from_pull(paths, records)
     selection = select_sessions(records, loaded.manifest.study_id, loaded.sha256,
                                 include_pilots=include_pilots)
     for exc in selection.exclusions:

@@ -114,6 +114,42 @@ def session_files(paths: Sequence[str | Path]) -> Iterator[tuple[list, list[Inpu
         yield sources, notes
 
 
+def missing_from_pull(paths: Sequence[str | Path], records: Sequence[Session]
+                      ) -> list[InputProblem]:
+    """Participants the pull's listing (``server_listing.json`` in a sessions folder) names
+    with ratings whose session is not among the files read: a folder copied without them
+    would shift every number with no word said."""
+    import json
+
+    from session_store.protocol import PULL_LISTING_FILE
+
+    seen = {rec.info.participant for rec in records}
+    out = []
+    for given in paths:
+        listing_path = Path(given) / PULL_LISTING_FILE
+        if not listing_path.is_file():
+            continue
+        try:
+            listing = json.loads(listing_path.read_text(encoding="utf-8"))
+            withdrawn = {str(w["participant"]) for w in listing.get("withdrawn", [])}
+            listed = [str(p["participant"]) for p in listing["participants"]
+                      if (p.get("session") or {}).get("n_ratings")]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            out.append(InputProblem(str(listing_path), None,
+                                    f"unreadable ({exc}); the sessions were not compared "
+                                    "with the pull's list"))
+            continue
+        missing = [p for p in listed if p not in seen and p not in withdrawn]
+        if missing:
+            names = ", ".join(missing[:8]) + (", ..." if len(missing) > 8 else "")
+            out.append(InputProblem(
+                str(listing_path), None,
+                f"the pull listed {len(missing)} participant(s) with ratings whose session "
+                f"file is not in {given}: {names}; they are not in any number here (copy "
+                "their files from the pull, or say in the paper why they are left out)"))
+    return out
+
+
 def read_one(source) -> Session:
     """One session source as a :class:`Session`; :class:`AnalysisError` when the file is not a
     readable session file."""

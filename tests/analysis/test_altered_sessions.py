@@ -57,3 +57,37 @@ def test_an_altered_file_is_named_as_altered_not_as_partial(tmp_path, capsys):
     assert "2 session file(s) altered outside the app" in html
     assert "Partial session(s) kept" not in html
     assert "session files altered outside the app" in stdout and "P5 (kept)" in stdout
+
+
+def test_the_report_lists_the_session_files_and_names_those_the_pull_had(tmp_path, capsys):
+    """A sessions folder was recorded by its path alone, and a file missing from a copy of a
+    pull went unnoticed while every number shifted."""
+    import hashlib
+    import json
+
+    path = _study(tmp_path)
+    loaded = load_manifest(path)
+    s = tmp_path / "pulled"
+    s.mkdir()
+    files = {p: player_session(s, loaded, p, seed=k + 1)
+             for k, p in enumerate(("P1", "P2", "P3", "P4"))}
+    listing = {"study_id": "altered", "withdrawn": [{"participant": "P9"}],
+               "participants": [{"participant": p, "session": {"n_ratings": 6}}
+                                for p in ("P1", "P2", "P3", "P4", "P5", "P9")]
+               + [{"participant": "P6", "session": None}]}
+    (s / "server_listing.json").write_text(json.dumps(listing))
+    out = tmp_path / "r"
+    code, _, err = analyze(capsys, "report", "--manifest", path, "--sessions", s, "--model",
+                           "mos", "--outliers", "none", "--bootstrap", "20", "--splits", "20",
+                           "--out", out)
+    assert code == 0, err
+    # P5 had ratings and no file here; P6 never started, P9 withdrew: not missing
+    assert ("the pull listed 1 participant(s) with ratings whose session file is not in "
+            f"{s}: P5;") in err
+    problems = pd.read_csv(out / "tables" / "problems.csv")
+    assert problems["message"].str.contains("P5; they are not in any number here").any()
+    inputs = json.loads((out / "summary.json").read_text())["inputs"]["sessions"]
+    listed = {f["name"]: f["sha256"] for f in inputs[0]["files"]}
+    assert set(listed) == {f"{p}.sqlite" for p in files} | {"server_listing.json"}
+    for p, f in files.items():
+        assert listed[f"{p}.sqlite"] == hashlib.sha256(f.read_bytes()).hexdigest()

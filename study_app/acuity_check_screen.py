@@ -23,7 +23,7 @@ import numpy as np
 
 from .display import Display
 from .layout import GAP, Rect, button_rows, text_screen_layout, ui_px, wrap_words
-from .screens.draw import BODY, DARK, SCREEN_BG, TITLE, draw_box, draw_button
+from .screens.draw import BODY, DARK, ERROR_TEXT, SCREEN_BG, TITLE, draw_box, draw_button
 from .vision.acuity import (
     ID1_WIDTH_MM,
     PX_PER_MM,
@@ -45,7 +45,7 @@ START_PX_PER_MM = 96 / 25.4  # a 96 dpi screen: where the rectangle starts
 BLANK_S = 0.25
 CARD_FILL = (0.86, 0.88, 0.92, 1.0)
 CARD_EDGE = (0.98, 0.78, 0.22, 1.0)
-ERROR = (1.0, 0.55, 0.45, 1.0)
+ERROR = ERROR_TEXT
 
 
 @dataclass

@@ -286,7 +286,8 @@ class App:
         results = [c.as_dict() for c in checks]
         if resume:
             self.store = SessionStore.open(self.session_path)
-            self._screen(content.welcome_back(answered, total, self._name_keys))
+            self._screen(content.welcome_back(answered, total, self._name_keys,
+                                              self._next_part(answered, total)))
             self.store.save_preflight(results, skipped=self.opts.skip_preflight)
             self.store.log_event("resume", pid=os.getpid(), timing_mode=timing)
         else:
@@ -304,7 +305,8 @@ class App:
         try:
             self._panel("before")
             distance = self.m.protocol.viewing_distance_cm
-            if distance is not None:
+            answered, total = self.store.progress()
+            if distance is not None and answered < total:  # not when only questions are left
                 self._screen(content.seating(distance, self._name_keys, again=resume))
             if self.opts.practice > 0 and not self._practised():
                 self._practice()
@@ -434,6 +436,22 @@ class App:
         answered, total = self.store.progress()
         if self._screen(content.confirm_quit(answered, total, self._name_keys)) == "yes":
             raise _QuitRequestedError
+
+    def _next_part(self, answered: int, total: int) -> str:
+        """What a resumed session goes on with, in the participant's words ('' for a trial):
+        a vision check or the questions before the videos, or the questions after them."""
+        if self.m.panel is None:
+            return ""
+        rec = self.store.snapshot()
+        left = panel_progress(self.m.panel, rec.answers, rec.screenings, rec.events)
+        if left.vision_todo:
+            return "the " + {"colour": "colour vision check",
+                             "acuity": "sharpness and contrast check"}[left.vision_todo[0]]
+        if left.before:
+            return f"the questions \u201c{left.before[0].questionnaire.title}\u201d"
+        if answered >= total and left.after:
+            return f"the last questions \u201c{left.after[0].questionnaire.title}\u201d"
+        return ""
 
     # -- the panel: questionnaires (and vision checks) ----------------------------------
     def _panel(self, when: str) -> None:

@@ -21,11 +21,20 @@ from stimuli_manifests.panel import Questionnaire
 
 from .display import Display
 from .layout import Button
-from .screens.draw import ACCENT, BODY, DARK, MARKER, MUTED, SCREEN_BG, TITLE, draw_box, draw_button
+from .screens.draw import (
+    ACCENT,
+    BODY,
+    DARK,
+    ERROR_TEXT,
+    MUTED,
+    SCREEN_BG,
+    TITLE,
+    draw_box,
+    draw_button,
+)
 from .screens.form_layout import FormLayout, form_layout
 from .screens.form_state import FormState
 
-KEY_HINT = "Tab: next question   1-9 or arrows: choose   Enter: next page   Esc: pause"
 PREFER_KEYS = {"single": "0", "likert": "0", "multiple": "0", "number": "Ctrl+P"}
 """The key that chooses "Prefer not to say" on a focused question of each kind (a number
 field types digits, so there it is Ctrl+P; a text field offers no such choice by key)."""
@@ -35,15 +44,15 @@ FIELD_FILL = (0.08, 0.09, 0.10, 1.0)
 OnAnswer = Callable[[int, str, Any], None]
 
 
-def key_hint(field: Any) -> str:
-    """The key line under the page, naming the "Prefer not to say" key where the focused
-    question offers it."""
+def key_hint(field: Any, *, last_page: bool = False) -> str:
+    """The key line under the page for the focused question: how to answer it (the "Prefer
+    not to say" key where it is offered) and what Enter does on this page."""
     key = PREFER_KEYS.get(field.kind) if field.question.offers_prefer_not_to_say else None
-    if key is None:
-        return KEY_HINT
-    choose = "type a number" if field.kind == "number" else "1-9 or arrows: choose"
-    return (f"Tab: next question   {choose}   {key}: prefer not to say   Enter: next page   "
-            "Esc: pause")
+    choose = {"number": "type a number", "text": "type your answer"}.get(
+        field.kind, "1-9 or arrows: choose")
+    prefer = f"   {key}: prefer not to say" if key else ""
+    enter = "done" if last_page else "next page"
+    return f"Tab: next question   {choose}{prefer}   Enter: {enter}   Esc: pause"
 
 
 @dataclass
@@ -283,10 +292,11 @@ def draw_form(r: Any, lay: FormLayout, fs: FormState, offset: int) -> None:
                        color=DARK if chosen else (1.0, 1.0, 1.0, 1.0))
                 ty += th
         if f.error and top <= q.error_y <= bottom - lay.px:
-            r.text(f.error, col.x, col.y + q.error_y - offset, px=lay.px - 2, color=MARKER,
+            r.text(f.error, col.x, col.y + q.error_y - offset, px=lay.px - 2, color=ERROR_TEXT,
                    style="bold")
     hint_y = col.y + col.h + 4
-    keys = key_hint(fs.fields[fs.focus])
+    last = any(b.action == "next" and b.text.startswith("Done") for b in lay.buttons)
+    keys = key_hint(fs.fields[fs.focus], last_page=last)
     hint = keys if offset == 0 and offset >= lay.max_offset() else (
         "more below (Page Down)" if offset < lay.max_offset() else "more above (Page Up)")
     tw, _ = r.text_size(hint, lay.px - 4)

@@ -157,9 +157,12 @@ def seating(distance_cm: float, name_keys: NameKeys, *, again: bool = False) -> 
                  name_keys, primary="go")
 
 
-def welcome_back(answered: int, total: int, name_keys: NameKeys) -> ScreenSpec:
+def welcome_back(answered: int, total: int, name_keys: NameKeys,
+                 next_part: str = "") -> ScreenSpec:
+    """``next_part`` names what comes next where it is not a trial (a vision check, the
+    questions before or after the videos)."""
     body = (f"Your answers so far are saved ({answered} of {total} trials done). You "
-            f"continue with trial {answered + 1}.")
+            f"continue with {next_part or f'trial {answered + 1}'}.")
     return _spec("welcome-back", "Welcome back", body, CONTINUE, [("go", "Continue")],
                  name_keys, primary="go")
 
@@ -240,7 +243,8 @@ def colour_check_intro(n: int, name_keys: NameKeys, ends_study: bool = False) ->
     body = (f"Before the videos, a short check of colour vision: {n} circles of coloured dots, "
             "one after the other. In most of them there is a number made of dots of another "
             "colour.\n\n"
-            "- Type the number you see (or click it), as soon as you see it.\n"
+            "- Type the number you see (or click its button under the circle), as soon as you "
+            "see it.\n"
             "- If you see no number, press **N** (or click *No number*).\n"
             "- **Esc** pauses the check (to continue, stop or withdraw).\n\n" + result)
     return _spec("colour-check", "Colour vision check", body, CONTINUE, [("go", "Start")],
@@ -290,7 +294,7 @@ def acuity_check_intro(distance_cm: float, name_keys: NameKeys,
 
 def acuity_trials_intro(distance_cm: float, name_keys: NameKeys) -> ScreenSpec:
     body = (f"Sit about {distance_cm:g} cm from the screen now.\n\n"
-            "You will see a ring with a gap, one after the other, getting smaller and then "
+            "You will see rings with a gap, one after another, getting smaller and then "
             "fainter. For each one, say where the gap is:\n\n"
             "- press the **arrow key** pointing to the gap (left, up, right or down), or click "
             "the button;\n"

@@ -30,6 +30,9 @@ REFERENCE_LINE: Color = (0.36, 0.70, 1.0, 1.0)
 REFERENCE_FILL: Color = (0.10, 0.18, 0.30, 1.0)
 SLIDER_TRACK: Color = (0.15, 0.15, 0.15, 1.0)
 MARKER: Color = (0.85, 0.10, 0.10, 1.0)
+ERROR_TEXT: Color = (1.0, 0.55, 0.45, 1.0)
+"""Refusals and notices in words: a light red with about 7:1 contrast on the screen
+background (the marker's red gave 3:1, and protan participants see saturated red darkest)."""
 SUBMIT_READY: Color = (0.16, 0.50, 0.22, 1.0)
 SUBMIT_WAIT: Color = (0.42, 0.42, 0.42, 1.0)
 LABEL_TEST = "Test video"
@@ -148,7 +151,7 @@ def draw_rating(r: Renderer, lay: RatingLayout, value_x: float | None, *, ready:
     if notice:
         _, rect = lay.notice.lines[0]
         tw, _ = r.text_size(notice, lay.notice.px)
-        r.text(notice, (lay.window[0] - tw) / 2, rect.y, px=lay.notice.px, color=MARKER,
+        r.text(notice, (lay.window[0] - tw) / 2, rect.y, px=lay.notice.px, color=ERROR_TEXT,
                style="bold")
     for b in lay.buttons:
         if b.action == "submit":

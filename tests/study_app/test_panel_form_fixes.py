@@ -261,6 +261,8 @@ def test_zero_and_ctrl_p_choose_prefer_not_to_say_and_the_hint_says_so(monkeypat
     assert "Ctrl+P: prefer not to say" in form_screen.key_hint(fs.fields[age])
     gender = next(i for i, q in enumerate(fs.fields) if q.question.id == "gender")
     assert "0: prefer not to say" in form_screen.key_hint(fs.fields[gender])
+    assert form_screen.key_hint(fs.fields[gender]).endswith("Enter: next page   Esc: pause")
+    assert "Enter: done" in form_screen.key_hint(fs.fields[gender], last_page=True)
     fonts = Fonts()
     for width in (800, 1024):  # the longest hint fits the smallest windows' width
         px = form_layout((width, 600), fonts, title="t", intro=None, state=fs,
@@ -322,3 +324,45 @@ def test_the_pause_and_check_texts_say_what_happens():
     assert "Esc" in content.colour_check_intro(8, keys).body
     acuity = content.acuity_check_intro(60, keys, ends_study=True).body
     assert "the study ends after it" in acuity and "Esc" in acuity
+
+
+def test_words_on_the_screen_background_reach_the_wcag_contrast_for_text():
+    """Refusals were red (0.85, 0.10, 0.10) on the dark background: 3:1, below WCAG's 4.5:1
+    for text, and darker still for the protan participants a colour check screens."""
+    from study_app.screens import draw
+
+    def luminance(c):
+        lin = [x / 12.92 if x <= 0.04045 else ((x + 0.055) / 1.055) ** 2.4 for x in c[:3]]
+        return 0.2126 * lin[0] + 0.7152 * lin[1] + 0.0722 * lin[2]
+
+    bg = luminance(draw.SCREEN_BG)
+    for name in ("BODY", "MUTED", "ACCENT", "ERROR_TEXT"):
+        fg = luminance(getattr(draw, name))
+        assert (fg + 0.05) / (bg + 0.05) >= 4.5, name
+    assert (luminance(draw.MARKER) + 0.05) / (bg + 0.05) < 4.5  # why it is not used for words
+
+
+def test_a_resumed_session_says_what_comes_next(tmp_path):
+    """'You continue with trial 6' of 5 after a restart in the survey after the videos, and
+    'trial 1' before the questions that came first."""
+    from study_app.app import App
+    from study_app.panel_progress import QUESTIONNAIRE_EVENT
+    from study_app.screens import content
+
+    panel = Panel.model_validate(default_panel(colour_check=True))
+    demographics, survey = panel.questionnaires
+    items = [ScheduleItem("S1", "S1", True)]
+    store = SessionStore.create(tmp_path / "s.sqlite", participant="p1", study_id="st",
+                                manifest_sha256="0" * 64, seed=1, app_version="test",
+                                plan=make_schedule(items, 1, 1), settings={})
+    with store:
+        app = SimpleNamespace(m=SimpleNamespace(panel=panel), store=store)
+        assert App._next_part(app, 0, 1) == "the colour vision check"
+        store.record_screening("colour", "passed", {})
+        assert App._next_part(app, 0, 1) == f"the questions \u201c{demographics.title}\u201d"
+        store.log_event(QUESTIONNAIRE_EVENT, questionnaire=demographics.id, outcome="done")
+        assert App._next_part(app, 0, 1) == ""  # a trial
+        assert App._next_part(app, 1, 1) == f"the last questions \u201c{survey.title}\u201d"
+    body = content.welcome_back(1, 1, lambda k, a: a, "the last questions").body
+    assert body.endswith("You continue with the last questions.") and "trial 2" not in body
+    assert content.welcome_back(2, 5, lambda k, a: a).body.endswith("with trial 3.")

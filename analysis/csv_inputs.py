@@ -120,6 +120,7 @@ def melt_rating_matrix(frame: pd.DataFrame, path: Path) -> pd.DataFrame:
 def _read(path: Path, sep: str, *, header_only: bool = False) -> pd.DataFrame:
     """The file as text cells; rows with more cells than the header are refused (pandas
     would otherwise take the first column as an index, or drop the extra cells)."""
+    _refuse_a_session_file(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error", pd.errors.ParserWarning)
@@ -145,6 +146,19 @@ def _read(path: Path, sep: str, *, header_only: bool = False) -> pd.DataFrame:
     frame.columns = [str(c).strip().lstrip("\ufeff") for c in frame.columns]
     frame.attrs["sep"] = sep
     return frame
+
+
+def _refuse_a_session_file(path: Path) -> None:
+    """A session file given as a ratings CSV: say where it belongs (its bytes read as a CSV
+    gave "not a readable CSV ... a decimal comma?")."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(16)
+    except OSError:
+        return  # the reader says what is wrong with it
+    if head == b"SQLite format 3\x00":
+        raise AnalysisError(f"ratings file {path} is a session file, not a CSV: give it (or "
+                            "its folder) to --sessions")
 
 
 def _other_separator(header: str) -> str | None:

@@ -26,6 +26,7 @@ from .presentation_text import presentation
 from .quality import facts_from_rows, facts_from_sessions
 from .sessions import (
     SESSION_SUFFIXES,
+    line_ending_twins,
     missing_from_pull,
     read_one,
     select_sessions,
@@ -58,7 +59,8 @@ def _frame_from_sessions(
                                              str(exc).removeprefix(f"{source.origin}: ")))
     problems += missing_from_pull(paths, records)
     selection = select_sessions(records, loaded.manifest.study_id, loaded.sha256,
-                                include_pilots=include_pilots)
+                                include_pilots=include_pilots,
+                                twins=line_ending_twins(loaded.source))
     for exc in selection.exclusions:
         log.warning("%s", exc)
     problems += selection.problems

@@ -180,6 +180,9 @@ def _read_scores_csv(path: Path) -> pd.DataFrame:
                         keep_default_na=True)
     except FileNotFoundError:
         raise AnalysisError(f"metric scores file {path} does not exist") from None
+    except IsADirectoryError:
+        raise AnalysisError(f"--metric {path} is a folder; give the scores CSV file "
+                            "('cgvqm batch --out' wrote it)") from None
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise AnalysisError(f"metric scores file {path} is not a readable CSV ({exc})") \
             from None

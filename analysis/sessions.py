@@ -218,7 +218,8 @@ def _withdrawn_exclusion(rec: Session, withdrawn_in: str) -> Exclusion:
 
 
 def _refusal(rec: Session, study_id: str, manifest_sha256: str | None,
-             withdrawn: dict[str, str]) -> Exclusion | None:
+             withdrawn: dict[str, str], twins: frozenset[str] = frozenset()
+             ) -> Exclusion | None:
     """Why ``rec`` is refused, or None when it belongs to the study."""
     if rec.damaged:
         return Exclusion("refused session", rec.path, f"{rec.damaged}; ask for the file again",
@@ -230,6 +231,14 @@ def _refusal(rec: Session, study_id: str, manifest_sha256: str | None,
             f"{study_id!r}", "session study_id must equal the manifest's study_id")
     if rec.info.participant in withdrawn:
         return _withdrawn_exclusion(rec, withdrawn[rec.info.participant])
+    if manifest_sha256 and rec.info.manifest_sha256 in twins:
+        return Exclusion(
+            "refused session", rec.path,
+            "was run with this manifest before its line endings were changed (by git or an "
+            "upload, say): the content is the same, but sessions are matched to the file's "
+            "exact bytes; analyse with the file the study was served with ('cgvq-study pull' "
+            f"keeps it as manifest.{rec.info.manifest_sha256[:12]}.json), or convert its line "
+            "endings back", "session manifest_sha256 must equal the manifest file's sha256")
     if manifest_sha256 and rec.info.manifest_sha256 and \
             rec.info.manifest_sha256 != manifest_sha256:
         return Exclusion(
@@ -258,18 +267,33 @@ def _pilot_exclusion(rec: Session) -> Exclusion:
         "--include-pilots keeps them")
 
 
+def line_ending_twins(path: Path | None) -> frozenset[str]:
+    """sha256 of the manifest file with its line endings converted (LF <-> CRLF): a session
+    run with such a twin ran with the same content, which git or an upload re-encoded."""
+    import hashlib
+
+    if path is None or not Path(path).is_file():
+        return frozenset()
+    data = Path(path).read_bytes()
+    lf = data.replace(b"\r\n", b"\n")
+    return frozenset(hashlib.sha256(v).hexdigest() for v in (lf, lf.replace(b"\n", b"\r\n"))
+                     if v != data)
+
+
 def select_sessions(records: list[Session], study_id: str,
                     manifest_sha256: str | None, *,
-                    include_pilots: bool = False) -> SessionSelection:
+                    include_pilots: bool = False,
+                    twins: frozenset[str] = frozenset()) -> SessionSelection:
     """Refuse withdrawn and foreign sessions, collapse copies of one session, and leave out
     pilots (paced, no vsync) when participant sessions are there too (unless
-    ``include_pilots``): a pilot alone, or with simulated raters, is analysed as it is."""
+    ``include_pilots``): a pilot alone, or with simulated raters, is analysed as it is.
+    ``twins``: :func:`line_ending_twins` of the manifest, named in the refusal."""
     exclusions: list[Exclusion] = []
     problems: list[InputProblem] = []
     kept: list[Session] = []
     withdrawn = _withdrawals(records, study_id)
     for rec in sorted(records, key=lambda r: r.path):
-        refused = _refusal(rec, study_id, manifest_sha256, withdrawn)
+        refused = _refusal(rec, study_id, manifest_sha256, withdrawn, twins)
         if refused is not None:
             exclusions.append(refused)
             continue

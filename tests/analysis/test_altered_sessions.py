@@ -91,3 +91,21 @@ def test_the_report_lists_the_session_files_and_names_those_the_pull_had(tmp_pat
     assert set(listed) == {f"{p}.sqlite" for p in files} | {"server_listing.json"}
     for p, f in files.items():
         assert listed[f"{p}.sqlite"] == hashlib.sha256(f.read_bytes()).hexdigest()
+
+
+def test_a_manifest_that_only_changed_its_line_endings_is_named_so(tmp_path, capsys):
+    """git autocrlf or an upload converted the manifest to CRLF: every session was refused as
+    'the study changed after this session', which sends the reader looking for a change."""
+    path = _study(tmp_path)
+    loaded = load_manifest(path)
+    s = tmp_path / "s"
+    s.mkdir()
+    for k, p in enumerate(("P1", "P2", "P3")):
+        player_session(s, loaded, p, seed=k + 1)
+    crlf = tmp_path / "crlf" / "manifest.json"
+    crlf.parent.mkdir()
+    crlf.write_bytes(path.read_bytes().replace(b"\n", b"\r\n"))
+    code, _, err = analyze(capsys, "dmos", "--manifest", crlf, "--sessions", s, "--out",
+                           tmp_path / "d.csv")
+    assert code == 2
+    assert "before its line endings were changed" in err and "study changed" not in err

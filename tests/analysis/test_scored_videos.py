@@ -79,3 +79,19 @@ def test_files_that_record_no_videos_are_not_checked(files, capsys):
     empty = files["table"].copy()
     empty["stimulus_sha256"] = ""
     assert _compare(files, empty, "empty") == 0
+
+
+def test_swapped_inputs_name_the_option_they_belong_to(files, tmp_path, capsys):
+    """A session file given to --ratings read as 'not a readable CSV ... a decimal comma?';
+    a folder given to --metric said only 'Is a directory'."""
+    session = tmp_path / "P01.sqlite"
+    session.write_bytes(b"SQLite format 3\x00" + bytes(100))
+    assert main(["compare", "--manifest", str(files["manifest"]), "--ratings", str(session),
+                 "--metric", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("is a session file, not a CSV: give it (or its folder) to --sessions")
+    assert main(["compare", "--manifest", str(files["manifest"]), "--ratings",
+                 str(files["ratings"]), "--metric", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"--metric {tmp_path} is a folder; give the scores CSV file" in err
+    assert len(err.splitlines()) == 1

@@ -174,10 +174,15 @@ def _sessions_facts(a: Analysis, n_screened: int) -> dict[str, Any]:
 
 
 def _minutes(quality: pd.DataFrame | None, raters: list[str]) -> dict[str, Any] | None:
-    """The used raters' minutes in the study (session files only): median and range."""
+    """The used raters' minutes in the study (session files only): median and range.
+    Simulated raters (``cgvq-study simulate``) spent no time: they are not counted (a
+    "median 0.0 min" reads as a fact about participants)."""
     if quality is None or "minutes" not in quality.columns:
         return None
-    m = pd.to_numeric(quality.reindex(raters)["minutes"], errors="coerce").dropna()
+    q = quality.reindex(raters)
+    if "timing_mode" in q.columns:
+        q = q[~q["timing_mode"].astype(str).str.contains("simulated")]
+    m = pd.to_numeric(q["minutes"], errors="coerce").dropna()
     if not len(m):
         return None
     return {"n": len(m), "median": float(m.median()), "min": float(m.min()),

@@ -109,3 +109,14 @@ def test_a_manifest_that_only_changed_its_line_endings_is_named_so(tmp_path, cap
                            tmp_path / "d.csv")
     assert code == 2
     assert "before its line endings were changed" in err and "study changed" not in err
+
+
+def test_simulated_raters_spend_no_time_in_the_study():
+    """'Time in the study: median 0.0 min (0.0-0.0)' was reported for simulated sessions."""
+    from analysis.report import _minutes
+
+    quality = pd.DataFrame({"timing_mode": ["simulated", "simulated", "vsync"],
+                            "minutes": [0.0, 0.0, 12.5]}, index=["S1", "S2", "P1"])
+    assert _minutes(quality, ["S1", "S2"]) is None
+    assert _minutes(quality, ["S1", "S2", "P1"]) == {"n": 1, "median": 12.5, "min": 12.5,
+                                                     "max": 12.5}

@@ -336,6 +336,23 @@ def _significance(s: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         + "; ".join(wins) + "."
 
 
+def _implementations(s: dict[str, Any], names: list[str]) -> str:
+    """Which implementation (and version) computed each metric, as its score rows record it;
+    metrics sharing one are named together."""
+    groups: dict[str, list[str]] = {}
+    for name in names:
+        versions = (s.get("metric_provenance") or {}).get(name, {}).get("versions") or []
+        words = "; ".join(", ".join(f"{v}" if k == "implementation" else f"{k} {v}"
+                                    for k, v in entry.items()) if isinstance(entry, dict)
+                          else str(entry) for entry in versions)
+        if words:
+            groups.setdefault(words, []).append(name)
+    if not groups:
+        return ""
+    return " Implementations: " + "; ".join(
+        f"{' and '.join(metrics)}: {words}" for words, metrics in groups.items()) + "."
+
+
 def _metrics(s: dict[str, Any]) -> str:
     rows = [m for m in s.get("metrics") or [] if m.get("plcc") is not None
             and m["metric"] != CEILING_ROW]  # the ceiling has its own sentence
@@ -352,6 +369,11 @@ def _metrics(s: dict[str, Any]) -> str:
             + "; ".join(_metric_line(m, n_max) for m in rows) + ".")
     if len(rows) > 1:
         text += _significance(s, rows)
+    text += _implementations(s, [str(m["metric"]) for m in rows])
+    if any(mp.get("kind") == "logistic5" for mp in (s.get("metric_mappings") or {}).values()):
+        text += (" The mapping was DMOS = b1 (1/2 - 1/(1 + exp(b2 (z - b3)))) + b4 z + b5 on "
+                 "the score standardised by its median and standard deviation (z); each "
+                 "metric's fitted parameters are in the report's summary.json.")
     viewing, _ = metric_viewing_text(s.get("viewing"))
     return text + (" " + viewing if viewing else "")
 

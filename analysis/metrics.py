@@ -28,6 +28,7 @@ import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -78,6 +79,9 @@ class MetricScores:
     #: metric -> the pixels per visual degree its scores were computed at (FLIP,
     #: ColorVideoVDP: the ``ppd`` of the scores' settings), for the panel's comparison
     ppd: dict[str, float] = field(default_factory=dict)
+    #: metric -> what its rows record of how they were computed (versions, settings, the
+    #: backbone's and weights' sha256), each the distinct values found
+    provenance: dict[str, dict[str, list[Any]]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         f = self.frame
@@ -93,6 +97,8 @@ class MetricScores:
             self.flags = provenance_flags(f)
         if not self.ppd:
             self.ppd = computed_ppd(f)
+        if not self.provenance:
+            self.provenance = score_provenance(f)
 
     @property
     def metrics(self) -> list[str]:
@@ -151,6 +157,35 @@ def computed_ppd(frame: pd.DataFrame) -> dict[str, float]:
     return out
 
 
+PROVENANCE_COLUMNS = ("versions", "settings", "backbone", "backbone_sha256", "weights_sha256")
+"""The columns of a scores row that say how its score was computed (JSON for the first two)."""
+
+
+def score_provenance(frame: pd.DataFrame) -> dict[str, dict[str, list[Any]]]:
+    """Metric -> column -> the distinct values its rows record (JSON cells parsed): what a
+    reviewer needs to know which implementation, settings and weights gave the numbers."""
+    out: dict[str, dict[str, list[Any]]] = {}
+    columns = [c for c in PROVENANCE_COLUMNS if c in frame.columns]
+    for name, rows in frame.groupby("metric", sort=False):
+        found: dict[str, list[Any]] = {}
+        for col in columns:
+            values = []
+            for cell in rows[col].dropna().astype(str).str.strip().unique():
+                if not cell:
+                    continue
+                try:
+                    value = json.loads(cell) if cell.startswith("{") else cell
+                except ValueError:
+                    value = cell
+                if value not in values:
+                    values.append(value)
+            if values:
+                found[col] = values
+        if found:
+            out[str(name)] = found
+    return out
+
+
 def provenance_flags(frame: pd.DataFrame) -> dict[str, str]:
     """Metric -> warning for scores from a random (untrained) backbone or uniform weights."""
     flags: dict[str, list[str]] = {}
@@ -176,7 +211,8 @@ def _read_scores_csv(path: Path) -> pd.DataFrame:
     try:
         f = pd.read_csv(path, dtype={"stimulus": str, "reference": str, "metric": str,
                                      "direction": str, "backbone": str, "weights_sha256": str,
-                                     "settings": str, "pooling": str, FORMAT_COLUMN: str},
+                                     "settings": str, "pooling": str, FORMAT_COLUMN: str,
+                                     "versions": str, "backbone_sha256": str},
                         keep_default_na=True)
     except FileNotFoundError:
         raise AnalysisError(f"metric scores file {path} does not exist") from None
@@ -428,6 +464,7 @@ class MetricValidation:
     boot_ref: dict[str, dict[str, float]] = field(default_factory=dict)  # bootstrap world
     not_applicable: dict[str, str] = field(default_factory=dict)  # metric -> why no score
     ppd: dict[str, float] = field(default_factory=dict)  # metric -> its pixels per degree
+    provenance: dict[str, dict[str, list[Any]]] = field(default_factory=dict)  # see MetricScores
 
 
 @dataclass
@@ -568,7 +605,8 @@ def validate_metrics(
                             {n: f.mapping for n, f in fitted.items()}, data, problems,
                             dict(scores.flags), alpha, comparisons, williams,
                             {n: f.boot for n, f in fitted.items()}, refs,
-                            dict(scores.not_applicable), dict(scores.ppd))
+                            dict(scores.not_applicable), dict(scores.ppd),
+                            {n: scores.provenance[n] for n in fitted if n in scores.provenance})
 
 
 def no_dmos_problems(dmos: pd.DataFrame, bad: np.ndarray) -> list[InputProblem]:

@@ -19,6 +19,7 @@ import pandas as pd
 
 from .exports import write_dmos_csv, write_rating_matrix
 from .figures import FIGURES, draw_all
+from .mapping import MAPPING_FUNCTIONS
 from .methods_text import methods_paragraphs
 from .panel import panel_json
 from .pilot_view import reversed_levels
@@ -189,6 +190,24 @@ def _minutes(quality: pd.DataFrame | None, raters: list[str]) -> dict[str, Any] 
             "max": float(m.max())}
 
 
+ENVIRONMENT = ("sureal", "numpy", "scipy", "pandas", "pingouin", "matplotlib")
+"""The libraries whose versions can change a number of the report."""
+
+
+def environment() -> dict[str, str]:
+    """Python's and :data:`ENVIRONMENT`'s versions, as installed where the report was made."""
+    import platform
+    from importlib import metadata
+
+    out = {"python": platform.python_version()}
+    for name in ENVIRONMENT:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
 def summary(a: Analysis) -> dict[str, Any]:
     """Machine-readable results (the demo and scripts read ``summary.json``)."""
     rs, sc = a.screened, a.scores
@@ -256,6 +275,11 @@ def summary(a: Analysis) -> dict[str, Any]:
         out["metrics"] = _records(m.table)
         out["metrics_per_method"] = _records(m.per_method)
         out["untrained_backbone"] = dict(m.untrained)
+        out["metric_provenance"] = dict(m.provenance)
+        out["metric_mappings"] = {
+            name: {"kind": mp.kind, "function": MAPPING_FUNCTIONS[mp.kind],
+                   "center": mp.center, "scale": mp.scale, "params": list(mp.params)}
+            for name, mp in m.mappings.items()}
         out["not_applicable"] = dict(m.not_applicable)
         out["viewing"] = viewing_summary(a.ratings, a.quality, list(a.screened.raters), m.ppd)
         out["significance_p"] = {
@@ -448,7 +472,8 @@ def write_report(a: Analysis, out: str | Path, *, notes: str | None = None,
     write_tables(a, out)
     figures = draw_all(a, out / "figures")
     facts = summary(a)
-    facts["inputs"] = {"tool_version": __version__, **(inputs or {})}
+    facts["inputs"] = {"tool_version": __version__, "environment": environment(),
+                       **(inputs or {})}
     (out / "methods.txt").write_text("\n\n".join(methods_paragraphs(a, facts)) + "\n",
                                      encoding="utf-8")
     (out / "summary.json").write_text(json.dumps(facts, indent=1, default=_num),

@@ -247,15 +247,40 @@ def test_numbers_are_printed_as_a_paper_prints_them():
     assert fixed(-0.0001) == "0.000" and fixed(-0.01) == "-0.010"
 
 
-def test_a_metric_that_is_not_the_published_one_is_named_so_in_the_text(study, tmp_path):
-    """The first screen flagged a random backbone; the text meant for the paper did not."""
+def test_a_reader_can_redraw_each_mapping_and_name_each_implementation(study, tmp_path):
+    """The fitted mapping, the metric's implementation and the analysis' libraries were
+    nowhere in the report: a reviewer could not recompute PLCC or RMSE from the files. And
+    the first screen flagged a random backbone, the text meant for the paper did not."""
+    import json
+
     _, root = study
     scores = pd.read_csv(root / "scores.csv")
+    scores["versions"] = '{"implementation":"labmetric 2.1"}'
+    scores["settings"] = '{"frames":"mean"}'
     scores["backbone"] = np.where(scores["metric"] == "weak", "random(seed=0)", "")
     scores.to_csv(tmp_path / "scores.csv", index=False)
-    text = _report(root, tmp_path / "flagged", "--outliers", "none", "--metric",
-                   str(tmp_path / "scores.csv"))
+    out = tmp_path / "prov"
+    text = _report(root, out, "--outliers", "none", "--metric", str(tmp_path / "scores.csv"))
     assert ("[Not the published metric: weak ran with random (untrained) backbone: "
             "random(seed=0). Its numbers here are not those of the metric it is named "
             "after.]") in text
     assert "good ran with" not in text  # (and no such line without flags: the first test)
+    assert "Implementations: good and weak: labmetric 2.1." in text
+    assert "The mapping was DMOS = b1 (1/2 - 1/(1 + exp(b2 (z - b3)))) + b4 z + b5" in text
+    s = json.loads((out / "summary.json").read_text())
+    assert s["metric_provenance"]["good"] == {"versions": [{"implementation": "labmetric 2.1"}],
+                                             "settings": [{"frames": "mean"}]}
+    env = s["inputs"]["environment"]
+    assert env["sureal"] and env["numpy"] == np.__version__
+    # PLCC recomputed from the raw scores, the published mapping and dmos.csv
+    dmos = pd.read_csv(out / "dmos.csv").set_index("stimulus")["dmos"]
+    table = pd.read_csv(out / "tables" / "metrics.csv").set_index("metric")
+    for name in ("good", "weak"):
+        mp = s["metric_mappings"][name]
+        assert mp["kind"] == "logistic5"
+        rows = scores[scores["metric"] == name].set_index("stimulus")
+        z = (rows["score"] - mp["center"]) / mp["scale"]
+        b1, b2, b3, b4, b5 = mp["params"]
+        pred = b1 * (0.5 - 1 / (1 + np.exp(b2 * (z - b3)))) + b4 * z + b5
+        r = np.corrcoef(pred, dmos.reindex(rows.index))[0, 1]
+        assert r == pytest.approx(table.loc[name, "plcc"], abs=1e-9)

@@ -109,6 +109,7 @@ class FormScreen:
             else qn.title
         intro = qn.intro if page == 0 else None
         offset = 0
+        shown_focus = fs.focus  # the question last brought into view (a page opens at its top)
         name = f"questionnaire-{qn.id}-{page + 1}"
         self.state("questionnaire", id=qn.id, page=page + 1, questions=len(fs.fields))
         if d.pacer is not None:
@@ -168,7 +169,10 @@ class FormScreen:
                     offset = lay.offset_showing(fs.focus, offset)
             lay = form_layout(d.size, d.fonts, title=title, intro=intro, state=fs,
                               buttons=self._buttons(qn, page))
-            offset = min(lay.offset_showing(fs.focus, offset), lay.max_offset())
+            if fs.focus != shown_focus:  # brought into view when it moves, not on each
+                offset = lay.offset_showing(fs.focus, offset)  # scroll (it pulled back)
+                shown_focus = fs.focus
+            offset = max(0, min(offset, lay.max_offset()))
             draw_form(d.renderer, lay, fs, offset)
             self.shot(name)
             d.flip()

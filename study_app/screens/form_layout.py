@@ -154,4 +154,9 @@ def form_layout(window: tuple[int, int], m: Measure, *, title: str, intro: str |
         boxes.append(QuestionBox(qi, TextBox(px, tuple(text_lines)), tuple(hits), error_y,
                                  top, y))
         y += round(px * 0.4)
+    # the last question's free error line counts only when it holds a refusal: a page that
+    # fits but for that empty line would otherwise scroll (and hide the key line) for nothing
+    last = boxes[-1] if boxes else None
+    if last is not None and not state.fields[last.qi].error:
+        y = last.error_y
     return FormLayout(window, px, base.title, col, intro_box, tuple(boxes), y, base.buttons)

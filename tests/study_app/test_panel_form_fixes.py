@@ -366,3 +366,42 @@ def test_a_resumed_session_says_what_comes_next(tmp_path):
     body = content.welcome_back(1, 1, lambda k, a: a, "the last questions").body
     assert body.endswith("You continue with the last questions.") and "trial 2" not in body
     assert content.welcome_back(2, 5, lambda k, a: a).body.endswith("with trial 3.")
+
+
+def test_page_down_scrolls_past_the_focused_question_and_stays(monkeypatch, tmp_path):
+    """At 800x600 the survey's first page is taller than its column: Page Down moved the view
+    and the next frame pulled it back to the focused first question, so the page could not
+    be scrolled and 'more below (Page Down)' never went away."""
+    drawn = []
+    monkeypatch.setattr(form_screen, "draw_form", lambda r, lay, fs, offset: drawn.append(
+        (offset, lay.max_offset())))
+    display = _display([[_key(pygame.K_PAGEDOWN)], [], [_key(pygame.K_PAGEUP)], [],
+                        [_key(pygame.K_ESCAPE)]])
+    display.size = (800, 600)
+
+    class StopScriptError(Exception):
+        pass
+
+    def stop():
+        raise StopScriptError
+
+    screen = form_screen.FormScreen(display, lambda *a, **k: None, lambda n: False,
+                                    lambda: None, stop)
+    with pytest.raises(StopScriptError):  # Esc: the pause menu, here the end of the script
+        screen.run(SURVEY, answered={}, start_page=0, on_answer=lambda *a: None)
+    offsets = [o for o, _ in drawn]
+    bottom = drawn[0][1]
+    assert bottom > 0 and offsets[:4] == [bottom, bottom, 0, 0]
+
+
+def test_a_page_that_fits_but_for_its_empty_error_line_does_not_scroll():
+    fs = FormState.for_page(list(SURVEY.pages[0].questions), {})
+    lay = form_layout((1280, 720), Fonts(), title=SURVEY.title, intro=SURVEY.intro, state=fs,
+                      buttons=[("next", "Next"), ("skip", "Skip these questions")])
+    last = lay.questions[-1]
+    assert last.error_y <= lay.column.h < last.bottom  # only the free error line is below
+    assert lay.max_offset() == 0
+    fs.fields[-1].error = "Please answer this question"
+    refused = form_layout((1280, 720), Fonts(), title=SURVEY.title, intro=SURVEY.intro,
+                          state=fs, buttons=[("next", "Next"), ("skip", "Skip these questions")])
+    assert refused.max_offset() > 0  # a refusal there is scrolled to

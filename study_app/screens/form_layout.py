@@ -81,6 +81,40 @@ class FormLayout:
         return offset
 
 
+def _scale_row(qi: int, f: Any, y: int, width: int, px: int, m: Measure) -> list[Hit]:
+    """A Likert scale as one row of equal cells, each label wrapped inside its cell, with
+    "Prefer not to say" as a last cell set apart (or on the row below where the row has no
+    room for it): flowed left to right, "Strongly agree" wrapped under "Strongly disagree"
+    and the scale no longer read as a line. Empty where a word of a label is wider than its
+    cell (then the options flow as the other questions' do)."""
+    points = f.options()
+    prefer = f.question.offers_prefer_not_to_say
+    space = round(px * 0.4)
+    lh = m.line_height(px - 2)
+    for beside in ((True, False) if prefer else (False,)):
+        n = len(points) + beside
+        apart = 3 * space if beside else 0  # the gap before "Prefer not to say"
+        cell = (width - space * (n - 1) - apart) // n
+        labels = [lab for _, lab in points] + ([PREFER_NOT_LABEL] if beside else [])
+        wrapped = [wrap_words(lab, cell - px // 2, px - 2, m) or [lab] for lab in labels]
+        if all(max(m.size(t, px - 2)[0] for t in lines) <= cell - px // 2
+               for lines in wrapped) and max(map(len, wrapped)) <= 2:
+            break
+    else:
+        return []
+    bh = max(len(lines) for lines in wrapped) * lh + round(px * 0.3)
+    hits = [Hit(qi, "option", value, lab, Rect(k * (cell + space), y, cell, bh))
+            for k, (value, lab) in enumerate(points)]
+    if beside:
+        hits.append(Hit(qi, "prefer", None, PREFER_NOT_LABEL,
+                        Rect(len(points) * (cell + space) + apart, y, cell, bh)))
+    elif prefer:
+        pw, ph = m.size(PREFER_NOT_LABEL, px - 2)
+        hits.append(Hit(qi, "prefer", None, PREFER_NOT_LABEL,
+                        Rect(0, y + bh + round(px * 0.25), pw + px, ph + round(px * 0.5))))
+    return hits
+
+
 def form_layout(window: tuple[int, int], m: Measure, *, title: str, intro: str | None,
                 state: FormState, buttons: Sequence[tuple[str, str]]) -> FormLayout:
     """The page's geometry; ``intro`` (the questionnaire's, on its first page) sits above
@@ -131,6 +165,9 @@ def form_layout(window: tuple[int, int], m: Measure, *, title: str, intro: str |
                 else:
                     hits.append(Hit(qi, "prefer", None, PREFER_NOT_LABEL, Rect(0, y, bw, bh)))
                     y += bh + gap
+        elif f.kind == "likert" and (scale := _scale_row(qi, f, y, width, px, m)):
+            hits += scale
+            y = max(h.rect.bottom for h in scale) + gap
         else:
             items = [("option", v, lab) for v, lab in f.options()]
             if q.offers_prefer_not_to_say:

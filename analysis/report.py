@@ -271,28 +271,34 @@ def summary(a: Analysis) -> dict[str, Any]:
     if a.panel is not None:
         out["panel"] = panel_json(a.panel)
     if a.metrics is not None:
-        m = a.metrics
-        out["metrics"] = _records(m.table)
-        out["metrics_per_method"] = _records(m.per_method)
-        out["untrained_backbone"] = dict(m.untrained)
-        out["metric_provenance"] = dict(m.provenance)
-        out["metric_mappings"] = {
+        out.update(_metrics_summary(a, a.metrics))
+    return out
+
+
+def _metrics_summary(a: Analysis, m: Any) -> dict[str, Any]:
+    """The metric part of :func:`summary`: the tables, flags, each metric's provenance and
+    fitted mapping, the viewing conditions and the pairwise tests."""
+    overall = (m.comparisons[m.comparisons["scope"] == "all"]
+               if len(m.comparisons) else m.comparisons)
+    return {
+        "metrics": _records(m.table),
+        "metrics_per_method": _records(m.per_method),
+        "untrained_backbone": dict(m.untrained),
+        "metric_provenance": dict(m.provenance),
+        "metric_mappings": {
             name: {"kind": mp.kind, "function": MAPPING_FUNCTIONS[mp.kind],
                    "center": mp.center, "scale": mp.scale, "params": list(mp.params)}
-            for name, mp in m.mappings.items()}
-        out["not_applicable"] = dict(m.not_applicable)
-        out["viewing"] = viewing_summary(a.ratings, a.quality, list(a.screened.raters), m.ppd)
-        out["significance_p"] = {
-            r: {c: _num(m.significance.loc[r, c]) for c in m.significance.columns}
-            for r in m.significance.index}
-        out["williams_p"] = {
-            r: {c: _num(m.williams.loc[r, c]) for c in m.williams.columns}
-            for r in m.williams.index}
-        overall = (m.comparisons[m.comparisons["scope"] == "all"]
-                   if len(m.comparisons) else m.comparisons)
-        out["pairwise"] = _records(overall.reindex(columns=list(_PAIRWISE_COLUMNS))
-                                   if len(overall) else None)
-    return out
+            for name, mp in m.mappings.items()},
+        "not_applicable": dict(m.not_applicable),
+        "viewing": viewing_summary(a.ratings, a.quality, list(a.screened.raters), m.ppd),
+        "significance_p": {r: {c: _num(m.significance.loc[r, c])
+                               for c in m.significance.columns}
+                           for r in m.significance.index},
+        "williams_p": {r: {c: _num(m.williams.loc[r, c]) for c in m.williams.columns}
+                       for r in m.williams.index},
+        "pairwise": _records(overall.reindex(columns=list(_PAIRWISE_COLUMNS))
+                             if len(overall) else None),
+    }
 
 
 def summary_text(a: Analysis) -> str:

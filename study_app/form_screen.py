@@ -142,7 +142,10 @@ class FormScreen:
                 if action is None:
                     continue
                 if action.startswith("commit:"):
-                    commit(int(action.split(":")[1]))
+                    qi = int(action.split(":")[1])
+                    commit(qi)
+                    if fs.focus != qi:
+                        fs.left(qi)
                     continue
                 if action == "scroll-up":
                     offset = max(0, offset - lay.column.h // 2)

@@ -81,6 +81,15 @@ class FormLayout:
         return offset
 
 
+def number_range(q: Any) -> str:
+    """ " (years, 18-99)" after a number question's text: its unit and the answers its rule
+    takes, shown before a refusal has to say them."""
+    if getattr(q, "type", None) != "number":
+        return ""
+    span = f"{q.min:g}-{q.max:g}"
+    return f" ({q.unit}, {span})" if q.unit else f" ({span})"
+
+
 def _scale_row(qi: int, f: Any, y: int, width: int, px: int, m: Measure) -> list[Hit]:
     """A Likert scale as one row of equal cells, each label wrapped inside its cell, with
     "Prefer not to say" as a last cell set apart (or on the row below where the row has no
@@ -139,7 +148,7 @@ def form_layout(window: tuple[int, int], m: Measure, *, title: str, intro: str |
         top = y
         q = f.question
         optional = not q.required and "optional" not in q.text.lower()
-        label = q.text + (" (optional)" if optional else "")
+        label = q.text + number_range(q) + (" (optional)" if optional else "")
         lines = wrap_words(label, width, px, m, "bold") or [label]
         text_lines = []
         for line in lines:

@@ -173,6 +173,13 @@ class FormState:
     def move_focus(self, delta: int) -> None:
         self.focus = min(max(self.focus + delta, 0), len(self.fields) - 1)
 
+    def left(self, qi: int) -> None:
+        """The participant moved on from ``qi``: a typed answer the rule refuses ("12" for
+        an age of 18-99) shows its reason now, not only at Enter; an empty one waits."""
+        f = self.fields[qi]
+        if f.kind in ("number", "text") and f.text.strip() and not f.prefer_not:
+            self.check(qi)
+
     # -- checking ---------------------------------------------------------------------
     def check(self, qi: int) -> tuple[bool, Any]:
         """(valid, stored value) of question ``qi``; an invalid one gets its reason."""

@@ -423,3 +423,43 @@ def test_a_likert_scale_reads_as_one_row_in_order(window):
         assert [h.value for h in sorted(points, key=lambda h: h.rect.x)] == [1, 2, 3, 4, 5]
         (prefer,) = [h for h in q.hits if h.kind == "prefer"]
         assert prefer.rect.y > points[0].rect.y or prefer.rect.x > points[-1].rect.x
+
+
+def test_an_age_out_of_range_is_refused_when_the_participant_tabs_on(monkeypatch):
+    """'12' then Tab showed nothing; the refusal came only at Enter, after other questions."""
+    demographics = PANEL.questionnaires[0]
+    questions = list(demographics.pages[0].questions)
+    age = next(i for i, q in enumerate(questions) if q.type == "number")
+    errors = []
+    monkeypatch.setattr(form_screen, "draw_form", lambda r, lay, fs, offset: errors.append(
+        fs.fields[age].error))
+
+    class StopScriptError(Exception):
+        pass
+
+    def stop():
+        raise StopScriptError
+
+    tabs = [_key(pygame.K_TAB)] * age  # to the age field, wherever the template puts it
+    screen = form_screen.FormScreen(
+        _display([tabs, [_text("12")], [_key(pygame.K_TAB)], [_key(pygame.K_ESCAPE)]]),
+        lambda *a, **k: None, lambda n: False, lambda: None, stop)
+    with pytest.raises(StopScriptError):
+        screen.run(demographics, answered={}, start_page=0, on_answer=lambda *a: None)
+    assert errors[:3] == [None, None, "Enter a whole number between 18 and 99"]
+    empty = FormState.for_page(questions, {})
+    empty.left(age)  # nothing typed: no refusal until Enter
+    assert empty.fields[age].error is None
+
+
+def test_a_number_question_shows_its_unit_and_range_before_any_refusal():
+    from study_app.screens.form_layout import number_range
+
+    demographics = PANEL.questionnaires[0]
+    fs = FormState.for_page(list(demographics.pages[0].questions), {})
+    age = next(f.question for f in fs.fields if f.kind == "number")
+    assert number_range(age) == f" ({age.unit}, {age.min:g}-{age.max:g})" == " (years, 18-99)"
+    lay = form_layout((1024, 768), Fonts(), title="t", intro=None, state=fs,
+                      buttons=[("next", "Next")])
+    shown = " ".join(t for q in lay.questions for t, _ in q.text.lines)
+    assert "(years, 18-99)" in shown

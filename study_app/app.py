@@ -272,7 +272,8 @@ class App:
             answered, total = 0, len(plan) + self._later_blocks(1)
             n_left = total
         checks, geom = self._preflight(first)
-        duration = describe_duration(n_left, self._loop_s, self.m.protocol.blank_seconds)
+        duration = describe_duration(n_left, self._loop_s, self.m.protocol.blank_seconds,
+                                     None if resume else self.m.panel)
         failed = [c for c in checks if not c.ok]
         for c in checks:
             log.info("pre-flight %s: %s: %s", c.name, "ok" if c.ok else "FAILED", c.message)

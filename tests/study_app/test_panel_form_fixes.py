@@ -463,3 +463,22 @@ def test_a_number_question_shows_its_unit_and_range_before_any_refusal():
                       buttons=[("next", "Next")])
     shown = " ".join(t for q in lay.questions for t, _ in q.text.lines)
     assert "(years, 18-99)" in shown
+
+
+def test_the_announced_time_counts_the_checks_and_questions():
+    """'about 1-2 minutes (5 trials)' announced a session whose plates, card, optotypes and
+    12 questions took 5 minutes more."""
+    from study_app.duration import describe_duration, estimate_minutes, panel_seconds
+
+    panel = Panel.model_validate(default_panel())  # colour plates and both questionnaires
+    n_questions = sum(len(p.questions) for qn in panel.questionnaires for p in qn.pages)
+    low, high, parts = panel_seconds(panel)
+    assert parts == ["a colour vision check", f"{n_questions} questions"]
+    assert (low, high) == (8 * 3.0 + n_questions * 8.0, 8 * 8.0 + n_questions * 20.0)
+    text = describe_duration(5, 3.0, 0.5, panel)
+    assert f"(5 trials, a colour vision check and {n_questions} questions)" in text
+    plain = estimate_minutes(5, 3.0, 0.5)
+    assert describe_duration(5, 3.0, 0.5) == (
+        f"about {plain[0]}-{plain[1]} minutes (5 trials), plus the breaks you take")
+    span = text.split("about ")[1].split(" minutes")[0]
+    assert int(span.split("-")[1]) > plain[1]

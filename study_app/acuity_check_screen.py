@@ -25,6 +25,7 @@ from .display import Display
 from .layout import GAP, Rect, button_rows, text_screen_layout, ui_px, wrap_words
 from .screens.draw import BODY, DARK, ERROR_TEXT, SCREEN_BG, TITLE, draw_box, draw_button
 from .vision.acuity import (
+    ID1_HEIGHT_MM,
     ID1_WIDTH_MM,
     PX_PER_MM,
     Geometry,
@@ -74,6 +75,25 @@ class _Card:
             r.y - slack <= y <= r.bottom + slack
 
 
+CARD_BUTTONS = [("smaller", "Smaller"), ("larger", "Larger"), ("done", "It matches")]
+
+
+def card_page(window: tuple[int, int], fonts: Any) -> tuple[Any, list[str], _Card]:
+    """The card screen's layout, its instruction lines and the card, which stays between
+    the instructions and the buttons with a line for a refusal under it: grown past them it
+    hid the text, and the buttons were drawn over it."""
+    lay = text_screen_layout(window, fonts, title="Match the card", buttons=CARD_BUTTONS)
+    px = ui_px(window)
+    lh = fonts.line_height(px)
+    lines = wrap_words(CARD_TEXT, lay.column.w, px, fonts)
+    top = lay.column.y + len(lines) * lh + GAP
+    bottom = min(b.rect.y for b in lay.buttons) - 2 * GAP - lh
+    tallest = (bottom - top) * ID1_WIDTH_MM / ID1_HEIGHT_MM
+    card = _Card(window[0], min(PX_PER_MM[1] * ID1_WIDTH_MM, window[0] - 2 * GAP, tallest))
+    card.middle = (top + bottom) // 2
+    return lay, lines, card
+
+
 def optotype_room(window: tuple[int, int]) -> int:
     """The tallest optotype (in pixels) the trial screen has room for between its text and
     its buttons."""
@@ -106,13 +126,9 @@ class AcuityCheckScreen:
         d = self.display
         pg = d.pg
         w = d.size[0]
-        card = _Card(w, min(PX_PER_MM[1] * ID1_WIDTH_MM, w - 2 * GAP))
-        buttons = [("smaller", "Smaller"), ("larger", "Larger"), ("done", "It matches")]
-        lay = text_screen_layout(d.size, d.fonts, title="Match the card", buttons=buttons)
+        lay, lines, card = card_page(d.size, d.fonts)
         px = ui_px(d.size)
         lh = d.fonts.line_height(px)
-        lines = wrap_words(CARD_TEXT, lay.column.w, px, d.fonts)
-        card.middle = (lay.column.y + len(lines) * lh + min(b.rect.y for b in lay.buttons)) // 2
         error = ""
         repeat = pg.key.get_repeat()
         pg.key.set_repeat(350, 25)

@@ -482,3 +482,20 @@ def test_the_announced_time_counts_the_checks_and_questions():
         f"about {plain[0]}-{plain[1]} minutes (5 trials), plus the breaks you take")
     span = text.split("about ")[1].split(" minutes")[0]
     assert int(span.split("-")[1]) > plain[1]
+
+
+@pytest.mark.parametrize("window", [(1024, 600), (1280, 720), (1920, 1080)])
+def test_the_card_stays_between_the_instructions_and_the_buttons(window):
+    """Grown with Shift+Right, the card covered the title and text, the buttons were drawn
+    over it, and a refusal under it fell off the screen."""
+    from study_app.acuity_check_screen import card_page
+    from study_app.layout import ui_px
+
+    fonts = Fonts()
+    lh = fonts.line_height(ui_px(window))
+    lay, lines, card = card_page(window, fonts)
+    card.set_width(10_000)  # as wide as it goes
+    rect = card.rect()
+    assert rect.y > lay.column.y + len(lines) * lh  # below the instructions
+    assert rect.bottom + lh < min(b.rect.y for b in lay.buttons)  # a refusal line, then buttons
+    assert rect.x >= 0 and rect.x + rect.w <= window[0]

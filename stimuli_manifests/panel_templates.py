@@ -37,7 +37,8 @@ DEMOGRAPHICS: dict[str, Any] = {
                  {"value": "normal", "label": "Normal"},
                  {"value": "corrected", "label": "Corrected to normal, and I wear the "
                                                 "correction now"},
-                 {"value": "not_corrected", "label": "Neither"}]},
+                 {"value": "not_corrected", "label": "No: I need glasses or lenses I am not "
+                                                    "wearing now, or my vision is not normal"}]},
             {"id": "colour_vision", "type": "single",
              "text": "Have you ever been told that your colour vision is not normal?",
              "prefer_not_to_say": True, "options": [
@@ -47,7 +48,8 @@ DEMOGRAPHICS: dict[str, Any] = {
         ]},
         {"title": "Your experience", "questions": [
             {"id": "games_experience", "type": "likert",
-             "text": "How often do you play video games or watch rendered content?",
+             "text": "How often do you play video games or watch computer-animated films "
+                     "or videos?",
              "points": FREQUENCY},
             {"id": "graphics_background", "type": "single",
              "text": "Do you work or study in computer graphics, vision or video?",

@@ -165,7 +165,8 @@ def form_layout(window: tuple[int, int], m: Measure, *, title: str, intro: str |
             x_after = fw + gap
             y_field = y
             y += fh * rows + gap
-            if q.offers_prefer_not_to_say:
+            # an optional comment box left empty says it already: no button under it
+            if q.offers_prefer_not_to_say and (f.kind != "text" or q.prefer_not_to_say):
                 pw, ph = m.size(PREFER_NOT_LABEL, px - 2)
                 bw, bh = pw + px, ph + round(px * 0.5)
                 if f.kind == "number" and x_after + bw <= width:

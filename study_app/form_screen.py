@@ -13,6 +13,7 @@ is never logged. The state machine is :mod:`.screens.form_state`, the geometry
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -323,16 +324,30 @@ def _wrap(r: Any, text: str, width: int, px: int) -> list[str]:
     return lines or [text]
 
 
+def wrap_typed(text: str, width: float, measure: Callable[[str], float]) -> list[str]:
+    """Typed text in lines no wider than ``width``, broken between words (a word wider than
+    a line is broken where it must); spaces are kept as typed, so the caret stays where the
+    participant expects it. It broke mid-word ("com|ment")."""
+    lines = [""]
+    for word in re.findall(r"\S+\s*|\s+", text):
+        if measure(lines[-1] + word.rstrip()) <= width or not lines[-1]:
+            lines[-1] += word
+        else:
+            lines.append(word)
+        while measure(lines[-1].rstrip()) > width and len(lines[-1]) > 1:  # one long word
+            cut = len(lines[-1]) - 1
+            while cut > 1 and measure(lines[-1][:cut]) > width:
+                cut -= 1
+            lines[-1:] = [lines[-1][:cut], lines[-1][cut:]]
+    return lines
+
+
 def _field_text(r: Any, text: str, x: int, y: int, rect: Any, px: int) -> None:
     """Typed text inside its field: wrapped into the field's rows, the end kept visible."""
     pad = 8
     width = rect.w - 2 * pad
     lh = r.text_size("Ag", px)[1]
     rows = max(1, (rect.h - pad) // lh)
-    lines: list[str] = [""]
-    for ch in text:
-        if r.text_size(lines[-1] + ch, px)[0] > width:
-            lines.append("")
-        lines[-1] += ch
+    lines = wrap_typed(text, width, lambda t: r.text_size(t, px)[0])
     for k, line in enumerate(lines[-rows:]):
         r.text(line, x + pad, y + pad // 2 + k * lh, px=px, color=BODY)

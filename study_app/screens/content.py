@@ -49,8 +49,19 @@ def _spec(name: str, title: str, body: str, keys: Keymap,
 CONTINUE = keymap(go=["space", "enter"])
 
 
+def without_title(text: str, title: str) -> str:
+    """``text`` without a first heading that only repeats the screen's ``title`` (a
+    briefing.md opening with "# Welcome" showed "Welcome" twice)."""
+    lines = text.lstrip("\n").split("\n")
+    head = lines[0].strip()
+    if head.startswith("#") and head.lstrip("#").strip().lower() == title.lower():
+        return "\n".join(lines[1:]).lstrip("\n")
+    return text
+
+
 def welcome(briefing: str | None, duration: str, name_keys: NameKeys) -> ScreenSpec:
-    body = (briefing or "# Welcome\n\nYou will watch short videos and rate their quality.")
+    body = without_title(briefing, "Welcome") if briefing else \
+        "You will watch short videos and rate their quality."
     body += f"\n\n---\n\n**How long:** {duration}. You can take a break whenever you like."
     return _spec("welcome", "Welcome", body, CONTINUE, [("go", "Continue")], name_keys,
                  primary="go")
@@ -58,8 +69,9 @@ def welcome(briefing: str | None, duration: str, name_keys: NameKeys) -> ScreenS
 
 def consent(text: str, name_keys: NameKeys) -> ScreenSpec:
     keys = keymap(accept=["a"], decline=["esc"])
-    body = text + ("\n\n---\n\nIf you agree, choose **I agree**. If you do not, choose "
-                   "**I do not agree**: nothing is recorded and the program closes.")
+    body = without_title(text, "Consent") + (
+        "\n\n---\n\nIf you agree, choose **I agree**. If you do not, choose **I do not "
+        "agree**: nothing is recorded and the program closes.")
     return _spec("consent", "Consent", body, keys,
                  [("decline", "I do not agree"), ("accept", "I agree")], name_keys,
                  needs_end=frozenset({"accept"}), close_action="decline", primary="accept")

@@ -499,3 +499,13 @@ def test_the_card_stays_between_the_instructions_and_the_buttons(window):
     assert rect.y > lay.column.y + len(lines) * lh  # below the instructions
     assert rect.bottom + lh < min(b.rect.y for b in lay.buttons)  # a refusal line, then buttons
     assert rect.x >= 0 and rect.x + rect.w <= window[0]
+
+
+def test_a_comment_wraps_between_words():
+    measure = len  # one unit per character: a line holds 12
+    lines = form_screen.wrap_typed("this comment has some more words", 12, measure)
+    assert lines == ["this comment ", "has some ", "more words"]
+    assert "".join(lines) == "this comment has some more words"  # nothing lost or added
+    long = form_screen.wrap_typed("a " + "x" * 30, 12, measure)
+    assert all(measure(line.rstrip()) <= 12 for line in long)
+    assert "".join(long) == "a " + "x" * 30

@@ -235,7 +235,8 @@ def available_memory_bytes() -> int | None:
 
 
 def _size(n: int) -> str:
-    return f"{n / 1024**3:.1f} GiB" if n >= 1024**3 else f"{max(1, round(n / 1024**2))} MiB"
+    """Bytes in the units a participant's computer shows (GB and MB, powers of ten)."""
+    return f"{n / 1e9:.1f} GB" if n >= 1e9 else f"{max(1, round(n / 1e6))} MB"
 
 
 def check_memory(needed_bytes: int, available_bytes: int | None) -> Check:
@@ -254,8 +255,8 @@ def check_memory(needed_bytes: int, available_bytes: int | None) -> Check:
 
 def check_decode_speed(seconds: float, limit_s: float = MAX_PAIR_DECODE_S) -> Check:
     ok = seconds <= limit_s
-    msg = (f"one stimulus pair decodes in {seconds:.2f} s" if ok else
-           f"decoding one stimulus pair took {seconds:.1f} s (limit {limit_s:g} s), so the next "
+    msg = (f"the videos load fast enough ({seconds:.2f} s per pair)" if ok else
+           f"loading one pair of videos took {seconds:.1f} s (limit {limit_s:g} s), so the next "
            "trial would not be ready in time: close other programs or use a faster computer")
     return Check("decode_speed", ok, msg, {"seconds": round(seconds, 3)})
 

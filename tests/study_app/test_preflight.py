@@ -137,9 +137,10 @@ def test_video_must_fit_with_its_label():
 
 
 def test_memory_and_decode_speed():
-    c = check_memory(4 * 1024**3, 1 * 1024**3)
-    assert not c.ok and "1.0 GiB" in c.message and "4.0 GiB" in c.message
-    assert "24 MiB" in check_memory(24 * 1024**2, 8 * 1024**3).message
+    c = check_memory(4 * 10**9, 1 * 10**9)  # in the GB a participant's computer shows
+    assert not c.ok and "1.0 GB" in c.message and "4.0 GB" in c.message
+    assert "24 MB" in check_memory(24 * 10**6, 8 * 10**9).message
+    assert "the videos load fast enough (0.37 s per pair)" in check_decode_speed(0.37).message
     assert check_memory(1, None).ok
     c = check_decode_speed(25.0)
     assert not c.ok and "25.0 s" in c.message and "faster computer" in c.message

@@ -236,8 +236,9 @@ def methods_table(a: Analysis) -> pd.DataFrame:
         ("Significance level", f"--alpha {c.alpha:g}", "one-tailed tests between metrics; no "
          "correction for multiple comparisons (P.1401 7.6.5 discusses one)."),
         ("Metric intervals", f"{c.n_boot} resamples", "two-way bootstrap (raters and stimuli, "
-         "stratified by method), mapping refitted in every resample, basic interval on "
-         "Fisher's z (log for rmse) with a small-sample widening of its spread."),
+         "stratified by method), mapping refitted in every resample, bias-corrected "
+         "percentile interval on Fisher's z (log for rmse) with a small-sample widening of "
+         "its spread."),
         ("RMSE, RMSE*", "P.1401", "sqrt(sum e^2 / (N - d)), d = parameters of the mapping (5 "
          "logistic, 2 line); RMSE* shrinks each error by the DMOS 95% CI first; outlier ratio: "
          "share of errors beyond the CI."),

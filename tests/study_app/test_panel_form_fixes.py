@@ -509,3 +509,21 @@ def test_a_comment_wraps_between_words():
     long = form_screen.wrap_typed("a " + "x" * 30, 12, measure)
     assert all(measure(line.rstrip()) <= 12 for line in long)
     assert "".join(long) == "a " + "x" * 30
+
+
+def test_the_practice_intro_fits_a_1280x720_screen_unscrolled():
+    """At 1280x720 its last lines (P or Esc: pause, withdraw) were below the fold, and Space
+    started the practice without them having been shown."""
+    from study_app.keys import keymap
+    from study_app.layout import text_screen_layout
+    from study_app.screens import content
+    from study_app.screens.markdown import parse_markdown
+    from study_app.screens.textflow import flow_blocks
+
+    spec = content.practice_intro(2, keymap(switch=["space"], rate=["enter"]),
+                                  keymap(submit=["enter"]), 3.0, lambda k, a: a)
+    fonts = Fonts()
+    for window in ((1280, 720), (1366, 768)):
+        lay = text_screen_layout(window, fonts, title=spec.title, buttons=spec.buttons)
+        flow = flow_blocks(parse_markdown(spec.body), lay.column.w, fonts, px=lay.px)
+        assert flow.at_end(0, lay.column.h), window

@@ -406,8 +406,8 @@ def _interval(point: float, ref: float, boot: np.ndarray, kind: str, *,
     benchmark's simulated studies (12 raters x 2 repetitions, 400 studies of 16 conditions)
     the basic interval covered 0.993 and 0.965 of the two metrics' true PLCCs, this one 0.975
     and 0.950 (and the true RMSE: 0.925 and 0.907, against 0.983 and 0.960); with 32 and 72
-    conditions both cover 0.94-0.95, this one a little narrower (``bench_coverage.py
-    --scenes 2 --conditions 8 --raters 12 --reps 2`` repeats the PLCC part)."""
+    conditions both cover 0.94-0.95, this one a little narrower
+    (``benchmarks/bench_interval_orientation.py``)."""
     boot = boot[np.isfinite(boot)]
     if boot.size < 10 or not np.isfinite(point) or not np.isfinite(ref) or \
             not np.isfinite(factor):

@@ -114,7 +114,8 @@ def screenshot(url: str, token: str, path: Path) -> str | None:
 
 
 def collect(study: Path, out: Path, *, raters: int, outliers: int, seed: int, log: list[dict],
-            run, stagger: float = 0.0) -> tuple[Path, Path, dict]:
+            run, stagger: float = 0.0, after_refit: bool = False
+            ) -> tuple[Path, Path, dict]:
     """Serve ``study``, let the simulated panel upload, pull. Returns (folder of pulled
     session files, the simulation's truth file, facts for the summary)."""
     token = command_line_token(24)
@@ -144,7 +145,8 @@ def collect(study: Path, out: Path, *, raters: int, outliers: int, seed: int, lo
              "--outliers", str(outliers), "--seed", str(seed), "--out", str(local),
              "--colour-failures", "1",
              "--overwrite", "--server", server.url, "--invites", str(invites), "--pace",
-             "0.04", "--offline", offline, "--stagger", str(stagger), "--no-progress"),
+             "0.04", "--offline", offline, "--stagger", str(stagger), "--no-progress",
+             *(["--after-refit"] if after_refit else [])),
         env=env, cwd=REPO)
     try:
         time.sleep(5.0)
@@ -164,6 +166,9 @@ def collect(study: Path, out: Path, *, raters: int, outliers: int, seed: int, lo
     log.append({"step": "simulate through the server", "seconds":
                 round(time.monotonic() - t0, 1), "returncode": code,
                 "error": None if code == 0 else "not every upload arrived"})
+    if not (local / "ground_truth.json").is_file():  # simulate stopped early (its stderr)
+        server.stop()
+        raise SystemExit(1)
     try:
         truth = json.loads((local / "ground_truth.json").read_text())
         per = truth.get("trials_per_participant",

@@ -200,8 +200,9 @@ def _notes(args, truth: dict, cgvqm_notes: list[str]) -> str:
 
 ADAPTIVE = {"blocks": 3, "warmup_participants": 3, "refit_seconds": 1}
 STAGGER_S = 2.0
-"""In the adaptive demo the participants arrive one every 2 s (all at once, the server would
-have nothing to adapt to before they all asked for their blocks)."""
+"""In the adaptive demo the participants arrive one every 2 s, and those after the warm-up
+only once the server has refit its model (``simulate --after-refit``): at the demo's pace the
+whole panel would otherwise be done before the first refit, and every block uniform."""
 """The demo's adaptive design: block 1 (every stimulus once) and two planned blocks, as many
 ratings as the full design's three repetitions."""
 
@@ -333,7 +334,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         sessions, truth_path, server_facts = demo_server.collect(
             study, out, raters=args.raters, outliers=args.outliers, seed=args.seed, log=log,
-            run=_run, stagger=STAGGER_S if args.allocation == "adaptive" else 0.0)
+            run=_run, stagger=STAGGER_S if args.allocation == "adaptive" else 0.0,
+            after_refit=args.allocation == "adaptive")
     except SystemExit:
         return _fail(log)
     if not server_facts.get("all_arrived"):

@@ -33,6 +33,9 @@ class UploadOptions:
     stagger_s: float = 0.0
     """Rater ``k`` starts ``k * stagger_s`` seconds after the first (participants arriving
     over time; 0: all at once)."""
+    start_gate: Callable[[int], None] | None = None
+    """Called in rater ``k``'s thread after its stagger, before it starts: it returns when
+    the rater may arrive (e.g. once the server has refit its adaptive model)."""
     offline: dict[str, tuple[float, float]] = field(default_factory=dict)
     """participant -> (from, until) seconds after the start: their network is down then."""
     timeout_s: float = 600.0
@@ -67,6 +70,12 @@ def rate_and_upload(rater: Callable[..., T], participants: list[str], out: Path,
     def one(k: int) -> None:
         pid = participants[k]
         time.sleep(k * upload.stagger_s)
+        if upload.start_gate is not None:
+            try:
+                upload.start_gate(k)
+            except BaseException as exc:
+                errors.append(exc)
+                return
         down = upload.offline.get(pid)
         make = upload.client_factory or ServerClient
         client = (_OfflineClient(upload.server, upload.tokens[pid], down, t0) if down

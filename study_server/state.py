@@ -230,6 +230,8 @@ class ServerState:
             "participants": out,
             "withdrawn": [{"participant": t.participant, "withdrawn_at": t.withdrawn_at}
                           for t in self.store.tombstones()],
+            "allocation": self.allocator.manifest.protocol.allocation,
+            "refits": len(self.allocator.fits()) if self.allocator.active else None,
         }
 
     def entries_listing(self, pid: str, after: int, limit: int) -> dict[str, Any] | None:

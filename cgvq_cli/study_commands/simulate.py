@@ -55,6 +55,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                          "start (repeatable)")
     up.add_argument("--upload-timeout", type=float, default=600.0, metavar="S",
                     help="how long to wait at the end for every upload (default 600)")
+    up.add_argument("--after-refit", action="store_true",
+                    help="adaptive studies: the raters after the warm-up arrive only once the "
+                         "server has refit its model, as participants arriving over days find "
+                         "it (a fast simulation would otherwise outrun the first refit); needs "
+                         "$CGVQ_ADMIN_TOKEN")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -93,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
                                tokens={i.participant: i.token for i in invites},
                                pace_s=args.pace, stagger_s=args.stagger,
                                timeout_s=args.upload_timeout,
-                               offline={pid: (a, b) for pid, a, b in args.offline})
+                               offline={pid: (a, b) for pid, a, b in args.offline},
+                               start_gate=_refit_gate(args) if args.after_refit else None)
     result = run_simulation(args.manifest, args.out, opts, overwrite=args.overwrite,
                             progress=not args.no_progress, upload=upload)
     print(f"wrote {args.raters} session files and the ground truth {result.truth_path}")
@@ -120,6 +126,7 @@ def _refuse_ignored(args: argparse.Namespace) -> None:
     if args.server is None:
         given = [flag for flag, on in (("--pace", args.pace != 0), ("--stagger", args.stagger != 0),
                                        ("--offline", bool(args.offline)),
+                                       ("--after-refit", args.after_refit),
                                        ("--upload-timeout", args.upload_timeout != 600.0)) if on]
         if given:
             raise StudyError(f"{given[0]} applies to uploads to a study server: add --server "
@@ -127,6 +134,54 @@ def _refuse_ignored(args: argparse.Namespace) -> None:
     if args.outlier_kind != "random" and args.outliers == 0:
         raise StudyError(f"--outlier-kind {args.outlier_kind}: no outliers are simulated; add "
                          "--outliers N")
+
+
+REFIT_WAIT_S = 600.0
+"""How long a rater after the warm-up waits for the server's first refit (--after-refit)."""
+
+
+def _refit_gate(args: argparse.Namespace):
+    """The raters after the adaptive warm-up wait until the server has refit its model."""
+    import os
+    import threading
+    import time
+
+    from session_store.errors import StudyError
+    from stimuli_manifests import load_manifest
+    from study_app.remote.admin import server_refits
+    from study_app.remote.http import ServerRefused, ServerUnavailable
+
+    settings = load_manifest(args.manifest).manifest.protocol.adaptive_settings()
+    if settings is None:
+        raise StudyError(f"--after-refit: {args.manifest} is a full design (protocol."
+                         "allocation 'full'); nothing is refit")
+    token = os.environ.get("CGVQ_ADMIN_TOKEN", "")
+    if not token:
+        raise StudyError("--after-refit asks the server whether it has refit: set "
+                         "$CGVQ_ADMIN_TOKEN to its admin token")
+    refit = threading.Event()
+
+    def gate(k: int) -> None:
+        deadline = time.monotonic() + REFIT_WAIT_S
+        while k >= settings.warmup_participants and not refit.is_set():
+            try:
+                n = server_refits(args.server, token)
+            except ServerUnavailable:
+                n = 0  # restarting: ask again
+            except ServerRefused as exc:
+                raise StudyError(f"--after-refit: the server refused the admin token "
+                                 f"({exc})") from None
+            if n is None:
+                raise StudyError(f"--after-refit: {args.server} serves a full design")
+            if n > 0:
+                refit.set()
+            elif time.monotonic() > deadline:
+                raise StudyError(f"--after-refit: the server did not refit within "
+                                 f"{REFIT_WAIT_S:g} s of rater {k + 1}'s arrival")
+            else:
+                time.sleep(0.5)
+
+    return gate
 
 
 def _check_server(server: str, first) -> None:

@@ -93,6 +93,14 @@ class PullResult:
     written again from this pull's sessions."""
 
 
+def server_refits(server: str, admin_token: str) -> int | None:
+    """How many times the server has refit its adaptive allocation's model for the current
+    study version (None: a full design, nothing is refit)."""
+    listing = ServerClient(server, admin_token, timeout=30).json("GET", ADMIN_SESSIONS)
+    refits = listing.get("refits")
+    return None if refits is None else int(refits)
+
+
 def _remove_withdrawn(out: Path, withdrawn: list[str]) -> list[Path]:
     """Delete the session files an earlier pull into ``out`` wrote for participants who have
     withdrawn since: their data is deleted on the server, and an analysis of ``out`` would

@@ -99,6 +99,12 @@ def test_the_demo_runs_an_adaptive_study_and_compares_it_with_the_full_design(eg
     ratings = pd.read_csv(out / "ratings.csv")
     per_stimulus = ratings.groupby("stimulus").size()
     assert per_stimulus.max() > per_stimulus.min()  # the server did not plan uniform blocks
+    # the raters after the 3 warming up arrived once the server had refit (simulate
+    # --after-refit): all 5 got both later blocks planned from a fit
+    log = subprocess.run([sys.executable, "-m", "cgvq_cli.study_cli", "allocation",
+                          str(out / "study")], capture_output=True, text=True, env=env,
+                         cwd=REPO, timeout=120)
+    assert log.stdout.count(" from fit ") >= (8 - 3) * 2, log.stdout + log.stderr
     full = pd.read_csv(out / "full_design" / "dmos.csv")
     # (screening may leave a rater out of either: the counts are those behind the DMOS)
     assert summary["full"]["ratings"] == int(full["n_ratings"].sum()) <= 8 * 3 * len(full)

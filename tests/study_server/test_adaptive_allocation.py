@@ -18,7 +18,7 @@ import pytest
 from session_store import TrialResult, read_session, utc_now
 from session_store.schedule import block_trials, uniform_block
 from study_app.remote import ServerClient, Uploader
-from study_app.remote.admin import pull
+from study_app.remote.admin import pull, server_refits
 from study_app.remote.participant import request_block
 from study_app.simulate import SimulationOptions, UploadOptions, run_simulation
 
@@ -84,6 +84,7 @@ def test_an_adaptive_study_end_to_end(tmp_path, invites, server_factory):
     tokens = {i.participant: i.token for i in inv}
     srv = server_factory(study, "--stats-every", "1")
 
+    assert server_refits(srv.url, ADMIN) == 0  # the experimenter's listing: no refit yet
     # Two participants warm up: no fit yet, their later blocks are uniform.
     first = {p: tokens[p] for p in list(tokens)[:2]}
     run = run_simulation(study / "manifest.json", tmp_path / "warmup",
@@ -91,6 +92,7 @@ def test_an_adaptive_study_end_to_end(tmp_path, invites, server_factory):
                          upload=UploadOptions(srv.url, first, timeout_s=120))
     assert all(s.all_arrived for s in run.upload.values())
     _wait_for(study, "SELECT count(*) FROM allocation_fits", 1)
+    assert server_refits(srv.url, ADMIN) >= 1
 
     srv.kill()  # a restart: the log and the fit survive in the database
     time.sleep(1.0)

@@ -278,6 +278,10 @@ def _run(args: argparse.Namespace) -> int:
          "input problem")  # questionnaire answers their question refuses, left out
     _say([str(p) for p in analysis.scores.problems
           if p not in rs.problems and p not in analysis.screened.problems], "input problem")
+    said = [*rs.problems, *analysis.screened.problems, *panel_problems(rs.panel),
+            *analysis.scores.problems]
+    # the rest: the metric scores' (partial coverage, no DMOS), reliability's, the ceiling's
+    _say([str(p) for p in analysis.problems if p not in said], "input problem")
     if analysis.scores.fallback:
         print(f"warning: {analysis.scores.fallback}", file=sys.stderr)
     print(summary_text(analysis))

@@ -94,6 +94,12 @@ def card_page(window: tuple[int, int], fonts: Any) -> tuple[Any, list[str], _Car
     return lay, lines, card
 
 
+def count_text(k: int, plan: AcuityPlan) -> str:
+    """The progress line under the question: the check stops early once each series is
+    decided, so the plan's length is the most it can take."""
+    return f"{k} of at most {len(plan.trials)}"
+
+
 def optotype_room(window: tuple[int, int]) -> int:
     """The tallest optotype (in pixels) the trial screen has room for between its text and
     its buttons."""
@@ -219,7 +225,8 @@ class AcuityCheckScreen:
                            geometry, margin=0.25)
             self._blank()
             self.state("acuity-trial", index=k, series=trial.series, level=trial.level)
-            given, ms = self._show(img, f"acuity-{trial.series}-{trial.level}")
+            given, ms = self._show(img, f"acuity-{trial.series}-{trial.level}",
+                                   count_text(k, plan))
             answers.append(OptotypeAnswer(trial, given, ms))
         return answers
 
@@ -249,7 +256,7 @@ class AcuityCheckScreen:
             d.renderer.clear(self._background())
             d.flip()
 
-    def _show(self, img: np.ndarray, shot: str) -> tuple[str, float]:
+    def _show(self, img: np.ndarray, shot: str, count: str) -> tuple[str, float]:
         d = self.display
         pg = d.pg
         lines, px, btns = self._layout()
@@ -279,7 +286,7 @@ class AcuityCheckScreen:
                         return given, round((time.perf_counter() - start) * 1000.0, 1)
                 r = d.renderer
                 r.clear(self._background())
-                for i, line in enumerate(lines):
+                for i, line in enumerate([*lines, count]):
                     tw, _ = r.text_size(line, px)
                     r.text(line, (d.size[0] - tw) / 2, GAP + i * lh, px=px, color=DARK)
                 r.draw_video(tex, 0, x, y)

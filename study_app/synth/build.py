@@ -9,6 +9,8 @@ the lossless writer are deterministic, so the same options give the same bytes.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import math
 import shutil
@@ -73,7 +75,17 @@ class SynthOptions:
     scenes: tuple[str, ...] = DEFAULT_SCENES
     methods: tuple[str, ...] = tuple(METHODS)
     seed: int = 0
-    study_id: str = "synthetic-cg"
+    study_id: str | None = None
+    """None: ``synthetic-cg-`` and a digest of the options above, so that two synthetic
+    studies of other videos never share an id (the analysis tells studies apart by it),
+    while the same options, which render the same videos, give the same one."""
+
+    def resolved_study_id(self) -> str:
+        if self.study_id is not None:
+            return self.study_id
+        what = json.dumps([self.width, self.height, self.seconds, self.fps, list(self.scenes),
+                           list(self.methods), self.seed])
+        return f"synthetic-cg-{hashlib.sha256(what.encode()).hexdigest()[:8]}"
 
     def check(self) -> None:
         """Raise StudyError for options that cannot work, saying what to change."""
@@ -369,7 +381,7 @@ def _render_all(ctx, opts: SynthOptions, folder: Path, progress: bool) -> None:
                     bar.update(1)
 
     manifest = Manifest(
-        study_id=opts.study_id,
+        study_id=opts.resolved_study_id(),
         title="Synthetic computer-graphics stimuli",
         description=(
             "Procedural GLSL scenes rendered off-screen; references with 16 anti-aliasing "

@@ -95,3 +95,13 @@ def test_swapped_inputs_name_the_option_they_belong_to(files, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert f"--metric {tmp_path} is a folder; give the scores CSV file" in err
     assert len(err.splitlines()) == 1
+
+
+def test_a_scores_file_missing_stimuli_names_them_on_stderr(files, capsys):
+    """A metric's input problems are named on stderr as the ratings' are, not only counted."""
+    part = files["table"].drop(index=[0, 3])
+    assert _compare(files, part, "partial") == 0
+    err = capsys.readouterr().err
+    lines = [x for x in err.splitlines() if x.startswith("input problem:")]
+    missing = [str(files["table"].loc[i, "stimulus"]) for i in (0, 3)]
+    assert any("psnr" in x and all(m in x for m in missing) for x in lines), err

@@ -183,6 +183,24 @@ def test_levels_too_tall_for_the_window_are_listed():
     assert result["acuity"]["too_large_logmar"] == [1.0]
 
 
+@pytest.mark.parametrize("window", [(800, 600), (1024, 600), (1280, 720), (1920, 1080)])
+def test_the_optotype_count_sits_between_the_question_and_the_largest_optotype(window):
+    """The progress line ("3 of at most 42") is drawn under the question's lines and above
+    the tallest optotype the window has room for (centred), so it never touches one."""
+    from study_app.acuity_check_screen import TRIAL_TEXT, count_text
+    from study_app.layout import GAP, ui_px, wrap_words
+
+    g = card_calibration(20 * 85.6, 150)
+    plan = acuity_plan(g, 1, max_size_px=optotype_room(window))
+    assert count_text(3, plan) == f"3 of at most {len(plan.trials)}"
+    fonts, px = Fonts(), ui_px(window)
+    lines = wrap_words(TRIAL_TEXT, window[0] - 4 * GAP, px, fonts)
+    count_bottom = GAP + (len(lines) + 1) * fonts.line_height(px)
+    optotype_top = (window[1] - optotype_room(window)) / 2
+    assert count_bottom <= optotype_top
+    assert fonts.size(count_text(42, plan), px)[0] < window[0] - 4 * GAP
+
+
 def test_a_window_too_small_for_the_contrast_optotype_says_so():
     """At 8.73 px/arcmin the contrast series' optotype (logMAR 0.8) is 275 px tall: a room
     of 200 px cannot hold it; the reason is the window, not a too small display."""

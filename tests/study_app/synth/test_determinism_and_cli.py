@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -36,6 +37,12 @@ def test_same_seed_same_bytes_other_seed_other_noise(egl, tmp_path, tiny_study, 
     assert third[v + "reference_30fps.mkv"] == first[v + "reference_30fps.mkv"]
     assert third[v + "path_tracing_L1.mkv"] != first[v + "path_tracing_L1.mkv"]
     assert third[v + "splatting_L1.mkv"] != first[v + "splatting_L1.mkv"]
+    # same options, same videos, same study id; other videos, another id (the analysis
+    # tells studies apart by it)
+    ids = [json.loads((d / "manifest.json").read_text())["study_id"]
+           for d in (tiny_study.parent, again.parent, other.parent)]
+    assert ids[0] == ids[1] != ids[2] and ids[0].startswith("synthetic-cg-")
+    assert SynthOptions(**{**tiny_options, "study_id": "mine"}).resolved_study_id() == "mine"
 
 
 def test_existing_study_is_not_overwritten_silently(egl, tiny_study):

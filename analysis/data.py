@@ -122,6 +122,7 @@ class RatingSet:
     # on their own scale; empty where the input does not say (a CSV without a manifest).
     scale_direction: str = "higher_is_better"
     scale_labels: tuple[tuple[float, str], ...] = ()
+    scale_question: str = ""  # the question above the slider; "" where the input does not say
     # How the player showed the stimuli (analysis.presentation_text.presentation); None
     # without a manifest (a SUREAL dataset)
     presentation: dict[str, Any] | None = None

@@ -266,6 +266,7 @@ def ratings_from_frame(
         source=source, problems=problems, exclusions=list(exclusions), rater_info=info,
         allocation=policy, allocation_settings=settings, scale_direction=scale.direction,
         scale_labels=tuple((float(lb.position), lb.text) for lb in scale.labels),
+        scale_question=scale.shown_question,
         presentation=presentation(manifest),
     )
 

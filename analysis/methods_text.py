@@ -111,6 +111,8 @@ def _scale(a: Analysis) -> str:
         text += ", on which lower meant better,"
     if labels:
         text += " labelled " + ", ".join(f'"{t}" ({p:g})' for p, t in labels)
+        if rs.scale_question:
+            text += f', under the question "{rs.scale_question}"'
     return text.rstrip(",")
 
 

@@ -49,6 +49,14 @@ DEFAULT_LABELS: tuple[tuple[float, str], ...] = (
 )
 
 
+DEFAULT_QUESTION = ("Rate the quality of distortions in the shown video with respect to its "
+                    "reference")
+"""The question above the slider when a manifest gives none (the CGVQM study's wording)."""
+MAX_QUESTION_CHARS = 160
+"""A question, not instructions (those belong on the intro screens): the rating screen's
+layout test shows one this long at every window size the pre-flight accepts."""
+
+
 def _default_labels() -> list[ScaleLabel]:
     return [ScaleLabel(position=p, text=t) for p, t in DEFAULT_LABELS]
 
@@ -61,6 +69,16 @@ class RatingScale(_Strict):
     max: float = Field(default=100.0, allow_inf_nan=False)
     direction: Literal["higher_is_better", "lower_is_better"] = "higher_is_better"
     labels: list[ScaleLabel] = Field(default_factory=_default_labels)
+    question: str | None = Field(
+        default=None, min_length=1, max_length=MAX_QUESTION_CHARS,
+        description="the question above the slider, in the participants' words (e.g. \"How "
+        "annoying are the differences from the reference?\"); None = the CGVQM study's "
+        "wording, DEFAULT_QUESTION")
+
+    @property
+    def shown_question(self) -> str:
+        """The question the player shows above the slider."""
+        return self.question if self.question is not None else DEFAULT_QUESTION
 
     @model_validator(mode="after")
     def _check(self) -> RatingScale:
@@ -80,6 +98,8 @@ class RatingScale(_Strict):
                 )
         if positions != sorted(positions) or len(set(positions)) != len(positions):
             raise ValueError("scale.labels must have strictly increasing positions")
+        if self.question is not None and not self.question.strip():
+            raise ValueError("scale.question is blank; give the question or leave it out")
         return self
 
 

@@ -28,8 +28,6 @@ from .screens.draw import LABEL_REFERENCE, LABEL_TEST, draw_rating, draw_viewing
 from .slider import Slider
 from .trial import RATE, VIEW, TrialMachine
 
-QUESTION = "Rate the quality of distortions in the shown video with respect to its reference"
-
 NameKeys = Callable[[Keymap, str], str]
 
 
@@ -78,7 +76,7 @@ def rating_layout_for(d: Display, k: NameKeys, manifest: Manifest, progress: str
     hints = [f"Click the scale or use {k(RATING, 'left')} {k(RATING, 'right')} "
              "(with Shift: bigger steps)", f"{k(RATING, 'submit')}: submit",
              f"{k(RATING, 'back')}: back to the videos", f"{k(RATING, 'pause')}: pause"]
-    return rating_layout(d.size, d.fonts, question=QUESTION, labels=labels,
+    return rating_layout(d.size, d.fonts, question=scale.shown_question, labels=labels,
                          progress=progress, hints=hints,
                          notice=f"Please watch for at least {min_view:.1f} s",
                          buttons=[("back", "Back to the videos"), ("submit", "Submit")])

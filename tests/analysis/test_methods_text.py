@@ -62,8 +62,9 @@ def test_the_text_states_the_study_as_generated_and_recomputed(study, tmp_path):
         "contents; 6 distortion conditions: blur, noise at 3 levels; 18 processed sequences; "
         "3 hidden references), rated on a "
         'continuous 0 to 100 scale labelled "Very annoying" (0), "Annoying" (25), '
-        '"Slightly annoying" (50), "Perceptible but not annoying" (75), "Imperceptible" (100); '
-        "a full design: every rater rated every stimulus 2 times.")
+        '"Slightly annoying" (50), "Perceptible but not annoying" (75), "Imperceptible" (100), '
+        'under the question "Rate the quality of distortions in the shown video with respect '
+        'to its reference"; a full design: every rater rated every stimulus 2 times.')
     assert "mirrored" not in text
     removed = pd.read_csv(out / "tables" / "outliers.csv", dtype={"rater": str})["rater"]
     assert sorted(removed) == sorted(st.outliers)  # the two random raters, and only they
@@ -148,7 +149,8 @@ def test_an_impairment_scale_is_said_to_be_mirrored_and_changes_no_number(study,
     manifest = json.loads((root / "manifest.json").read_text())
     manifest["scale"] = {"min": 0, "max": 100, "direction": "lower_is_better",
                          "labels": [{"position": 0, "text": "Imperceptible"},
-                                    {"position": 100, "text": "Very annoying"}]}
+                                    {"position": 100, "text": "Very annoying"}],
+                         "question": "How annoying are the differences from the reference?"}
     (tmp_path / "manifest.json").write_text(json.dumps(manifest))
     flipped = _ratings(root)
     flipped["rating"] = 100 - flipped["rating"]
@@ -156,13 +158,16 @@ def test_an_impairment_scale_is_said_to_be_mirrored_and_changes_no_number(study,
     text = _report(tmp_path, tmp_path / "lib")
     same = _report(root, tmp_path / "hib")
     assert ('on a continuous 0 to 100 scale, on which lower meant better, labelled '
-            '"Imperceptible" (0), "Very annoying" (100)') in text
+            '"Imperceptible" (0), "Very annoying" (100), under the question "How annoying '
+            'are the differences from the reference?"') in text
     assert "every rating x was mirrored to 0 + 100 - x" in text and "mirrored" not in same
     icc = re.search(r"ICC\(2,k\) = [0-9.]+ \[[0-9., ]+\]", same)
     assert icc and icc.group(0) in text
     summary = json.loads((tmp_path / "lib" / "summary.json").read_text())
     assert summary["scale"]["mirrored"] is True and summary["scale"]["direction"] == \
         "lower_is_better"
+    assert summary["scale"]["question"] == "How annoying are the differences from the " \
+        "reference?"
 
 
 def test_without_hidden_references_no_dmos_is_claimed(study, tmp_path):

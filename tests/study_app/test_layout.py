@@ -11,6 +11,7 @@ import itertools
 import pytest
 
 from session_store.study_folder import load_study
+from stimuli_manifests.model import DEFAULT_QUESTION, MAX_QUESTION_CHARS
 from study_app.fonts import Fonts
 from study_app.layout import (
     GAP,
@@ -33,7 +34,10 @@ HINTS = ["Space: switch test / reference", "Enter: rate", "P or Esc: pause"]
 NOTICE = ["Please watch for at least", "3.0 s before rating"]
 LABELS = [(0.0, "Very annoying"), (0.25, "Annoying"), (0.5, "Slightly annoying"),
           (0.75, "Perceptible but not annoying"), (1.0, "Imperceptible")]
-QUESTION = "Rate the quality of distortions in the shown video with respect to its reference"
+QUESTION = DEFAULT_QUESTION
+_WORDS = ("How annoying are the differences between this video and its reference, for "
+          "example flicker, blur, noise, aliasing or missing detail, when you compare them")
+LONGEST_QUESTION = _WORDS + "?"
 
 
 @pytest.fixture(scope="module")
@@ -91,9 +95,12 @@ def _no_overlaps(parts: dict) -> None:
                 assert not x.intersects(y), (a, x, b, y)
 
 
+@pytest.mark.parametrize("question", [QUESTION, LONGEST_QUESTION], ids=["default", "longest"])
 @pytest.mark.parametrize("window", WINDOWS)
-def test_rating_screen_parts_do_not_overlap(fonts, window):
-    lay = rating_layout(window, fonts, question=QUESTION, labels=LABELS,
+def test_rating_screen_parts_do_not_overlap(fonts, window, question):
+    """The default question, and the longest a manifest's ``scale.question`` may be."""
+    assert len(LONGEST_QUESTION) <= MAX_QUESTION_CHARS
+    lay = rating_layout(window, fonts, question=question, labels=LABELS,
                         progress="Practice: Trial 240 of 240",
                         hints=["Click the scale or use ← → (with Shift: bigger steps)",
                                "Enter: submit", "Space: back to the videos", "P or Esc: pause"],

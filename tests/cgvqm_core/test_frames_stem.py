@@ -81,8 +81,8 @@ def test_a_temporally_strided_convolution_is_refused():
 
 
 @pytest.mark.parametrize("option", [
-    pytest.param("stem_2d", marks=pytest.mark.slow),  # about 8 s here: CI runs it
-    "stem_s2d",
+    pytest.param("stem_2d", marks=pytest.mark.slow),  # about 8 s each here: CI runs them
+    pytest.param("stem_s2d", marks=pytest.mark.slow),  # (the stem's units stay above)
 ])
 def test_scores_with_a_2d_stem_are_fp32_scores(vids, backbone, option):
     """The 2D stem, and the 2D stem over its stride phases (space-to-depth)."""

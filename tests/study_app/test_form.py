@@ -85,7 +85,8 @@ def test_every_template_page_fits_without_overlap(window):
 
 
 @pytest.mark.gui
-@pytest.mark.parametrize("size", [(800, 600), (1920, 1080)])
+@pytest.mark.parametrize("size", [(800, 600),  # about 8 s each: the large one in CI's slow step
+                                  pytest.param((1920, 1080), marks=pytest.mark.slow)])
 def test_questionnaire_pages_in_the_app(tmp_path, xvfb_factory, app_driver, size):
     env = xvfb_factory(size)
     study = make_study(tmp_path / "study", min_display=(640, 480))

@@ -72,6 +72,7 @@ def _full_page_screenshot(browser, name: str) -> Path:
     return shot
 
 
+@pytest.mark.slow  # about 11 s here: CI runs it after `make test` (.ci/run)
 def test_dashboard_in_a_real_browser(browser, tmp_path, invites, server_factory):
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support import expected_conditions as ec

@@ -35,7 +35,7 @@ from .vision.acuity import (
     optotype,
 )
 from .vision.acuity_plan import AcuityPlan
-from .vision.acuity_scoring import OptotypeAnswer, next_trial
+from .vision.acuity_scoring import OptotypeAnswer, most_trials, next_trial
 
 CARD_TEXT = ("Hold a bank card against the screen and make the rectangle exactly as wide as "
              "the card: arrow keys (hold Shift for larger steps), the mouse wheel, or drag its "
@@ -94,10 +94,11 @@ def card_page(window: tuple[int, int], fonts: Any) -> tuple[Any, list[str], _Car
     return lay, lines, card
 
 
-def count_text(k: int, plan: AcuityPlan) -> str:
-    """The progress line under the question: the check stops early once each series is
-    decided, so the plan's length is the most it can take."""
-    return f"{k} of at most {len(plan.trials)}"
+def count_text(k: int, plan: AcuityPlan, answers: list[OptotypeAnswer]) -> str:
+    """The progress line under the question. The check skips what is decided, so its length
+    is not known ahead: the line gives the most it can still take, which shrinks as levels
+    are decided, down to the real count."""
+    return f"{k} of at most {most_trials(plan, answers)}"
 
 
 def optotype_room(window: tuple[int, int]) -> int:
@@ -226,7 +227,7 @@ class AcuityCheckScreen:
             self._blank()
             self.state("acuity-trial", index=k, series=trial.series, level=trial.level)
             given, ms = self._show(img, f"acuity-{trial.series}-{trial.level}",
-                                   count_text(k, plan))
+                                   count_text(k, plan, answers))
             answers.append(OptotypeAnswer(trial, given, ms))
         return answers
 

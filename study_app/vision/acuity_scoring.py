@@ -83,6 +83,23 @@ def next_trial(plan: AcuityPlan, answers: Sequence[OptotypeAnswer],
     return None
 
 
+def most_trials(plan: AcuityPlan, answers: Sequence[OptotypeAnswer],
+                needed: int = NEEDED_PER_LEVEL) -> int:
+    """The most trials the whole check can still take, those shown included: the levels
+    decided so far count what they showed, a series after a failed level counts nothing
+    more, every open level all its planned trials (the count the participant sees)."""
+    total = 0
+    for name in ("acuity", "contrast"):
+        for level in plan.levels(name):  # type: ignore[arg-type]
+            marks = [a.correct for a in answers
+                     if a.trial.series == name and a.trial.level == level[0].level]
+            decided = level_outcome(marks, len(level), needed)
+            total += len(level) if decided is None else len(marks)
+            if decided == "failed":
+                break
+    return total
+
+
 def _series(plan: AcuityPlan, name: Series, answers: Sequence[OptotypeAnswer],
             needed: int) -> list[dict[str, Any]]:
     """Per planned level of one series: what was shown, how many right, its outcome."""

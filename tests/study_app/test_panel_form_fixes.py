@@ -5,6 +5,7 @@ Skip keeps nothing of its page), ``simulate`` ends a session as the app does wit
 from __future__ import annotations
 
 import copy
+import itertools
 import math
 import sqlite3
 from types import SimpleNamespace
@@ -192,13 +193,38 @@ def test_the_optotype_count_sits_between_the_question_and_the_largest_optotype(w
 
     g = card_calibration(20 * 85.6, 150)
     plan = acuity_plan(g, 1, max_size_px=optotype_room(window))
-    assert count_text(3, plan) == f"3 of at most {len(plan.trials)}"
+    assert count_text(3, plan, []) == f"3 of at most {len(plan.trials)}"
     fonts, px = Fonts(), ui_px(window)
     lines = wrap_words(TRIAL_TEXT, window[0] - 4 * GAP, px, fonts)
     count_bottom = GAP + (len(lines) + 1) * fonts.line_height(px)
     optotype_top = (window[1] - optotype_room(window)) / 2
     assert count_bottom <= optotype_top
-    assert fonts.size(count_text(42, plan), px)[0] < window[0] - 4 * GAP
+    assert fonts.size(count_text(42, plan, []), px)[0] < window[0] - 4 * GAP
+
+
+@pytest.mark.parametrize("p_right", [1.0, 0.8, 0.5, 0.25])
+def test_the_count_s_bound_shrinks_to_the_trials_the_check_took(p_right):
+    """"k of at most N": N never grows, never falls below what the check will still show,
+    and ends at the number shown (replayed through next_trial with seeded answers)."""
+    import numpy as np
+
+    from study_app.vision.acuity_scoring import most_trials, next_trial
+
+    g = card_calibration(20 * 85.6, 150)
+    plan = acuity_plan(g, 1, max_size_px=optotype_room((1920, 1080)))
+    rng = np.random.default_rng(int(p_right * 100))
+    answers: list[OptotypeAnswer] = []
+    bounds = [most_trials(plan, answers)]
+    assert bounds[0] == len(plan.trials)
+    while (trial := next_trial(plan, answers)) is not None:
+        right = rng.random() < p_right
+        wrong = next(w for w in ("left", "up", "right", "down") if w != trial.orientation)
+        answers.append(OptotypeAnswer(trial, trial.orientation if right else wrong, 500.0))
+        bounds.append(most_trials(plan, answers))
+    assert all(a >= b for a, b in itertools.pairwise(bounds))
+    assert all(b >= len(answers) for b in bounds) and bounds[-1] == len(answers)
+    if p_right == 1.0:  # every level passes on its first three: 3 of each level's 5
+        assert len(answers) == 3 * len(plan.trials) // 5
 
 
 def test_a_window_too_small_for_the_contrast_optotype_says_so():

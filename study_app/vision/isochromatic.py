@@ -33,7 +33,10 @@ MID = np.array([0.22, 0.22, 0.22])  # linear RGB the two colours are centred on
 # the difference it sees near a quarter of what a normal observer sees (below 4).
 STEP = {"protan": 0.30, "deutan": 0.30, "tritan": 0.095}
 BRIGHTNESS = (0.75, 1.15)
-CONTROL_FIGURE = 0.30  # the control digit's brightness relative to its background
+CONTROL_DIGIT, CONTROL_BACKGROUND = 2.0, 0.4
+"""A control plate's digit and background dots, in units of ``MID``: a light digit on dim
+dots (a dark digit read as a hole in the plate on the dark screen, and at 288-360 px it was
+misread, making the check inconclusive)."""
 BACKDROP = (36, 38, 43)  # the screens' background (study_app.screens.draw.SCREEN_BG)
 
 
@@ -53,7 +56,7 @@ class Plate:
 def plate_colours(kind: PlateKind) -> tuple[np.ndarray, np.ndarray]:
     """(figure, background) base colours in linear RGB."""
     if kind == "control":
-        return MID * CONTROL_FIGURE * 1.6, MID * 1.6
+        return MID * CONTROL_DIGIT, MID * CONTROL_BACKGROUND
     half = STEP[kind] / 2 * confusion_direction(kind)
     return MID + half, MID - half
 

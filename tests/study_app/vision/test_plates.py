@@ -74,6 +74,20 @@ def test_control_plates_stay_readable_under_every_simulation(seed):
         assert float(delta_e(simulate(fig, d), simulate(bg, d))) > CLEAR, d
 
 
+@pytest.mark.parametrize("size", [288, 360])  # the plate at 1024x600 and at 1366x768
+def test_a_control_digit_is_a_light_figure_not_a_hole_in_the_plate(size):
+    """A dark digit on the dark screen read as a gap between the dots (a "2" taken for an
+    "8"): the digit's dots are now lighter than the others, which are lighter than the
+    screen, in the pixels as drawn."""
+    from study_app.vision.isochromatic import BACKDROP
+
+    plate = make_plate("control", "2", seed=7, size=size)
+    luminance = srgb_to_linear(plate.colours / 255.0) @ np.array([0.2126, 0.7152, 0.0722])
+    digit, others = luminance[plate.figure].mean(), luminance[~plate.figure].mean()
+    screen = srgb_to_linear(np.array(BACKDROP) / 255.0) @ np.array([0.2126, 0.7152, 0.0722])
+    assert digit > 4 * others and others > 3 * screen
+
+
 def test_plates_follow_the_seed_and_the_series_is_balanced():
     a = make_plate("protan", "3", seed=4, size=120)
     b = make_plate("protan", "3", seed=4, size=120)

@@ -258,6 +258,8 @@ def colour_check_intro(n: int, name_keys: NameKeys, ends_study: bool = False) ->
             "- Type the number you see (or click its button under the circle), as soon as you "
             "see it.\n"
             "- If you see no number, press **N** (or click *No number*).\n"
+            "- Your answer shows under the question: **Enter** (or *Next*) goes on, "
+            "**Backspace** changes it.\n"
             "- **Esc** pauses the check (to continue, stop or withdraw).\n\n" + result)
     return _spec("colour-check", "Colour vision check", body, CONTINUE, [("go", "Start")],
                  name_keys, primary="go")

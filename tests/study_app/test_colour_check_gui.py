@@ -39,7 +39,7 @@ def test_a_failed_check_ends_the_session_when_the_study_says_so(tmp_path, xdispl
     app.key("space")
     for k, plate in enumerate(plate_series(3), start=1):
         app.wait(f"colour-plate index={k}")
-        app.key("n" if plate.kind == "protan" else plate.answer)
+        app.key("n" if plate.kind == "protan" else plate.answer, "Return")
     app.wait("finishing screened_out=1")
     app.wait("end")  # the end screen takes keys once it says so
     app.key("Return")

@@ -70,7 +70,7 @@ def test_questionnaires_in_the_real_app_through_the_server(tmp_path, xdisplay, i
         # every plate read right but one deuteranopia plate: one slip is no failure
         slip = plate.kind == "deutan" and k == next(
             i for i, p in enumerate(plates, start=1) if p.kind == "deutan")
-        app.key("n" if slip else plate.answer)
+        app.key("n" if slip else plate.answer, "Return")
         app.wait(f"colour-plate-answered index={k}")
     app.wait("colour-check-done")
     app.wait("questionnaire id=demographics page=1")

@@ -94,9 +94,9 @@ class FormScreen:
     def _buttons(self, qn: Questionnaire, page: int) -> list[tuple[str, str]]:
         items = []
         if page > 0:
-            items.append(("back", "Back"))
+            items.append(("back", "Back (Alt+\u2190)"))
         if qn.voluntary:
-            items.append(("skip", "Skip these questions"))
+            items.append(("skip", "Skip these questions (Alt+S)"))
         items.append(("next", "Next" if page < len(qn.pages) - 1 else "Done"))
         return items
 
@@ -221,6 +221,10 @@ class FormScreen:
         if event.type != pg.KEYDOWN:
             return None
         key, shift = event.key, bool(event.mod & pg.KMOD_SHIFT)
+        if event.mod & pg.KMOD_ALT and key in (pg.K_LEFT, pg.K_s):
+            # a modifier: letters and arrows alone type or choose in the fields
+            action = "back" if key == pg.K_LEFT else "skip"
+            return action if any(b.action == action for b in lay.buttons) else None
         if key == pg.K_p and event.mod & pg.KMOD_CTRL and kind != "text":
             fs.toggle_prefer_not(focus)
             return f"commit:{focus}"

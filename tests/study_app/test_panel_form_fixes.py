@@ -126,6 +126,30 @@ def test_skip_keeps_no_answer_of_its_page(monkeypatch, tmp_path):
     assert last == {first: None}
 
 
+def test_back_and_skip_have_keys_with_a_modifier(monkeypatch, tmp_path):
+    """Alt+Left goes back a page (nothing on the first), Alt+S skips a voluntary
+    questionnaire; without Alt the keys choose or type as before. The buttons name them."""
+    def alt(key: int) -> pygame.event.Event:
+        return pygame.event.Event(pygame.KEYDOWN, key=key, mod=pygame.KMOD_LALT)
+
+    pages: list[int] = []
+    real = form_screen.FormScreen._page
+
+    def page(self, qn, number, *args, **kwargs):
+        pages.append(number)
+        return real(self, qn, number, *args, **kwargs)
+
+    monkeypatch.setattr(form_screen.FormScreen, "_page", page)
+    batches = [[alt(pygame.K_LEFT)], [alt(pygame.K_LEFT)], [_key(pygame.K_s)],
+               [alt(pygame.K_s)]]
+    outcome, _ = _run_survey(monkeypatch, tmp_path, batches, start_page=1, answered={})
+    assert outcome == "skipped" and pages == [1, 0]
+    screen = form_screen.FormScreen(_display([]), lambda *a, **k: None, lambda n: False,
+                                    lambda: None)
+    labels = dict(screen._buttons(SURVEY, 1))
+    assert labels["back"] == "Back (Alt+\u2190)" and labels["skip"].endswith("(Alt+S)")
+
+
 def test_a_resumed_page_shows_an_answer_taken_back_as_empty():
     questions = list(SURVEY.pages[1].questions)
     comment = [q.id for q in questions].index("comments")

@@ -158,7 +158,7 @@ def dmos_per_scene(a: Analysis, path: Path) -> Path:
             p = pdata.set_index("stimulus")["predicted"]
             y = [p.get(s, np.nan) for s in sd["stimulus"]]
             ax.plot(x, y, markers[j % len(markers)], color="k", ms=4, alpha=0.6,
-                    label=name if k == 0 else None)
+                    label=a.metrics.title(name) if k == 0 and a.metrics else None)
         _label_stimuli(ax, sd)
         ax.set_title(str(scene), fontsize=9)
         ax.set_ylabel("DMOS")
@@ -203,10 +203,11 @@ def metric_scatter(a: Analysis, path: Path) -> Path | None:
         ax.plot(grid, a.metrics.mappings[name](sign * grid), "k-", lw=1)
         r = table.loc[name]
         flag = " [FLAGGED]" if name in a.metrics.untrained else ""
-        ax.set_title(f"{name}{flag}\nPLCC {r['plcc']:.3f}  SRCC {r['srcc']:.3f} "
+        title = a.metrics.title(name)
+        ax.set_title(f"{title}{flag}\nPLCC {r['plcc']:.3f}  SRCC {r['srcc']:.3f} "
                      f"({a.metrics.mappings[name].kind})", fontsize=8,
                      color="#a00" if flag else "k")
-        ax.set_xlabel(f"{name} score" + (" (lower is better)" if sign < 0 else ""))
+        ax.set_xlabel(f"{title} score" + (" (lower is better)" if sign < 0 else ""))
         ax.set_ylabel("DMOS")
         if k == 0:
             ax.legend(fontsize=6)
@@ -348,7 +349,7 @@ def metric_comparison(a: Analysis, path: Path) -> Path | None:
         hi = t[f"{key}_ci95_high"].to_numpy(dtype=float)
         err = np.nan_to_num(np.abs(np.vstack([val - lo, hi - val])))
         ax.bar(x + off, val, w, yerr=err, capsize=3, color=col, label=key.upper())
-    names = ["two half panels\n(2.5-97.5% of splits)" if fit == "none" else m
+    names = ["two half panels\n(2.5-97.5% of splits)" if fit == "none" else a.metrics.title(m)
              for m, fit in zip(t["metric"], t["fit"], strict=True)]
     ax.set_xticks(x, names, rotation=20, ha="right", fontsize=8)
     ax.set_ylim(_lowest(t) - 0.05, 1.05)
@@ -387,7 +388,8 @@ def metric_benchmark(a: Analysis, path: Path) -> Path | None:
         if np.isfinite(bound):
             ax.axvline(bound, color="0.3", ls="--", lw=1, zorder=0,
                        label="ceiling against the\nfull panel's DMOS")
-    labels = [f"{m}  [FLAGGED]" if m in a.metrics.untrained else m for m in t["metric"]]
+    labels = [a.metrics.title(m) + ("  [FLAGGED]" if m in a.metrics.untrained else "")
+              for m in t["metric"]]
     ax.set_yticks(y, labels, fontsize=8)
     for tick, name in zip(ax.get_yticklabels(), t["metric"], strict=True):
         if name in a.metrics.untrained:
@@ -418,7 +420,7 @@ def metric_per_method(a: Analysis, path: Path) -> Path | None:
                 ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=7,
                         color="white" if abs(v) > 0.6 else "black")
     ax.set_xticks(range(pm.shape[1]), pm.columns, rotation=30, ha="right", fontsize=8)
-    ax.set_yticks(range(pm.shape[0]), pm.index, fontsize=8)
+    ax.set_yticks(range(pm.shape[0]), [a.metrics.title(m) for m in pm.index], fontsize=8)
     ax.set_title("SRCC per distortion method", fontsize=10)
     fig.colorbar(im, ax=ax)
     return _save(fig, path)

@@ -301,7 +301,12 @@ def _reliability(a: Analysis, s: dict[str, Any]) -> str:
     return " ".join(parts)
 
 
-def _metric_line(m: dict[str, Any], n_max: int) -> str:
+def _title(s: dict[str, Any], name: str) -> str:
+    """A metric's name in prose: its title (``PSNR``, ``CGVQM-2``) where the scores gave one."""
+    return str((s.get("metric_titles") or {}).get(name, name))
+
+
+def _metric_line(s: dict[str, Any], m: dict[str, Any], n_max: int) -> str:
     plcc = _ci(m.get("plcc"), m.get("plcc_ci95_low"), m.get("plcc_ci95_high"))
     srcc = _ci(m.get("srcc"), m.get("srcc_ci95_low"), m.get("srcc_ci95_high"))
     rmse = _ci(m.get("rmse"), m.get("rmse_ci95_low"), m.get("rmse_ci95_high"), digits=2)
@@ -310,7 +315,7 @@ def _metric_line(m: dict[str, Any], n_max: int) -> str:
         notes.append(f"{m['n']} of the {n_max} stimuli scored")
     if m.get("fit") != "logistic5":
         notes.append("mapped with a straight line: too few stimuli, or no logistic fit")
-    name = f"{m['metric']}" + (f" ({'; '.join(notes)})" if notes else "")
+    name = _title(s, str(m["metric"])) + (f" ({'; '.join(notes)})" if notes else "")
     return f"{name}: PLCC {plcc}, SRCC {srcc}, RMSE {rmse}"
 
 
@@ -328,7 +333,7 @@ def _significance(s: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         where = f"; on the {shared} stimuli both scored" if shared != max(n_of[a],
                                                                           n_of[b]) else ""
         subsets |= bool(where)
-        wins.append(f"{a} over {b} ({p_text(p)}{where})")
+        wins.append(f"{_title(s, a)} over {_title(s, b)} ({p_text(p)}{where})")
     test = f"one-tailed paired bootstrap of the PLCC, alpha = {alpha:g}"
     if subsets or len(set(n_of.values())) > 1:
         test += ", each pair on the stimuli both metrics scored"
@@ -348,7 +353,7 @@ def _implementations(s: dict[str, Any], names: list[str]) -> str:
                                     for k, v in entry.items()) if isinstance(entry, dict)
                           else str(entry) for entry in versions)
         if words:
-            groups.setdefault(words, []).append(name)
+            groups.setdefault(words, []).append(_title(s, name))
     if not groups:
         return ""
     return " Implementations: " + "; ".join(
@@ -368,7 +373,7 @@ def _metrics(s: dict[str, Any]) -> str:
             "freedom) after a 5-parameter logistic mapping, SRCC on the scores oriented so that "
             "higher is better, with 95% confidence intervals from a two-way bootstrap over "
             f"raters and stimuli ({s['n_bootstrap']} resamples, mapping refitted in each). "
-            + "; ".join(_metric_line(m, n_max) for m in rows) + ".")
+            + "; ".join(_metric_line(s, m, n_max) for m in rows) + ".")
     if len(rows) > 1:
         text += _significance(s, rows)
     text += _implementations(s, [str(m["metric"]) for m in rows])
@@ -376,7 +381,7 @@ def _metrics(s: dict[str, Any]) -> str:
         text += (" The mapping was DMOS = b1 (1/2 - 1/(1 + exp(b2 (z - b3)))) + b4 z + b5 on "
                  "the score standardised by its median and standard deviation (z); each "
                  "metric's fitted parameters are in the report's summary.json.")
-    viewing, _ = metric_viewing_text(s.get("viewing"))
+    viewing, _ = metric_viewing_text(s.get("viewing"), s.get("metric_titles"))
     return text + (" " + viewing if viewing else "")
 
 
@@ -391,7 +396,7 @@ def methods_paragraphs(a: Analysis, s: dict[str, Any]) -> list[str]:
     flagged = s.get("untrained_backbone") or {}
     if flagged:  # what a paper could paste must not pass for the published metric
         warning = " ".join(filter(None, [warning, "[Not the published metric: " + "; ".join(
-            f"{name} ran with {why}" for name, why in flagged.items())
+            f"{_title(s, name)} ran with {why}" for name, why in flagged.items())
             + (". Its numbers here are not those of the metric it is named after.]"
                if len(flagged) == 1 else
                ". Their numbers here are not those of the metrics they are named after.]")]))

@@ -259,15 +259,18 @@ def viewing_summary(rs: RatingSet, quality: pd.DataFrame | None, raters: list[st
             "metric_ppd": dict(metric_ppd)}
 
 
-def metric_viewing_text(viewing: dict[str, Any] | None) -> tuple[str, str]:
+def metric_viewing_text(viewing: dict[str, Any] | None,
+                        titles: dict[str, str] | None = None) -> tuple[str, str]:
     """At what pixels per degree the metrics were computed, against the panel's (a sentence
     for the paper); and advice when a metric was computed outside the panel's range, so that
-    no participant saw the stimuli like it ("" when none was)."""
+    no participant saw the stimuli like it ("" when none was). ``titles``: metric -> the
+    name prose prints (the summary's ``metric_titles``)."""
     if not viewing or not viewing.get("metric_ppd"):
         return "", ""
+    titles = titles or {}
     by_value: dict[float, list[str]] = {}
     for metric, ppd in viewing["metric_ppd"].items():
-        by_value.setdefault(round(float(ppd), 1), []).append(metric)
+        by_value.setdefault(round(float(ppd), 1), []).append(titles.get(metric, metric))
     text = "Viewing condition: " + "; ".join(
         f"{', '.join(ms)} {'was' if len(ms) == 1 else 'were'} computed at {v:g} pixels per "
         "visual degree" for v, ms in by_value.items())
@@ -280,7 +283,7 @@ def metric_viewing_text(viewing: dict[str, Any] | None) -> tuple[str, str]:
     who = ("the participant whose screen the card calibration measured saw" if panel["n"] == 1
            else f"the {panel['n']} participants whose screens the card calibration measured saw")
     text += f"; at the instructed {viewing['seating_cm']:g} cm, {who} {spread}."
-    off = [m for m, v in viewing["metric_ppd"].items()
+    off = [titles.get(m, m) for m, v in viewing["metric_ppd"].items()
            if not panel["min"] - 0.5 <= v <= panel["max"] + 0.5]
     if not off:
         return text, ""

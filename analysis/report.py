@@ -286,6 +286,7 @@ def _metrics_summary(a: Analysis, m: Any) -> dict[str, Any]:
         "metrics_per_method": _records(m.per_method),
         "untrained_backbone": dict(m.untrained),
         "metric_provenance": dict(m.provenance),
+        "metric_titles": {name: m.title(name) for name in m.mappings},
         "metric_mappings": {
             name: {"kind": mp.kind, "function": MAPPING_FUNCTIONS[mp.kind],
                    "center": mp.center, "scale": mp.scale, "params": list(mp.params)}

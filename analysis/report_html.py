@@ -306,6 +306,9 @@ def _metric_table(a: Analysis) -> pd.DataFrame | None:
         return None
     shown = with_ci(a.metrics.table)
     shown["flag"] = ["FLAGGED (see above)" if f else "" for f in shown["flag"].fillna("")]
+    titles = [a.metrics.title(m) for m in shown["metric"]]
+    if titles != list(shown["metric"]):  # the name the text and figures print, beside the id
+        shown.insert(1, "title", titles)
     return shown
 
 
@@ -322,7 +325,8 @@ def write_html(a: Analysis, out: Path, figures: dict[str, tuple[Path, str]],
         "from_sessions": bool(info is not None and "files" in info.columns
                               and info["files"].notna().any()),
         "seated": bool((a.ratings.presentation or {}).get("viewing_distance_cm")),
-        "metric_viewing": metric_viewing_text(summary.get("viewing")),
+        "metric_viewing": metric_viewing_text(summary.get("viewing"),
+                                              summary.get("metric_titles")),
         "near": [r for r in summary["screening"]
                  if str(r.get("reason") or "").startswith("near-miss")],
         "flagged": [r for r in summary["data_quality"]

@@ -42,7 +42,7 @@ from tqdm.auto import tqdm
 from stimuli_manifests import StimuliError, load_manifest, sha256_path
 from stimuli_manifests.file_lock import FileLock
 from stimuli_manifests.pairs import same_frame_rate
-from stimuli_manifests.tables import FORMAT_COLUMN, SCORES
+from stimuli_manifests.tables import FORMAT_COLUMN, SCORES, SCORES_1_0, TableFormat
 
 from .errors import CGVQMError
 from .metrics.registry import MetricOptions, MetricScore, Scorer, build_scorers
@@ -54,6 +54,12 @@ log = logging.getLogger(__name__)
 #: provenance columns this toolkit adds after the contract's optional ones (names are stable)
 EXTRA_COLUMNS = ("note", "reference_sha256", "stimulus_sha256", "versions", "key")
 SCORE_COLUMNS = SCORES.header([*SCORES.optional, *EXTRA_COLUMNS])
+#: the layouts a run may append to: this version's, and the one before ``title`` (1.0), whose
+#: files a resumed run keeps in their own layout rather than refusing them
+LAYOUTS: dict[tuple[str, ...], TableFormat] = {
+    SCORE_COLUMNS: SCORES,
+    SCORES_1_0.header([*SCORES_1_0.optional, *EXTRA_COLUMNS]): SCORES_1_0,
+}
 
 
 @dataclass(frozen=True)
@@ -194,13 +200,14 @@ def done_keys(state: ScoresFile, planned: Sequence[PlannedRow]) -> set[str]:
 
 
 def _row(stimulus: str, reference: str, m: MetricScore, ident: dict[str, Any], key: str,
-         ref_sha: str, test_sha: str) -> dict[str, Any]:
+         ref_sha: str, test_sha: str, title: str) -> dict[str, Any]:
     settings = dict(ident["settings"])
     settings["device_type"] = ident["device_type"]
     prov = {k: v for k, v in ident["provenance"].items()
             if k not in ("backbone", "backbone_sha256", "weights_sha256")}
     return {
         "stimulus": stimulus, "reference": reference, "metric": m.metric,
+        "title": title,  # not in the key: a renamed title must not rescore anything
         "score": "" if m.score is None else f"{m.score:.8g}", "direction": m.direction,
         "pooling": m.pooling or "", "patches": m.extra.get("patches", ""),
         "seconds": f"{m.extra['seconds']:.3f}" if "seconds" in m.extra else "",
@@ -227,6 +234,9 @@ class ScoresFile:
     keys: set[str] = field(default_factory=set)
     slots: dict[Slot, set[str]] = field(default_factory=dict)
     size: int = 0
+    #: the file's columns and contract (rows appended to it keep them)
+    columns: tuple[str, ...] = SCORE_COLUMNS
+    layout: TableFormat = SCORES
 
     def add(self, row: dict[str, Any]) -> None:
         """Record a row written in this run."""
@@ -315,33 +325,34 @@ def read_scores(path: str | Path, *, flag: str = "--out") -> ScoresFile:
     lines = _lines(path, flag)
     if not lines:
         return state
-    header_line = ",".join(SCORE_COLUMNS)
-    if len(lines) == 1 and not lines[0].endswith("\n") and header_line.startswith(lines[0]):
+    if len(lines) == 1 and not lines[0].endswith("\n") and any(
+            ",".join(columns).startswith(lines[0]) for columns in LAYOUTS):
         log.warning("%s: its header line is unfinished (an interrupted write); it is "
                     "written again", path)
         return state
     rows, starts = _parse(path, lines, flag)
     header = tuple(rows[0]) if rows else ()
-    if header != SCORE_COLUMNS:
+    if header not in LAYOUTS:
         raise CGVQMError(f"{path}: existing file has columns {', '.join(header)}, not this "
                          f"toolkit's scores layout ({SCORES.version}: "
                          f"{', '.join(SCORE_COLUMNS)}); choose another {flag}")
+    state.columns, state.layout = header, LAYOUTS[header]
     complete = len(rows)
-    last_torn = not lines[-1].endswith("\n") or len(rows[-1]) != len(SCORE_COLUMNS)
+    last_torn = not lines[-1].endswith("\n") or len(rows[-1]) != len(header)
     if complete > 1 and last_torn and rows[-1]:
         complete -= 1
         log.warning("%s: its last row (line %d) is unfinished, torn by an interrupted write; "
                     "it is dropped and scored again", path, starts[-1] + 1)
     data = [r for r in rows[1:complete] if r]  # blank lines hold nothing
     bad = next((i for i, r in enumerate(rows[1:complete], start=2)
-                if r and len(r) != len(SCORE_COLUMNS)), None)
+                if r and len(r) != len(header)), None)
     if bad is not None:
         raise _unreadable(path, f"row {bad} has {len(rows[bad - 1])} fields, not "
-                                f"{len(SCORE_COLUMNS)} (damaged)", flag)
+                                f"{len(header)} (damaged)", flag)
     kept = lines[: starts[complete]] if complete < len(rows) else lines
     state.size = sum(len(x.encode("utf-8")) for x in kept)
-    records = [dict(zip(SCORE_COLUMNS, r, strict=True)) for r in data]
-    SCORES.check(header, [r.get(FORMAT_COLUMN) for r in records], path)
+    records = [dict(zip(header, r, strict=True)) for r in data]
+    state.layout.check(header, [r.get(FORMAT_COLUMN) for r in records], path)
     for r in records:
         state.add(r)
     return state
@@ -399,6 +410,7 @@ class Appender:
         self.fh = self.path.open("a", newline="", encoding="utf-8")
         self.writer = csv.writer(self.fh)
         if new:
+            self.state.columns, self.state.layout = SCORE_COLUMNS, SCORES
             self.writer.writerow(SCORE_COLUMNS)
         elif unfinished:  # never glue a row onto another one
             self.fh.write("\r\n")
@@ -411,8 +423,9 @@ class Appender:
         assert self.state is not None
         refuse_clashes(self.state, [PlannedRow(slot_of(r), r.get("key", ""), ()) for r in rows],
                        self.flag)
-        self.writer.writerows([[SCORES.version if c == FORMAT_COLUMN else r.get(c, "")
-                                for c in SCORE_COLUMNS] for r in rows])
+        version = self.state.layout.version  # an older file keeps its layout and version
+        self.writer.writerows([[version if c == FORMAT_COLUMN else r.get(c, "")
+                                for c in self.state.columns] for r in rows])
         self.flush()
         for r in rows:
             self.state.add(r)
@@ -508,7 +521,7 @@ def run_unit(unit: WorkUnit, *, scorers: Sequence[Scorer] | None = None,
                     key = row_key(idents[si], p, unit.reference, t)
                     if key not in done:
                         group_rows.append(_row(t.id, unit.reference_id, m, idents[si], key,
-                                               ref_sha, t.sha256))
+                                               ref_sha, t.sha256, scorers[si].title))
         rows += group_rows
         if on_rows is not None:
             on_rows(group_rows)

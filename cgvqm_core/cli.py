@@ -149,10 +149,11 @@ def _score_row(res: Any, metric: Any, args: argparse.Namespace, note: str) -> di
     """The ``score --csv`` row of a CGVQM result: the columns a batch row has, but the key
     (a single pair is not resumed)."""
     from .batch import canonical_json
-    from .metrics.cgvqm_entry import cgvqm_provenance, cgvqm_settings, metric_name
+    from .metrics.cgvqm_entry import cgvqm_provenance, cgvqm_settings, metric_name, metric_title
 
     prov = cgvqm_provenance(metric)
-    return {**_pair_columns(args), "metric": metric_name(metric), "score": f"{res.q:.8g}",
+    return {**_pair_columns(args), "metric": metric_name(metric), "title": metric_title(metric),
+            "score": f"{res.q:.8g}",
             "direction": "higher-better", "pooling": res.pool, "patches": res.n_patches,
             "seconds": f"{res.seconds:.3f}", "note": note,
             **{k: prov[k] for k in ("backbone", "backbone_sha256", "weights_sha256")},
@@ -210,7 +211,8 @@ def _cmd_score_peer(args: argparse.Namespace, name: str) -> int:
         prov = scorer.provenance()
         app = Appender(Path(args.csv), state, flag="--csv")
         try:
-            app.write([{**_pair_columns(args), "metric": m.metric, "direction": m.direction,
+            app.write([{**_pair_columns(args), "metric": m.metric, "title": scorer.title,
+                        "direction": m.direction,
                         "note": m.note,
                         "score": "" if m.score is None else f"{m.score:.8g}",
                         "seconds": f"{m.extra.get('seconds', 0):.3f}",

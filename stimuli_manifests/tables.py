@@ -108,12 +108,16 @@ RATINGS_1_0 = TableFormat("cgvq-ratings", 1, 0, required=RATINGS.required, what=
 against it."""
 
 SCORES = TableFormat(
-    "cgvq-scores", 1, 0,
+    "cgvq-scores", 1, 1,
     required=("stimulus", "reference", "metric", "score", "direction"),
     optional=("pooling", "patches", "seconds", "backbone", "backbone_sha256",
-              "weights_sha256", "settings"),
+              "weights_sha256", "settings",
+              "title"),  # 1.1: the metric's name as prose and figures print it (PSNR, CGVQM-2)
     what="metric scores",
 )
+SCORES_1_0 = TableFormat("cgvq-scores", 1, 0, required=SCORES.required,
+                         optional=SCORES.optional[:-1], what="metric scores")
+"""The first scores table (no ``title``): a run resumed on such a file appends in its layout."""
 
 DMOS = TableFormat(
     "cgvq-dmos", 1, 0,

@@ -41,6 +41,11 @@ def metric_name(metric: CGVQM) -> str:
     return f"{name}-seamless" if metric.seamless else name
 
 
+def metric_title(metric: CGVQM) -> str:
+    """The name prose prints: ``CGVQM-2``, with :func:`metric_name`'s suffix kept."""
+    return metric.variant.upper() + metric_name(metric)[len(metric.variant):]
+
+
 def _spec(variant: str, levels: str) -> MetricSpec:
     return MetricSpec(
         name=variant, title=variant.upper(), family="cgvqm_entry", direction=HIGHER,

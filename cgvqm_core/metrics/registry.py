@@ -123,6 +123,13 @@ class Scorer(ABC):
         """The metric name written in the scores file."""
         return self.spec.name
 
+    @property
+    def title(self) -> str:
+        """The name prose and figures print (``PSNR``, ``CGVQM-2``); a variant's suffix
+        (other weights, seamless tiling) is kept, so two metrics never share a title."""
+        name, spec = self.name, self.spec
+        return spec.title + name[len(spec.name):] if name.startswith(spec.name) else name
+
     def settings(self) -> dict[str, Any]:
         """Every option that changes the number (part of the resume key)."""
         return {}

@@ -31,7 +31,7 @@ def test_written_table_carries_its_version_and_reads_back(tmp_path):
     assert rows[0]["score"] == "1.5" and "format" not in rows[0]
     assert rows[0]["zeta"] == "3" and rows[1]["pooling"] == ""
     with path.open(newline="") as fh:
-        assert {r["format"] for r in csv.DictReader(fh)} == {"cgvq-scores/1"}
+        assert {r["format"] for r in csv.DictReader(fh)} == {"cgvq-scores/1.1"}
 
 
 def test_unknown_major_version_and_foreign_tables_are_refused(tmp_path):

@@ -9,9 +9,7 @@ earliest ``presented_at``), not by the order the files were given in.
 from __future__ import annotations
 
 import re
-import warnings
 import zipfile
-import zlib
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -23,6 +21,7 @@ from stimuli_manifests.tables import FORMAT_COLUMN, RATINGS
 
 from .data import Exclusion
 from .errors import AnalysisError
+from .spreadsheet_csv import read_cells, read_decimal_commas
 
 _REQUIRED = ("participant", "stimulus", "rating")
 
@@ -53,17 +52,9 @@ def read_csv(path: Path) -> pd.DataFrame:
         raise AnalysisError(f"ratings file {path} is a folder; give the CSV file itself (or "
                             "a folder of session files to --sessions)")
     _refuse_session_export(path)
-    header = _read(path, ",", header_only=True).columns
-    sep = _other_separator(str(header[0])) if len(header) == 1 else None
-    frame = _read(path, sep or ",")
-    frame = frame.rename(columns=_known_names(frame.columns))
-    frame["_source"] = str(path)
-    frame["_row"] = np.arange(len(frame)) + 2  # line number: header is line 1
+    frame = read_cells(path, what="ratings file",
+                       columns=(*RATINGS.required, *RATINGS.optional, FORMAT_COLUMN))
     data = [c for c in frame.columns if not str(c).startswith("_")]
-    for c in data:
-        if frame[c].dtype == object or pd.api.types.is_string_dtype(frame[c]):
-            frame[c] = frame[c].astype(object).where(frame[c].notna(), "").map(str).str.strip()
-    frame = frame.loc[~(frame[data].astype(str) == "").all(axis=1)]
     if FORMAT_COLUMN in frame.columns:
         try:
             RATINGS.check_versions([v for v in frame[FORMAT_COLUMN] if v != ""], path)
@@ -71,7 +62,9 @@ def read_csv(path: Path) -> pd.DataFrame:
             raise AnalysisError(str(exc)) from None
     if "stimulus" in frame.columns and "participant" not in frame.columns and \
             "rating" not in frame.columns:
+        sep = frame.attrs["sep"]
         frame = melt_rating_matrix(frame, path)
+        frame.attrs["sep"] = sep  # the decimal commas below depend on it
     missing = [c for c in _REQUIRED if c not in frame.columns]
     if missing:
         shown = ", ".join(str(c) for c in data[:8]) + (", ..." if len(data) > 8 else "")
@@ -79,7 +72,7 @@ def read_csv(path: Path) -> pd.DataFrame:
             f"ratings file {path} lacks column(s) {', '.join(missing)} (its columns: "
             f"{shown}); the analysis needs participant, stimulus and rating: name yours so "
             f"(the other columns of the tidy ratings table, {RATINGS.version}, are optional)")
-    _read_decimal_commas(frame, path, comma_separated=frame.attrs["sep"] == ",")
+    read_decimal_commas(frame, path, "ratings file", ("rating", "repetition"))
     return frame
 
 
@@ -115,93 +108,6 @@ def melt_rating_matrix(frame: pd.DataFrame, path: Path) -> pd.DataFrame:
     tidy = pd.concat(rows, ignore_index=True)
     tidy.attrs.update(frame.attrs)
     return tidy
-
-
-def _read(path: Path, sep: str, *, header_only: bool = False) -> pd.DataFrame:
-    """The file as text cells; rows with more cells than the header are refused (pandas
-    would otherwise take the first column as an index, or drop the extra cells)."""
-    _refuse_a_session_file(path)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", pd.errors.ParserWarning)
-            frame = pd.read_csv(path, sep=sep, dtype=str, keep_default_na=False,
-                                skip_blank_lines=False, index_col=False,
-                                nrows=0 if header_only else None)
-    except pd.errors.ParserWarning:
-        raise AnalysisError(
-            f"ratings file {path}: its rows have more cells than its header; a decimal comma "
-            "or a comma inside an id? Quote such cells, or save the file with ';' between "
-            "columns") from None
-    except FileNotFoundError:
-        raise AnalysisError(f"ratings file {path} does not exist") from None
-    except UnicodeDecodeError as exc:
-        raise AnalysisError(f"ratings file {path} is not UTF-8 text ({exc}); save it as "
-                            "'CSV UTF-8'") from None
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError, EOFError, OSError,
-            zlib.error) as exc:
-        hint = ("; a decimal comma or a comma inside an id? Quote such cells, or save the "
-                "file with ';' between columns" if "Expected" in str(exc) else "")
-        raise AnalysisError(f"ratings file {path} is not a readable CSV "
-                            f"({' '.join(str(exc).split())}){hint}") from None
-    frame.columns = [str(c).strip().lstrip("\ufeff") for c in frame.columns]
-    frame.attrs["sep"] = sep
-    return frame
-
-
-def _refuse_a_session_file(path: Path) -> None:
-    """A session file given as a ratings CSV: say where it belongs (its bytes read as a CSV
-    gave "not a readable CSV ... a decimal comma?")."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(16)
-    except OSError:
-        return  # the reader says what is wrong with it
-    if head == b"SQLite format 3\x00":
-        raise AnalysisError(f"ratings file {path} is a session file, not a CSV: give it (or "
-                            "its folder) to --sessions")
-
-
-def _other_separator(header: str) -> str | None:
-    """The separator a one-column header shows it was written with (';' or tab)."""
-    found = [s for s in ";\t" if s in header]
-    return max(found, key=header.count) if found else None
-
-
-def _known_names(columns: Sequence[str]) -> dict[str, str]:
-    """Columns named as the table's but in another case (``Participant``), renamed."""
-    known = {c.lower(): c for c in (*RATINGS.required, *RATINGS.optional, FORMAT_COLUMN)}
-    taken = set(columns)
-    out: dict[str, str] = {}
-    for c in columns:
-        name = known.get(c.lower())
-        if name is not None and name not in taken:
-            out[c] = name
-            taken.add(name)
-    return out
-
-
-_DECIMAL_COMMA = re.compile(r"[-+]?\d+,\d+")
-
-
-def _read_decimal_commas(frame: pd.DataFrame, path: Path, *, comma_separated: bool) -> None:
-    """Numbers written with a decimal comma (``2,5``): read as such in a file whose columns
-    are separated otherwise (spreadsheets in many locales); refused in a comma-separated
-    one, where a comma is what separates columns."""
-    for column in ("rating", "repetition"):
-        if column not in frame.columns:
-            continue
-        cells = frame[column].astype(str)
-        comma = cells.str.fullmatch(_DECIMAL_COMMA).to_numpy()
-        if not comma.any():
-            continue
-        if comma_separated:
-            first = int(np.flatnonzero(comma)[0])
-            raise AnalysisError(
-                f"ratings file {path}: {int(comma.sum())} {column}(s) are written with a "
-                f"decimal comma (line {frame['_row'].iloc[first]}: {cells.iloc[first]!r}); "
-                "write decimals with a point (2.5), or save the file with ';' between "
-                "columns")
-        frame.loc[comma, column] = cells[comma].str.replace(",", ".", regex=False)
 
 
 def _blank(values: pd.Series) -> np.ndarray:

@@ -27,11 +27,12 @@ log = logging.getLogger(__name__)
 N_PARAMS = {"logistic5": 5, "linear (fallback)": 2}
 MAPPING_FUNCTIONS = {
     "logistic5": "dmos = b1 (1/2 - 1 / (1 + exp(b2 (z - b3)))) + b4 z + b5, "
-                 "z = (score - center) / scale",
-    "linear (fallback)": "dmos = b1 z + b2, z = (score - center) / scale",
+                 "z = (sign * score - center) / scale",
+    "linear (fallback)": "dmos = b1 z + b2, z = (sign * score - center) / scale",
 }
 """Each mapping in words, with the parameters as ``Mapping.params`` orders them (the
-report's summary.json gives them per metric, so a reader can redraw the fitted curve)."""
+report's summary.json gives them per metric, with ``sign``: -1 for a lower-better metric,
+whose scores are negated before the fit, else 1; so a reader can redraw the fitted curve)."""
 
 #: Two stimuli per parameter of the logistic. With fewer, its five parameters follow the
 #: noise: on 6 noisy stimuli it reached PLCC 0.9995, and P.1401's rmse had N - 5 = 1 degree

@@ -72,6 +72,11 @@ def _names(names: list[str]) -> str:
                                              else "")
 
 
+def _and(items: list[str]) -> str:
+    """``a``, ``a and b``, ``a, b and c``: a list as prose joins it."""
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
 def _design(a: Analysis) -> str:
     """Source contents, distortion conditions (HRCs) and hidden references, counted."""
     st = a.screened.stimuli
@@ -325,9 +330,12 @@ def _significance(s: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     alpha = s["alpha"]
     n_of = {str(m["metric"]): int(m["n"]) for m in rows}
     wins, subsets = [], False
+    doubt = s.get("metric_doubts") or {}
     for c in s.get("pairwise") or []:
         a, b, p = str(c["metric_a"]), str(c["metric_b"]), c.get("boot_p")
         if a not in n_of or b not in n_of or p is None or not p < alpha:
+            continue
+        if a in doubt or b in doubt:  # a win of a metric read the wrong way round is none
             continue
         shared = int(c["n"])
         where = f"; on the {shared} stimuli both scored" if shared != max(n_of[a],
@@ -337,6 +345,9 @@ def _significance(s: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     test = f"one-tailed paired bootstrap of the PLCC, alpha = {alpha:g}"
     if subsets or len(set(n_of.values())) > 1:
         test += ", each pair on the stimuli both metrics scored"
+    left = [_title(s, m) for m in n_of if m in doubt]
+    if left:
+        test += f"; {_and(left)} left out, see the note above"
     if not wins:
         return f" No metric's PLCC was significantly higher than another's ({test})."
     return f" Significant differences ({test}, no correction for multiple comparisons): " \
@@ -357,7 +368,7 @@ def _implementations(s: dict[str, Any], names: list[str]) -> str:
     if not groups:
         return ""
     return " Implementations: " + "; ".join(
-        f"{' and '.join(metrics)}: {words}" for words, metrics in groups.items()) + "."
+        f"{_and(metrics)}: {words}" for words, metrics in groups.items()) + "."
 
 
 def _metrics(s: dict[str, Any]) -> str:
@@ -378,8 +389,10 @@ def _metrics(s: dict[str, Any]) -> str:
         text += _significance(s, rows)
     text += _implementations(s, [str(m["metric"]) for m in rows])
     if any(mp.get("kind") == "logistic5" for mp in (s.get("metric_mappings") or {}).values()):
+        negated = any(m.get("direction") == "lower-better" for m in rows)
         text += (" The mapping was DMOS = b1 (1/2 - 1/(1 + exp(b2 (z - b3)))) + b4 z + b5 on "
-                 "the score standardised by its median and standard deviation (z); each "
+                 "the score standardised by its median and standard deviation (z"
+                 + ("; a lower-better score negated first" if negated else "") + "); each "
                  "metric's fitted parameters are in the report's summary.json.")
     viewing, _ = metric_viewing_text(s.get("viewing"), s.get("metric_titles"))
     return text + (" " + viewing if viewing else "")
@@ -400,6 +413,12 @@ def methods_paragraphs(a: Analysis, s: dict[str, Any]) -> list[str]:
             + (". Its numbers here are not those of the metric it is named after.]"
                if len(flagged) == 1 else
                ". Their numbers here are not those of the metrics they are named after.]")]))
+    doubts = s.get("metric_doubts") or {}
+    if doubts:  # a reversed direction reads as a good metric: never pasted unnoticed
+        warning = " ".join(filter(None, [warning, "[Check before use: " + "; ".join(
+            f"{_title(s, name)}: {why}" for name, why in doubts.items())
+            + (". Comparisons with it are" if len(doubts) == 1 else ". Comparisons with them are")
+            + " left out of this text.]"]))
     todo = ("[To add, which no file records: the room and its lighting; how the ethics "
             "approval and the participants' informed consent were obtained; the "
             "compensation.]" if shown else "")

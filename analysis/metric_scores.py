@@ -23,6 +23,7 @@ from stimuli_manifests.tables import DIRECTIONS, FORMAT_COLUMN, SCORES
 
 from .data import InputProblem
 from .errors import AnalysisError
+from .spreadsheet_csv import read_cells
 
 __all__ = ["MetricScores", "load_metric_scores", "metric_id"]
 
@@ -218,38 +219,36 @@ def provenance_flags(frame: pd.DataFrame) -> dict[str, str]:
 
 
 def _read_scores_csv(path: Path) -> pd.DataFrame:
-    try:
-        f = pd.read_csv(path, dtype={"stimulus": str, "reference": str, "metric": str,
-                                     "direction": str, "backbone": str, "weights_sha256": str,
-                                     "settings": str, "pooling": str, FORMAT_COLUMN: str,
-                                     "versions": str, "backbone_sha256": str,
-                                     "title": str},
-                        keep_default_na=True)
-    except FileNotFoundError:
-        raise AnalysisError(f"metric scores file {path} does not exist") from None
-    except IsADirectoryError:
+    """One scores file as text cells (read as spreadsheets write CSV: ``;`` or tab between
+    columns with decimal commas, names in any case), its contract and directions checked."""
+    if path.is_dir():
         raise AnalysisError(f"--metric {path} is a folder; give the scores CSV file "
-                            "('cgvqm batch --out' wrote it)") from None
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise AnalysisError(f"metric scores file {path} is not a readable CSV ({exc})") \
-            from None
+                            "('cgvqm batch --out' wrote it)")
+    f = read_cells(path, what="metric scores file", columns=SCORES.columns, decimals=("score",))
     if "direction" not in f.columns and {"stimulus", "metric", "score"} <= set(f.columns):
         raise AnalysisError(f"metric scores file {path} has no 'direction' column: "
                             + _FIX_DIRECTION)
     try:
         SCORES.check(list(f.columns),
-                     f[FORMAT_COLUMN].dropna().tolist() if FORMAT_COLUMN in f.columns else None,
+                     [v for v in f[FORMAT_COLUMN] if v] if FORMAT_COLUMN in f.columns else None,
                      path)
     except TableError as exc:
         raise AnalysisError(str(exc)) from None
-    direction = f["direction"].fillna("").str.strip().str.lower()
+    if f.empty:
+        raise AnalysisError(f"metric scores file {path} has a header but no rows")
+    for column in ("metric", "stimulus"):  # an empty id would become a metric called 'nan'
+        empty = f[column] == ""
+        if empty.any():
+            raise AnalysisError(f"metric scores file {path}: column '{column}' is empty on "
+                                f"line(s) {_rows_text(f['_row'][empty].astype(int).tolist())}; "
+                                "every row names its metric and stimulus")
+    direction = f["direction"].str.lower()
     bad = sorted(set(direction) - set(DIRECTIONS))
     if bad:
         raise AnalysisError(f"metric scores file {path}: direction {bad[0]!r} is not one of "
                             f"{', '.join(DIRECTIONS)}; " + _FIX_DIRECTION)
     f["direction"] = direction
-    f["_source"], f["_row"] = str(path), np.arange(len(f)) + 2
-    return f
+    return f.reset_index(drop=True)
 
 
 def _rows_text(rows: list[int]) -> str:
@@ -267,7 +266,10 @@ def _rows_text(rows: list[int]) -> str:
 def _shown(value: object) -> str | None:
     """A score cell as the user wrote it (``'abc'``, ``inf``); None when empty or NaN."""
     if isinstance(value, str):
-        return repr(value.strip()) if value.strip() else None
+        text = value.strip()
+        if text.lower() in ("", "nan", "na", "n/a", "null", "none"):
+            return None  # written as "no number": said as empty or NaN
+        return repr(text)
     try:
         number = float(value)  # type: ignore[arg-type]
     except (TypeError, ValueError):
@@ -289,6 +291,23 @@ def _no_numeric_score(rows: pd.DataFrame, raw: pd.Series) -> str:
         "those rows)"
 
 
+def _refuse_conflicting_scores(f: pd.DataFrame) -> None:
+    """Two different scores of one metric for one stimulus: keeping either would be a silent
+    choice (two files that both hold a metric of this name, say), so the run stops."""
+    twice = f[f.duplicated(["metric", "stimulus"], keep=False)]
+    for (metric, stimulus), rows in twice.groupby(["metric", "stimulus"], sort=False):
+        if rows["score"].nunique() < 2:
+            continue  # the same number twice: left out below, with a warning
+        where = ", ".join(f"{src}:{int(line)}" for src, line in zip(rows["_source"], rows["_row"],
+                                                                    strict=True))
+        files = set(rows["_source"])
+        fix = ("two files hold a metric of this name: rename the metric in one of them, or "
+               "leave one file out" if len(files) > 1 else
+               "a scores file holds one row per metric and stimulus: remove the extra row")
+        raise AnalysisError(f"metric {metric!r} has {len(rows)} different scores for "
+                            f"{stimulus} ({where}); {fix}")
+
+
 def load_metric_scores(paths: list[str | Path]) -> MetricScores:
     """Read metric score CSVs (``cgvq-scores/1``); bad rows are reported and left out."""
     problems: list[InputProblem] = []
@@ -302,8 +321,9 @@ def load_metric_scores(paths: list[str | Path]) -> MetricScores:
     both = f.groupby("metric")["direction"].nunique()
     if (both > 1).any():
         name = both[both > 1].index[0]
-        raise AnalysisError(f"metric {name!r} is marked both higher-better and lower-better; "
-                            "one metric has one direction")
+        files = ", ".join(dict.fromkeys(f.loc[f["metric"] == name, "_source"]))
+        raise AnalysisError(f"metric {name!r} is marked both higher-better and lower-better "
+                            f"(in {files}); one metric has one direction")
     raw = f["score"]
     f["score"] = pd.to_numeric(f["score"], errors="coerce")
     bad = ~np.isfinite(f["score"].to_numpy(dtype=float))
@@ -326,6 +346,7 @@ def load_metric_scores(paths: list[str | Path]) -> MetricScores:
     if broken.any() and bad.all():
         raise AnalysisError(_no_numeric_score(f[broken], raw[broken]))
     f = f[~bad]
+    _refuse_conflicting_scores(f)
     dup = f.duplicated(["metric", "stimulus"], keep="first")
     for _, row in f[dup].iterrows():
         problems.append(InputProblem(row["_source"], int(row["_row"]),

@@ -30,6 +30,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from stimuli_manifests.tables import DIRECTIONS
+
 from .data import InputProblem
 from .errors import AnalysisError
 from .mapping import N_PARAMS, Mapping, fit_mapping, logistic5, refit_batch
@@ -49,7 +51,8 @@ __all__ = ["Mapping", "MetricScores", "MetricValidation", "fit_mapping", "load_m
            "logistic5", "metric_id", "validate_metrics"]
 
 STATS = ("plcc", "srcc", "krcc", "rmse")
-CEILING_ROW = "human ceiling (split-half)"
+HIGHER, LOWER = DIRECTIONS
+CEILING_ROW = "two half panels (split-half agreement)"
 """The metric table's last row when the ceiling was computed: the humans as a 'metric'."""
 
 
@@ -206,6 +209,8 @@ class MetricValidation:
     ppd: dict[str, float] = field(default_factory=dict)  # metric -> its pixels per degree
     provenance: dict[str, dict[str, list[Any]]] = field(default_factory=dict)  # see MetricScores
     titles: dict[str, str] = field(default_factory=dict)  # metric -> the name prose prints
+    #: metric -> why its numbers cannot be read as declared (:func:`direction_doubt`)
+    suspect: dict[str, str] = field(default_factory=dict)
 
     def title(self, metric: str) -> str:
         """The name prose and figures print for ``metric`` (its id when it has no title)."""
@@ -271,26 +276,38 @@ def validate_metrics(
     refs: dict[str, dict[str, float]] = {}
     rows, method_rows = [], []
     skipped: list[str] = []  # why a metric was not evaluated, for the error when none was
+    suspect: dict[str, str] = {}  # metric -> why its numbers cannot be read as declared
+    study_ids = dmos["stimulus"].astype(str)
+    by_case = {s.casefold(): s for s in study_ids}
+    reference_of = dict(zip(study_ids, dmos["reference"].astype(str), strict=True))
+    references = set(reference_of.values())
     for name in scores.metrics:
         m = scores.frame[scores.frame["metric"] == name]
-        known = m["stimulus"].isin(dmos["stimulus"].astype(str))
+        known = m["stimulus"].isin(study_ids)
         for _, row in m[~known].iterrows():
+            near = by_case.get(str(row["stimulus"]).casefold())
+            hint = f" (the study has {near!r}: ids are case-sensitive)" if near else ""
             problems.append(InputProblem(row["_source"], int(row["_row"]),
                                          f"{name}: stimulus {row['stimulus']!r} is not one of "
-                                         "the study's rated stimuli; left out"))
-        m = m[m["stimulus"].isin(sid)]
+                                         f"the study's rated stimuli{hint}; left out"))
+        contradicts = known & _other_reference(m, reference_of, references)
+        for _, row in m[contradicts].iterrows():
+            problems.append(InputProblem(row["_source"], int(row["_row"]), (
+                f"{name}: {row['stimulus']} scored against reference {row['reference']}, but "
+                f"its reference in the manifest is {reference_of[row['stimulus']]}; left out")))
+        m = m[m["stimulus"].isin(sid) & ~contradicts]
         if len(m) < 3:
             why = (f"no stimulus id of its {int(known.size)} score row(s) is in the DMOS table "
                    "(no shared stimuli)" if not known.any() else
                    f"only {len(m)} stimul{'us' if len(m) == 1 else 'i'} shared with the DMOS "
                    "table (hidden references aside); a correlation needs at least 3")
-            problems.append(InputProblem(name, None, f"{name}: {why}; metric not evaluated"))
+            problems.append(InputProblem(name, None, f"{why}; metric not evaluated"))
             skipped.append(f"{name}: {why}")
             continue
         if len(m) < len(sid):  # ranked against metrics that saw every stimulus: say so
             missing = sorted(set(sid) - set(m["stimulus"].astype(str)))
             problems.append(InputProblem(name, None, (
-                f"{name}: {len(missing)} of {len(sid)} stimuli have no score ("
+                f"{len(missing)} of {len(sid)} stimuli have no score ("
                 + ", ".join(missing[:5]) + (", ..." if len(missing) > 5 else "")
                 + f"); its statistics are on the other {len(m)} only")))
         pos = sid.get_indexer(m["stimulus"].astype(str))
@@ -318,6 +335,10 @@ def validate_metrics(
         row["outlier_ratio"] = outlier_ratio(f.y, f.pred, ci)
         row["flag"] = scores.flags.get(name, "")
         rows.append(row)
+        doubt = direction_doubt(scores.direction(name), point["srcc"], f.q)
+        if doubt:
+            suspect[name] = doubt
+            problems.append(InputProblem(name, None, doubt))
         method_rows += _per_method(f, ci, y_ref_all[pos], methods_all[pos])
     if not rows:
         raise AnalysisError(_nothing_compared(skipped, scores.not_applicable))
@@ -352,7 +373,35 @@ def validate_metrics(
                             {n: f.boot for n, f in fitted.items()}, refs,
                             dict(scores.not_applicable), dict(scores.ppd),
                             {n: scores.provenance[n] for n in fitted if n in scores.provenance},
-                            dict(scores.titles))
+                            dict(scores.titles), suspect)
+
+
+def _other_reference(rows: pd.DataFrame, reference_of: dict[str, str],
+                     references: set[str]) -> pd.Series:
+    """Rows whose ``reference`` is another of the study's references than the manifest gives
+    their stimulus (a scene mix-up). A name that is no reference id of the study (a file
+    stem, as ``score --csv`` writes it) says nothing either way and is not held against it."""
+    if "reference" not in rows.columns:
+        return pd.Series(False, index=rows.index)
+    given = rows["reference"].astype(str)
+    expected = rows["stimulus"].astype(str).map(reference_of)
+    return given.isin(references) & expected.notna() & (given != expected)
+
+
+def direction_doubt(direction: str, srcc: float, oriented: np.ndarray) -> str:
+    """Why a metric's statistics cannot be read as it was declared ("" when they can): its
+    oriented scores fall as DMOS rises (its ``direction`` is likely the wrong way round; the
+    mapping, monotone in the data's own trend, would still give a positive PLCC), or it
+    gives every stimulus one score (no correlation is defined)."""
+    if np.ptp(oriented) == 0:
+        score = -oriented[0] if direction == LOWER else oriented[0]
+        return f"it gives every stimulus the same score ({score:g}); no correlation is defined"
+    if np.isfinite(srcc) and srcc < 0:
+        other = HIGHER if direction == LOWER else LOWER
+        return (f"its scores fall as DMOS rises (SRCC {srcc:.3f} with the declared direction "
+                f"{direction}): is it {other}? Its positive PLCC comes from a mapping that "
+                "falls with the score; fix the direction column and run again")
+    return ""
 
 
 def no_dmos_problems(dmos: pd.DataFrame, bad: np.ndarray) -> list[InputProblem]:

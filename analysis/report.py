@@ -281,14 +281,17 @@ def _metrics_summary(a: Analysis, m: Any) -> dict[str, Any]:
     fitted mapping, the viewing conditions and the pairwise tests."""
     overall = (m.comparisons[m.comparisons["scope"] == "all"]
                if len(m.comparisons) else m.comparisons)
+    directions = dict(zip(m.table["metric"], m.table["direction"], strict=True))
     return {
         "metrics": _records(m.table),
         "metrics_per_method": _records(m.per_method),
         "untrained_backbone": dict(m.untrained),
+        "metric_doubts": dict(m.suspect),
         "metric_provenance": dict(m.provenance),
         "metric_titles": {name: m.title(name) for name in m.mappings},
         "metric_mappings": {
             name: {"kind": mp.kind, "function": MAPPING_FUNCTIONS[mp.kind],
+                   "sign": -1 if directions.get(name) == "lower-better" else 1,
                    "center": mp.center, "scale": mp.scale, "params": list(mp.params)}
             for name, mp in m.mappings.items()},
         "not_applicable": dict(m.not_applicable),
@@ -361,19 +364,25 @@ def summary_text(a: Analysis) -> str:
                      + (f"   on the {s['icc_subset']}" if s["icc_subset"] else ""))
     if "ceiling" in s:
         c = s["ceiling"]["plcc"]
-        lines.append(f"human ceiling (split-half PLCC) {c['median']:.3f} "
-                     f"[{c['ci95_low']:.3f}, {c['ci95_high']:.3f}]")
+        bound = (s["ceiling"].get("plcc_full_panel_bound") or {}).get("median")
+        lines.append(f"two half panels' agreement (split-half PLCC) {c['median']:.3f} "
+                     f"[{c['ci95_low']:.3f}, {c['ci95_high']:.3f}]"
+                     + (f"; the ceiling for a metric against the full panel {bound:.3f}"
+                        if bound is not None else ""))
     if "metrics" in s:
-        lines.append(f"{'metric':32s} {'n':>4s} {'PLCC':>7s} {'SRCC':>7s} {'KRCC':>7s} "
+        width = max(32, *(len(str(m["metric"])) for m in s["metrics"]))
+        lines.append(f"{'metric':{width}s} {'n':>4s} {'PLCC':>7s} {'SRCC':>7s} {'KRCC':>7s} "
                      f"{'RMSE':>8s} {'RMSE*':>8s}")
         for m in s["metrics"]:
             vals = [m.get(k) for k in ("plcc", "srcc", "krcc")]
             txt = " ".join(f"{v:7.3f}" if v is not None else "    n/a" for v in vals)
             rm = [m.get(k) for k in ("rmse", "rmse_star")]
             txt += " " + " ".join(f"{v:8.3f}" if v is not None else "     n/a" for v in rm)
-            lines.append(f"{str(m['metric'])[:32]:32s} {m['n']:4d} {txt}")
+            lines.append(f"{m['metric']!s:{width}s} {m['n']:4d} {txt}")
         for name, why in s.get("untrained_backbone", {}).items():
             lines.append(f"WARNING: {name}: {why}; not the published metric")
+        for name, why in s.get("metric_doubts", {}).items():
+            lines.append(f"WARNING: {name}: {why}")
     if s["n_input_problems"]:
         lines.append(f"{s['n_input_problems']} input problem(s) found; see tables/problems.csv")
     return "\n".join(lines)

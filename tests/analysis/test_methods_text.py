@@ -87,7 +87,7 @@ def test_the_text_states_the_study_as_generated_and_recomputed(study, tmp_path):
         assert f"{name}: PLCC {table.loc[name, 'plcc']:.3f} [" in text
         assert f"SRCC {table.loc[name, 'srcc']:.3f} [" in text
         assert f"RMSE {table.loc[name, 'rmse']:.2f} [" in text
-    assert "human ceiling (split-half): PLCC" not in text
+    assert "two half panels (split-half agreement): PLCC" not in text  # its own sentence
     assert re.search(r"good over weak \(p [=<] [0-9.e-]+\)", text)
     assert "weak over good" not in text and "each pair on the stimuli" not in text
     # the ICC on the distorted stimuli alone, from pingouin directly

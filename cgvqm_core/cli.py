@@ -72,6 +72,13 @@ def build_parser() -> argparse.ArgumentParser:
                     help="say where the time went (decode, copy, backbone, pooling, idle; "
                          "on stderr, and under 'timing' with --json)")
     sc.add_argument("--csv", metavar="OUT", help="append the score to a scores CSV")
+    sc.add_argument("--id", metavar="STIMULUS",
+                    help="with --csv: the test's stimulus id in the study's manifest "
+                         "(SRC01_HRC03), which the analysis joins on (default: the file's "
+                         "name without extension)")
+    sc.add_argument("--reference-id", metavar="REFERENCE",
+                    help="with --csv: the reference's id in the manifest (SRC01; default: "
+                         "the file's name without extension)")
     add_metric_options(sc)
 
     ba = sub.add_parser("batch", help="score every stimulus of a manifest into a scores CSV")
@@ -174,7 +181,7 @@ def _csv_before_scoring(args: argparse.Namespace, metric: str, pooling: str) -> 
 
     state = read_scores(Path(args.csv), flag="--csv")
     pool = f" ({pooling})" if pooling else ""
-    stimulus = Path(args.test).stem
+    stimulus = _row_ids(args)[0]
     if (metric, pooling, stimulus) in state.slots:
         raise CGVQMError(f"--csv {args.csv}: already holds a score of {metric}{pool} for "
                          f"{stimulus}; score --csv adds one row per metric, pooling and test "
@@ -237,8 +244,15 @@ def _pair_columns(args: argparse.Namespace) -> dict[str, str]:
     and sha256 (a row that names only a file cannot tell which render it scored)."""
     from stimuli_manifests import sha256_path
 
-    return {"stimulus": Path(args.test).stem, "reference": Path(args.ref).stem,
+    stimulus, reference = _row_ids(args)
+    return {"stimulus": stimulus, "reference": reference,
             "reference_sha256": sha256_path(args.ref), "stimulus_sha256": sha256_path(args.test)}
+
+
+def _row_ids(args: argparse.Namespace) -> tuple[str, str]:
+    """The stimulus and reference ids a ``score --csv`` row names: ``--id`` and
+    ``--reference-id``, else the files' stems (which a manifest's ids rarely are)."""
+    return (args.id or Path(args.test).stem, args.reference_id or Path(args.ref).stem)
 
 
 def _refuse_mismatched_pair(args: argparse.Namespace) -> None:
@@ -310,6 +324,12 @@ def _rate_for_frames(args: argparse.Namespace) -> None:
 
 def _cmd_score(args: argparse.Namespace) -> int:
     """``--csv``: the file is held from reading it to the row written (one writer at a time)."""
+    for flag, value in (("--id", args.id), ("--reference-id", args.reference_id)):
+        if value is not None and not args.csv:
+            raise CGVQMError(f"{flag} names the row score --csv writes; give --csv too")
+        if value is not None and (not value.strip() or value != value.strip()):
+            raise CGVQMError(f"{flag} {value!r}: give the id as the manifest writes it, "
+                             "without surrounding spaces")
     if not args.csv:
         return _score_pair(args)
     from .batch import scores_lock

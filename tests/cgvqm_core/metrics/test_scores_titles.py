@@ -77,3 +77,23 @@ def test_a_run_resumed_on_a_file_without_titles_keeps_its_layout(capsys, tmp_pat
     assert [r["metric"] for r in rows] == ["psnr"] * 4 + ["gmsd"] * 4
     assert {r["format"] for r in rows} == {"cgvq-scores/1"}
     assert len(read_table(out, SCORES_1_0)) == 8
+
+
+def test_score_csv_rows_can_carry_the_manifests_ids(capsys, tmp_path):
+    """Two scenes rendered to the same file names (as `cgvq-study init` lays them out): with
+    --id and --reference-id each row names its manifest ids, so neither clashes with the
+    other and the analysis can join them; without --csv the ids are refused."""
+    out = tmp_path / "rows.csv"
+    for n, scene in enumerate(("colonnade", "lattice"), start=1):
+        ref = real_video(4, 40, 48, image="astronaut" if n == 1 else "coffee")
+        r = write_video(tmp_path / scene / "reference.mkv", ref, FPS)
+        t = write_video(tmp_path / scene / "blur_L1.mkv", noisy(ref, 8), FPS)
+        rc, _, err = _run(capsys, "score", "--ref", r, "--test", t, "--metric", "psnr",
+                          "--csv", out, "--id", f"SRC0{n}_HRC01", "--reference-id", f"SRC0{n}")
+        assert rc == 0, err
+    rows = read_table(out, SCORES)
+    assert [(r["stimulus"], r["reference"]) for r in rows] == [("SRC01_HRC01", "SRC01"),
+                                                               ("SRC02_HRC01", "SRC02")]
+    rc, _, err = _run(capsys, "score", "--ref", r, "--test", t, "--metric", "psnr",
+                      "--id", "SRC02_HRC01")
+    assert rc == 2 and "give --csv too" in err and len(err.strip().splitlines()) == 1

@@ -14,6 +14,7 @@ from .metrics import CEILING_ROW
 from .pipeline import MODEL_REJECTION, Analysis
 from .presentation_text import metric_viewing_text, presentation_paragraph
 from .quality import ALTERED_SESSION
+from .references import cited
 
 SCREENING_PROSE = {
     "p913": "Raters were screened one at a time (ITU-T P.913, iterated): a rater was removed "
@@ -387,6 +388,10 @@ def _metrics(s: dict[str, Any]) -> str:
             + "; ".join(_metric_line(s, m, n_max) for m in rows) + ".")
     if len(rows) > 1:
         text += _significance(s, rows)
+    text += (" KRCC, RMSE* (P.1401's epsilon-insensitive RMSE) and the outlier ratio are in "
+             "the report's metric table" + (", and Williams' t and Steiger's Z for each pair of "
+                                            "metrics in its tables/comparisons.csv"
+                                            if len(rows) > 1 else "") + ".")
     text += _implementations(s, [str(m["metric"]) for m in rows])
     if any(mp.get("kind") == "logistic5" for mp in (s.get("metric_mappings") or {}).values()):
         negated = any(m.get("direction") == "lower-better" for m in rows)
@@ -422,5 +427,9 @@ def methods_paragraphs(a: Analysis, s: dict[str, Any]) -> list[str]:
     todo = ("[To add, which no file records: the room and its lighting; how the ethics "
             "approval and the participants' informed consent were obtained; the "
             "compensation.]" if shown else "")
-    return [p for p in (warning, _panel(a, s), shown, _scores(a, s), _reliability(a, s),
+    body = [p for p in (warning, _panel(a, s), shown, _scores(a, s), _reliability(a, s),
                         _metrics(s), todo) if p]
+    sources = cited(" ".join(body))
+    if sources:
+        body += ["References (the sources of the methods named above):", *sources]
+    return body

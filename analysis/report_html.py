@@ -266,7 +266,7 @@ def curve_text(a: Analysis) -> str:
     if c.dmos_width is not None and red:
         first = min(red, key=lambda n: abs(n - 5))
         last = max(red)
-        txt += (f" The paper's reading: the average DMOS 95% CI width shrinks by "
+        txt += (f" The CGVQM+D paper's reading: the average DMOS 95% CI width shrinks by "
                 f"{red[first]:.3g} when the {ordinal(first)} participant is added")
         txt += (f" and by {red[last]:.3g} for the {ordinal(last)}" if last != first else "")
         if np.isfinite(c.decay_rate):

@@ -100,5 +100,14 @@ def test_prose_and_the_report_print_the_titles(tmp_path):
         assert "GoodQ over WeakQ" in text
     summary = json.loads((out / "summary.json").read_text())
     assert summary["metric_titles"] == {"good": "GoodQ", "weak": "WeakQ"}
+    # the methods it names, cited at the end: Williams' t and Steiger's Z with two metrics
+    paragraphs = (out / "methods.txt").read_text().split("\n\n")
+    refs = paragraphs[paragraphs.index("References (the sources of the methods named above):")
+                      + 1:]
+    for first_words in ("Li, Z., Bampis", "ITU-T Recommendation P.910", "ITU-T Recommendation "
+                        "P.1401", "Sheikh, H. R.", "Jindal, A.", "Williams, E. J.",
+                        "Steiger, J. H.", "Shrout, P. E."):
+        assert any(r.startswith(first_words) for r in refs), first_words
+    assert not any(r.startswith("Grubbs") for r in refs)  # no screening was applied
     html = (out / "report.html").read_text()
     assert "<th>title</th>" in html and "<td>GoodQ</td>" in html

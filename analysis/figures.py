@@ -208,6 +208,7 @@ def metric_scatter(a: Analysis, path: Path) -> Path | None:
                      f"({a.metrics.mappings[name].kind})", fontsize=8,
                      color="#a00" if flag else "k")
         ax.set_xlabel(f"{title} score" + (" (lower is better)" if sign < 0 else ""))
+        ax.ticklabel_format(axis="x", useOffset=False)  # scores near 100 read as they are
         ax.set_ylabel("DMOS")
         if k == 0:
             ax.legend(fontsize=6)
@@ -348,13 +349,21 @@ def metric_comparison(a: Analysis, path: Path) -> Path | None:
         lo = t[f"{key}_ci95_low"].to_numpy(dtype=float)
         hi = t[f"{key}_ci95_high"].to_numpy(dtype=float)
         err = np.nan_to_num(np.abs(np.vstack([val - lo, hi - val])))
-        ax.bar(x + off, val, w, yerr=err, capsize=3, color=col, label=key.upper())
-    names = ["two half panels\n(2.5-97.5% of splits)" if fit == "none" else a.metrics.title(m)
+        bars = ax.bar(x + off, val, w, yerr=err, capsize=3, color=col, label=key.upper())
+        for bar, name in zip(bars, t["metric"], strict=True):
+            if name in a.metrics.untrained:  # as the benchmark marks them
+                bar.set_hatch("//")
+                bar.set_alpha(0.5)
+    names = ["two half panels\n(2.5-97.5% of splits)" if fit == "none" else
+             a.metrics.title(m) + ("\n[FLAGGED]" if m in a.metrics.untrained else "")
              for m, fit in zip(t["metric"], t["fit"], strict=True)]
     ax.set_xticks(x, names, rotation=20, ha="right", fontsize=8)
+    for tick, name in zip(ax.get_xticklabels(), t["metric"], strict=True):
+        if name in a.metrics.untrained:
+            tick.set_color("#a00")
     ax.set_ylim(_lowest(t) - 0.05, 1.05)
     ax.legend(fontsize=8)
-    ax.set_title("metrics versus DMOS (95% bootstrap CI)", fontsize=10)
+    ax.set_title("metrics versus DMOS (95% bootstrap CI; hatched: flagged)", fontsize=10)
     return _save(fig, path)
 
 

@@ -58,9 +58,12 @@ def fixed(x: float, digits: int = 3) -> str:
     return out[1:] if out.startswith("-") and not out.strip("-0.") else out
 
 
-def p_text(p: float) -> str:
-    """A p value as a paper gives it: three decimals, and "p < 0.001" below that (the
-    smallest p of 1000 resamples, 1/1001, is not an exact "p = 0.000999")."""
+def p_text(p: float, n_resamples: int | None = None) -> str:
+    """A p value as a paper gives it: three decimals, and "p < 0.001" below that. At the
+    floor of a bootstrap p of ``n_resamples`` (no resample contradicted: 1/(B + 1)) it is a
+    bound, "p ≤ 0.001" for B = 999 as for B = 1000 (one outcome, one wording)."""
+    if n_resamples and p <= 1 / (n_resamples + 1) + 1e-12:
+        return f"p ≤ {math.ceil(1000 / (n_resamples + 1) - 1e-9) / 1000:.3f}"
     return "p < 0.001" if p < 0.001 - 1e-12 else f"p = {p:.3f}"
 
 
@@ -342,7 +345,8 @@ def _significance(s: dict[str, Any], rows: list[dict[str, Any]]) -> str:
         where = f"; on the {shared} stimuli both scored" if shared != max(n_of[a],
                                                                           n_of[b]) else ""
         subsets |= bool(where)
-        wins.append(f"{_title(s, a)} over {_title(s, b)} ({p_text(p)}{where})")
+        shown = p_text(p, c.get("boot_n"))
+        wins.append(f"{_title(s, a)} over {_title(s, b)} ({shown}{where})")
     test = f"one-tailed paired bootstrap of the PLCC, alpha = {alpha:g}"
     if subsets or len(set(n_of.values())) > 1:
         test += ", each pair on the stimuli both metrics scored"
@@ -359,6 +363,7 @@ def _implementations(s: dict[str, Any], names: list[str]) -> str:
     """Which implementation (and version) computed each metric, as its score rows record it;
     metrics sharing one are named together."""
     groups: dict[str, list[str]] = {}
+    unrecorded = []
     for name in names:
         versions = (s.get("metric_provenance") or {}).get(name, {}).get("versions") or []
         words = "; ".join(", ".join(f"{v}" if k == "implementation" else f"{k} {v}"
@@ -366,10 +371,14 @@ def _implementations(s: dict[str, Any], names: list[str]) -> str:
                           else str(entry) for entry in versions)
         if words:
             groups.setdefault(words, []).append(_title(s, name))
+        else:
+            unrecorded.append(_title(s, name))
     if not groups:
         return ""
     return " Implementations: " + "; ".join(
-        f"{_and(metrics)}: {words}" for words, metrics in groups.items()) + "."
+        f"{_and(metrics)}: {words}" for words, metrics in groups.items()) + (
+        f"; {_and(unrecorded)}: not recorded in {'its' if len(unrecorded) == 1 else 'their'} "
+        "scores (name the implementation and version)" if unrecorded else "") + "."
 
 
 def _metrics(s: dict[str, Any]) -> str:

@@ -88,7 +88,7 @@ def test_the_text_states_the_study_as_generated_and_recomputed(study, tmp_path):
         assert f"SRCC {table.loc[name, 'srcc']:.3f} [" in text
         assert f"RMSE {table.loc[name, 'rmse']:.2f} [" in text
     assert "two half panels (split-half agreement): PLCC" not in text  # its own sentence
-    assert re.search(r"good over weak \(p [=<] [0-9.e-]+\)", text)
+    assert re.search(r"good over weak \(p [=<≤] [0-9.e-]+\)", text)
     assert "weak over good" not in text and "each pair on the stimuli" not in text
     # the ICC on the distorted stimuli alone, from pingouin directly
     dist = mean[mean["stimulus"].str.contains("_")]
@@ -247,6 +247,9 @@ def test_with_fewer_than_four_hrcs_the_p913_rule_is_r1_alone(tmp_path):
 def test_numbers_are_printed_as_a_paper_prints_them():
     assert p_text(1 / 1001) == "p < 0.001" and p_text(0.001) == "p = 0.001"
     assert p_text(0.0366) == "p = 0.037"
+    # the floor of a bootstrap p (no resample contradicted) is a bound, worded one way
+    assert p_text(1 / 1000, 999) == p_text(1 / 1001, 1000) == "p ≤ 0.001"
+    assert p_text(1 / 41, 40) == "p ≤ 0.025" and p_text(2 / 41, 40) == "p = 0.049"
     assert percent(0.995) == "99.5%" and percent(0.83) == "83%" and percent(1.0) == "100%"
     assert percent(0.004) == "0.4%"
     assert fixed(-0.0001) == "0.000" and fixed(-0.01) == "-0.010"

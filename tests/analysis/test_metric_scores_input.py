@@ -161,7 +161,8 @@ def test_the_report_warns_of_a_reversed_metric_and_its_mapping_can_be_redrawn(tm
         ("err", 100 - q + rng.normal(0, 6, len(cond)), "lower-better"),
         ("flipped", 100 - q + rng.normal(0, 3, len(cond)), "higher-better"))]
     pd.concat([pd.DataFrame({"stimulus": cond, "reference": [c.split("_")[0] for c in cond],
-                             "metric": n, "score": v, "direction": dr})
+                             "metric": n, "score": v, "direction": dr,
+                             "versions": '{"implementation":"lab 1.0"}' if n == "good" else ""})
                for n, v, dr in frames]).to_csv(tmp_path / "scores.csv", index=False)
     out = tmp_path / "out"
     rc = main(["report", "--manifest", str(tmp_path / "manifest.json"), "--ratings",
@@ -176,6 +177,8 @@ def test_the_report_warns_of_a_reversed_metric_and_its_mapping_can_be_redrawn(tm
     assert "Comparisons with it are left out of this text.]" in text
     assert not any(w in text for w in ("flipped over", "over flipped"))
     assert "(z; a lower-better score negated first)" in text
+    assert ("Implementations: good: lab 1.0; err and flipped: not recorded in their scores "
+            "(name the implementation and version).") in text
     glance = (out / "report.html").read_text()
     assert "flipped: its scores fall as DMOS rises" in glance
     table = pd.read_csv(out / "tables" / "metrics.csv").set_index("metric")

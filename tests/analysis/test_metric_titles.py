@@ -69,7 +69,17 @@ def test_the_command_line_names_the_clash_in_one_line(tmp_path, capsys):
     assert rc == 2 and len(err.strip().splitlines()) == 1 and "several titles" in err
 
 
-def test_prose_and_the_report_print_the_titles(tmp_path):
+def test_prose_and_the_report_print_the_titles(tmp_path, monkeypatch):
+    import analysis.figures as figures
+
+    drawn = {}
+    save = figures._save
+
+    def keep(fig, path, **kw):
+        drawn[path.stem] = fig
+        return save(fig, path, **kw)
+
+    monkeypatch.setattr(figures, "_save", keep)
     st = synthetic_study(n_scenes=3, methods=("blur", "noise"), levels=3, n_raters=8, seed=6)
     save_manifest(st.manifest.manifest, tmp_path / "manifest.json")
     st.ratings.to_csv(tmp_path / "ratings.csv", index=False)
@@ -111,3 +121,12 @@ def test_prose_and_the_report_print_the_titles(tmp_path):
     assert not any(r.startswith("Grubbs") for r in refs)  # no screening was applied
     html = (out / "report.html").read_text()
     assert "<th>title</th>" in html and "<td>GoodQ</td>" in html
+    # the figures name the metrics by title; the flagged one is marked in each
+    ticks = [t.get_text() for t in drawn["metric_comparison"].axes[0].get_xticklabels()]
+    assert ticks[:2] == ["GoodQ", "WeakQ\n[FLAGGED]"]
+    hatched = {b.get_hatch() for b in drawn["metric_comparison"].axes[0].patches}
+    assert hatched == {None, "//"}
+    scatter = [ax.get_title().split("\n")[0] for ax in drawn["metric_scatter"].axes]
+    assert scatter == ["GoodQ", "WeakQ [FLAGGED]"]
+    benchmark = [t.get_text() for t in drawn["metric_benchmark"].axes[0].get_yticklabels()]
+    assert sorted(benchmark) == ["GoodQ", "WeakQ  [FLAGGED]"]

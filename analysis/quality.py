@@ -25,16 +25,7 @@ from .errors import AnalysisError
 from .reliability import repetition_correlation
 from .session_protocol import session_protocol
 from .session_time import study_minutes
-
-# Flag thresholds (documented in the report's methods section and the README).
-THRESHOLDS: dict[str, float] = {
-    "completeness": 0.9,        # below: "incomplete" flag (dropping is --min-completeness)
-    "dropped_trials": 0.05,     # share of presentations with dropped frames
-    "viewing_s": 1.0,           # median viewing time per trial, seconds
-    "hidden_reference": 0.5,    # mean hidden-reference rating below this share of the scale
-    "loo_r": 0.75,              # correlation with the leave-one-out panel mean (P.913 r1)
-    "repeat_r": 0.5,            # mean correlation between a rater's repetitions
-}
+from .thresholds import THRESHOLDS
 
 LONG_MINUTES = 12 * 60
 """A participant longer in the study than this (away time between sittings not counted) had

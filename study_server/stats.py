@@ -357,7 +357,7 @@ class StatsWorker:
 @dataclass(frozen=True)
 class CellLimits:
     """Where the dashboard marks a participant's cell: the report's data-quality thresholds
-    (:data:`analysis.quality.THRESHOLDS`), with the hidden-reference share turned into a
+    (:data:`analysis.thresholds.THRESHOLDS`), with the hidden-reference share turned into a
     rating on this study's scale, so that the page and the report flag the same raters."""
 
     panel_r: float = 0.75
@@ -403,7 +403,7 @@ def study_plan(current: StudyVersion) -> StudyPlan:
     planned = len(stimuli) * m.protocol.repetitions
     if adaptive is not None:  # block 1 (every stimulus once) and the later blocks
         planned = len(stimuli) + (adaptive.blocks - 1) * adaptive.trials_per_block(len(stimuli))
-    from analysis.quality import THRESHOLDS
+    from analysis.thresholds import THRESHOLDS
 
     share, scale = THRESHOLDS["hidden_reference"], m.scale
     higher = scale.direction == "higher_is_better"

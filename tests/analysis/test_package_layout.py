@@ -43,3 +43,22 @@ def test_long_functions_say_why() -> None:
              and node.end_lineno - node.lineno + 1 > MAX_LINES
              and REASON not in (ast.get_docstring(node) or "")]
     assert found == []
+
+
+def test_the_package_names_load_when_used_and_each_resolves() -> None:
+    """``import analysis`` stays light (the study server reads its thresholds without the
+    statistics stack); every public name still resolves to its module's object."""
+    import importlib
+    import subprocess
+    import sys
+
+    assert set(analysis.__all__) - {"__version__"} == set(analysis._EXPORTS)
+    for name, module in analysis._EXPORTS.items():
+        defining = importlib.import_module(module, "analysis")
+        assert getattr(analysis, name) is getattr(defining, name), name
+    probe = ("import sys, analysis, analysis.thresholds; "
+             "print(sorted(m for m in ('pandas', 'scipy', 'pingouin', 'matplotlib') "
+             "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         check=True, cwd=PACKAGE.parent)
+    assert out.stdout.strip() == "[]"

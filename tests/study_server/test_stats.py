@@ -44,7 +44,8 @@ def panel(tmp_path, invites, monkeypatch):
 
 
 def test_statistics_match_the_analysis_of_the_same_ratings(panel):
-    from analysis import load_ratings, reliability, screen_raters
+    from analysis import load_ratings, screen_raters
+    from analysis.reliability import reliability
 
     study, local = panel
     st = ServerState.open(ServerConfig(study, stats_in_background=False))

@@ -351,11 +351,10 @@ def _significance(s: dict[str, Any], rows: list[dict[str, Any]]) -> str:
     if subsets or len(set(n_of.values())) > 1:
         test += ", each pair on the stimuli both metrics scored"
     left = [_title(s, m) for m in n_of if m in doubt]
-    if left:
-        test += f"; {_and(left)} left out, see the note above"
+    aside = f"; {_and(left)} left out, see the note above" if left else ""
     if not wins:
-        return f" No metric's PLCC was significantly higher than another's ({test})."
-    return f" Significant differences ({test}, no correction for multiple comparisons): " \
+        return f" No metric's PLCC was significantly higher than another's ({test}{aside})."
+    return f" Significant differences ({test}, no correction for multiple comparisons{aside}): " \
         + "; ".join(wins) + "."
 
 

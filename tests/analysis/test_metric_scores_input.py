@@ -20,6 +20,8 @@ from analysis.metrics import CEILING_ROW, validate_metrics
 from analysis.synthetic import synthetic_study
 from stimuli_manifests import save_manifest
 
+from .test_mixed_panel import screenshot
+
 
 def _dmos(n: int = 30, seed: int = 0) -> pd.DataFrame:
     rng = np.random.default_rng(seed)
@@ -181,6 +183,7 @@ def test_the_report_warns_of_a_reversed_metric_and_its_mapping_can_be_redrawn(tm
             "(name the implementation and version).") in text
     glance = (out / "report.html").read_text()
     assert "flipped: its scores fall as DMOS rises" in glance
+    screenshot(out / "report.html", "reversed_metric_report.png", 2200)  # for a person to see
     table = pd.read_csv(out / "tables" / "metrics.csv").set_index("metric")
     assert table.index[-1] == CEILING_ROW == "two half panels (split-half agreement)"
     dmos = pd.read_csv(out / "dmos.csv").set_index("stimulus")["dmos"]

@@ -159,7 +159,8 @@ def test_a_metric_lacking_stimuli_is_named(study_files, tmp_path, capsys):
     out = tmp_path / "report"
     assert _report(study_files, out, "--metric", str(study_files["partial"])) == 0
     problems = pd.read_csv(out / "tables" / "problems.csv")
-    said = problems[problems["message"].str.startswith("good: 3 of")]
+    said = problems[(problems["source"] == "good")  # the metric, named once (not "good: good:")
+                    & problems["message"].str.startswith("3 of")]
     assert len(said) == 1
     assert all(s in said["message"].iloc[0] for s in study_files["missing"])
 

@@ -7,8 +7,8 @@ A split-half r underestimates the full panel's reliability; the Spearman-Brown c
 PLCC (projected to all n raters, also when n is odd and one rater rests in each split) is
 reported beside it, and its square root: the PLCC a predictor of the true quality would reach
 against the full panel's DMOS, the ceiling for a metric. The CI-width curve subsamples n
-raters (seeded) and fits a power law width(n) = a * n^(-b) (from 5 raters on, when there
-are enough points).
+raters (seeded), from the 3 raters the report's intervals need on, and fits a power law
+width(n) = a * n^(-b) (from 5 raters on, when there are enough points).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from scipy import optimize, stats
 
 from .data import RatingSet
 from .errors import AnalysisError, check_resamples
+from .intervals import MIN_RATERS_FOR_INTERVAL
 from .stats import all_columns_masked, percentile_interval
 
 log = logging.getLogger(__name__)
@@ -42,8 +43,9 @@ class SplitHalf:
         out = {}
         for key, v in self.values.items():
             lo, hi = percentile_interval(v)
+            # the spread of the splits (percentiles), not a confidence interval: hence the names
             out[key] = {"median": float(np.nanmedian(v)), "mean": float(np.nanmean(v)),
-                        "ci95_low": lo, "ci95_high": hi}
+                        "p2_5": lo, "p97_5": hi}
         r = float(np.nanmedian(self.values["plcc"]))
         sb = spearman_brown(r, self.n_raters)
         out["plcc_spearman_brown"] = {"median": sb}
@@ -184,7 +186,10 @@ def _power_fit(n: np.ndarray, w: np.ndarray) -> tuple[float, float]:
 
 
 def ci_width_curve(rs: RatingSet, draws: int = 100, seed: int = 0) -> CiCurve:
-    """CI width against panel size for random panels of n = 2..S raters (seeded)."""
+    """CI width against panel size for random panels of n = 3..S raters (seeded). Two raters
+    are left out as everywhere in the report (:data:`MIN_RATERS_FOR_INTERVAL`): their t
+    quantile of 12.7 would make the width at n = 2, and the 3rd rater's "reduction", mostly
+    the quantile's."""
     rng = np.random.default_rng(seed)
     sums, sq, counts = _sums(rs)
     d = per_rater_dmos(rs)
@@ -193,7 +198,7 @@ def ci_width_curve(rs: RatingSet, draws: int = 100, seed: int = 0) -> CiCurve:
         dx = np.where(fin, d, 0.0)
         dsum, dsq, dcount = dx, dx * dx, fin.astype(float)
     ns, widths, dwidths = [], [], []
-    for k in range(2, rs.n_raters + 1):
+    for k in range(MIN_RATERS_FOR_INTERVAL, rs.n_raters + 1):
         order = np.argsort(rng.random((draws, rs.n_raters)), axis=1)[:, :k]
         mask = np.zeros((draws, rs.n_raters))
         np.put_along_axis(mask, order, 1.0, axis=1)

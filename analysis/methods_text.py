@@ -293,7 +293,7 @@ def _reliability(a: Analysis, s: dict[str, Any]) -> str:
     if c:
         p = c["plcc"]
         parts.append(f"Two halves of the raters agreed with PLCC = "
-                     f"{_ci(p['median'], p['ci95_low'], p['ci95_high'])} (median and 2.5-97.5 "
+                     f"{_ci(p['median'], p['p2_5'], p['p97_5'])} (median and 2.5-97.5 "
                      f"percentiles of {s['n_splits']} random splits, plain-mean DMOS of the "
                      "distorted stimuli).")
         sb = (c.get("plcc_spearman_brown") or {}).get("median")

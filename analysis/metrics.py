@@ -349,8 +349,9 @@ def validate_metrics(
         for key in STATS:
             c = ceiling.get(key, {})
             human[key] = c.get("median", np.nan)
-            human[f"{key}_ci95_low"] = c.get("ci95_low", np.nan)
-            human[f"{key}_ci95_high"] = c.get("ci95_high", np.nan)
+            # the splits' 2.5-97.5 percentiles, in the columns other rows fill with CIs
+            human[f"{key}_ci95_low"] = c.get("p2_5", np.nan)
+            human[f"{key}_ci95_high"] = c.get("p97_5", np.nan)
         table = pd.concat([table, pd.DataFrame([human])], ignore_index=True)
     comparisons = _comparisons(fitted, y_all, yb_all, ci_all, methods_all, n_boot, seed)
     names = list(fitted)

@@ -14,6 +14,7 @@ from tqdm.auto import tqdm
 from .ceiling import CiCurve, SplitHalf, ci_width_curve, split_half
 from .data import Exclusion, InputProblem, RatingSet, drop_unrated, rater_order
 from .errors import AnalysisError, check_resamples
+from .intervals import MIN_RATERS_FOR_INTERVAL
 from .metrics import MetricScores, MetricValidation, validate_metrics
 from .panel import (
     PanelSummary,
@@ -198,7 +199,7 @@ def run_analysis(rs: RatingSet, config: AnalysisConfig | None = None,
     done("ceiling")
     step("ci curve")
     curve = ci_width_curve(screened, config.ci_draws, config.seed) \
-        if screened.n_raters >= 3 else None
+        if screened.n_raters > MIN_RATERS_FOR_INTERVAL else None  # a curve: 2 panel sizes
     done("ci curve")
     step("quality")
     quality = _quality(rs, used, outliers, scores, config)

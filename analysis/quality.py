@@ -79,7 +79,7 @@ def facts_from_sessions(records: list) -> pd.DataFrame:
         rows.append({
             "rater": participant,
             "sessions": len(recs),
-            "files": "; ".join(r.path for r in recs),
+            "files": "; ".join(r.name or r.path for r in recs),
             "n_planned": max(r.n_planned for r in recs),
             "timing_mode": ", ".join(modes),
             "blocks_planned_by": ", ".join(planners),

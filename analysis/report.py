@@ -36,7 +36,10 @@ from .version import __version__
 
 log = logging.getLogger(__name__)
 
-SUMMARY_FORMAT = "cgvq-analysis-summary/2"
+SUMMARY_FORMAT = "cgvq-analysis-summary/3"
+"""/3: everything but ``inputs`` (paths, command line) and ``run`` (timings) is the same for
+the same input files and options, wherever they lie; /2 held the ``--sessions`` or
+``--ratings`` paths as given (``source``) and the timings (``timings_s``) at the top."""
 
 _QUALITY_COLUMNS = ("status", "sessions", "n_ratings", "n_planned", "completeness",
                     "timing_mode", "vsync", "preflight_skipped", "presentations",
@@ -215,7 +218,6 @@ def summary(a: Analysis) -> dict[str, Any]:
     out: dict[str, Any] = {
         "format": SUMMARY_FORMAT,
         "study": rs.study,
-        "source": a.ratings.source,
         "model": sc.model,
         "model_name": sc.model_name,
         "model_fallback": sc.fallback,
@@ -250,7 +252,7 @@ def summary(a: Analysis) -> dict[str, Any]:
         "flag_thresholds": THRESHOLDS,
         "n_input_problems": len(a.problems),
         "reversed_levels": reversed_levels(a.dmos(), a.ratings.scale_max - a.ratings.scale_min),
-        "timings_s": {k: round(v, 3) for k, v in a.timings.items()},
+        "run": {"timings_s": {k: round(v, 3) for k, v in a.timings.items()}},
     }
     if a.reliability is not None:
         out.update(_reliability_summary(a.reliability))
@@ -366,7 +368,7 @@ def summary_text(a: Analysis) -> str:
         c = s["ceiling"]["plcc"]
         bound = (s["ceiling"].get("plcc_full_panel_bound") or {}).get("median")
         lines.append(f"two half panels' agreement (split-half PLCC) {c['median']:.3f} "
-                     f"[{c['ci95_low']:.3f}, {c['ci95_high']:.3f}]"
+                     f"[{c['p2_5']:.3f}, {c['p97_5']:.3f}]"
                      + (f"; the ceiling for a metric against the full panel {bound:.3f}"
                         if bound is not None else ""))
     if "metrics" in s:

@@ -49,6 +49,9 @@ class Session:
     answers: list[dict[str, Any]] = field(default_factory=list)
     screenings: list[dict[str, Any]] = field(default_factory=list)
     events: list[dict[str, Any]] = field(default_factory=list)
+    name: str = ""
+    """The file's name relative to the ``--sessions`` path it was found under (see
+    :class:`session_store.sources.SessionSource`): what the report's tables record."""
 
     @property
     def altered(self) -> str:
@@ -166,7 +169,8 @@ def read_one(source) -> Session:
     return Session(path=name, info=info, ratings=list(rec.ratings),
                    presentations=list(rec.presentations), n_planned=int(rec.n_planned),
                    problems=problems, damaged=damaged, answers=list(rec.answers),
-                   screenings=list(rec.screenings), events=list(rec.events))
+                   screenings=list(rec.screenings), events=list(rec.events),
+                   name=source.name or name)
 
 
 # -- deciding what belongs ------------------------------------------------------------------

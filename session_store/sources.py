@@ -67,6 +67,11 @@ class SessionSource:
     :func:`session_store.verify.check_export_copy`)."""
     member: str | None = None
     """Its member name in ``container``."""
+    name: str = ""
+    """Its name relative to the path it was found under: a folder's file by its path inside
+    the folder, a file given by itself by its file name, a zip's member as ``zip:member``.
+    Unlike ``origin`` it does not depend on where the folder lies or on the working folder,
+    so two runs over copies of the same files record the same names."""
 
 
 def _is_session_name(name: str) -> bool:
@@ -109,7 +114,7 @@ def _copy_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, dest: Path, path: P
     return digest.hexdigest()
 
 
-def _from_zip(path: Path, workdir: Path, counter: Iterator[int]
+def _from_zip(path: Path, name: str, workdir: Path, counter: Iterator[int]
               ) -> tuple[list[SessionSource], list[SessionProblem]]:
     try:
         zf = zipfile.ZipFile(path)
@@ -141,7 +146,8 @@ def _from_zip(path: Path, workdir: Path, counter: Iterator[int]
             except (ValueError, OSError) as exc:
                 problems.append(SessionProblem(path, None, f"{info.filename}: {exc}"))
                 continue
-            source = SessionSource(dest, origin, container=path, member=info.filename)
+            source = SessionSource(dest, origin, container=path, member=info.filename,
+                                   name=f"{name}:{info.filename}")
             if sums is None:
                 source.warnings.append(f"{origin}: no {CHECKSUM_MEMBER} in the zip, so its "
                                        "integrity in transit cannot be checked")
@@ -191,8 +197,9 @@ def session_sources(paths: Iterable[str | Path]
                 problems.append(SessionProblem(p, None, NOT_FOUND, nothing_to_check=True))
                 continue
             for c in candidates:
+                name = c.relative_to(p).as_posix() if p.is_dir() else c.name
                 if zipfile.is_zipfile(c):
-                    more, bad = _from_zip(c, workdir, counter)
+                    more, bad = _from_zip(c, name, workdir, counter)
                     sources += more
                     problems += bad
                 elif _looks_like_zip(c):  # not a SQLite file to try: name the zip's damage
@@ -200,5 +207,5 @@ def session_sources(paths: Iterable[str | Path]
                         "not a readable zip (truncated or damaged: it has no end-of-archive "
                         "record)")))
                 else:
-                    sources.append(SessionSource(c, str(c)))
+                    sources.append(SessionSource(c, str(c), name=name))
         yield sources, problems

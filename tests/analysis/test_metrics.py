@@ -257,7 +257,7 @@ def test_validation_statistics_direction_and_significance() -> None:
                   direction="lower-better")
     v = validate_metrics(d, MetricScores(pd.concat([good, bad], ignore_index=True)),
                          n_boot=400, seed=0,
-                         ceiling={"plcc": {"median": 0.9, "ci95_low": 0.8, "ci95_high": 0.95}})
+                         ceiling={"plcc": {"median": 0.9, "p2_5": 0.8, "p97_5": 0.95}})
     t = v.table.set_index("metric")
     y = d["dmos"].to_numpy()
     assert t.loc["good", "srcc"] == pytest.approx(stats.spearmanr(good["score"], y)[0])
@@ -279,6 +279,9 @@ def test_validation_statistics_direction_and_significance() -> None:
         assert t.loc["good", f"{key}_ci95_low"] <= t.loc["good", key] <= \
             t.loc["good", f"{key}_ci95_high"]
     assert CEILING_ROW in t.index and CEILING_ROW.startswith("two half panels")
+    # the splits' percentiles fill the row's interval columns
+    assert (t.loc[CEILING_ROW, "plcc_ci95_low"], t.loc[CEILING_ROW, "plcc_ci95_high"]) \
+        == (0.8, 0.95)
     assert v.significance.loc["good", "bad"] < 0.05 and v.better.loc["good", "bad"]
     assert v.significance.loc["bad", "good"] > 0.95
     assert v.williams.loc["good", "bad"] < 0.05

@@ -84,14 +84,28 @@ def test_a_three_rater_panel_is_described_as_it_is(small_study, tmp_path):
     rs = ratings_from_frame(st.ratings, st.manifest)
     config = AnalysisConfig(model="mos", outliers="none", n_boot=50, n_splits=20, ci_draws=5)
     a = run_analysis(rs, config, progress=False)
-    text = curve_text(a)
-    assert "nan" not in text and "3th" not in text and "3rd participant" in text
+    # the CI curve starts at 3 raters (two raters' t quantile is 12.7), so 3 make no curve
+    assert a.ci_curve is None
     from analysis.report import write_report
 
     html = write_report(a, tmp_path / "r").read_text()
+    assert "No curve of the CI width against the number of raters" in html
+    assert not (tmp_path / "r" / "figures" / "ci_vs_raters.png").exists()
     assert "Only 3 rater(s): too few for the human ceiling" in html
     assert "{ceiling}" not in html and "grey band" not in html
     assert "No split-half ceiling: it needs at least 4 raters, and 3 remain" in html
+
+
+def test_a_four_rater_curve_starts_at_three():
+    """The shortest curve: 3 and 4 raters, so one reduction (by the 4th), said in words."""
+    st = synthetic_study(n_scenes=2, methods=("blur", "noise"), levels=3, n_raters=4,
+                         repetitions=1, seed=4)
+    config = AnalysisConfig(model="mos", outliers="none", n_boot=50, n_splits=20, ci_draws=5)
+    a = run_analysis(ratings_from_frame(st.ratings, st.manifest), config, progress=False)
+    assert list(a.ci_curve.n_raters) == [3, 4]
+    assert list(a.ci_curve.reduction_per_rater()) == [4]
+    text = curve_text(a)
+    assert "nan" not in text and "4th participant" in text and "3rd" not in text
 
 
 @pytest.fixture(scope="module")

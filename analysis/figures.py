@@ -128,6 +128,13 @@ def _label_stimuli(ax: Any, sd: pd.DataFrame) -> None:
             ax.axvline(first - 0.5, color="0.88", lw=0.8, zorder=0)
 
 
+def _prediction_offset(j: int, n: int) -> float:
+    """Where the j-th of n metrics' predictions sit beside a stimulus's DMOS (at 0): side by
+    side to its right in the legend's order, within the stimulus's slot, so that glyphs of
+    like predictions do not pile up on one spot."""
+    return 0.2 if n == 1 else 0.12 + 0.3 * j / (n - 1)
+
+
 def dmos_per_scene(a: Analysis, path: Path) -> Path:
     """DMOS with 95% CI per scene, grouped by method and level; metric predictions on top."""
     d = a.dmos()
@@ -139,7 +146,7 @@ def dmos_per_scene(a: Analysis, path: Path) -> Path:
     rows, cols = _grid(len(scenes))
     fig = Figure(figsize=(4.2 * cols, 3.4 * rows + 0.4))
     preds = a.metrics.data if a.metrics is not None else {}
-    markers = "x+1234|_"
+    markers = "x+^vsD<>"  # hollow black, beside the filled colour of the DMOS
     # one DMOS axis for every scene, from the lowest CI bound to the top of the scale
     low = float(np.nanmin([d["ci95_low"].min(), d["dmos"].min()]))
     high = float(np.nanmax([d["ci95_high"].max(), d["dmos"].max(), a.screened.ref_score]))
@@ -157,7 +164,8 @@ def dmos_per_scene(a: Analysis, path: Path) -> Path:
         for j, (name, pdata) in enumerate(preds.items()):
             p = pdata.set_index("stimulus")["predicted"]
             y = [p.get(s, np.nan) for s in sd["stimulus"]]
-            ax.plot(x, y, markers[j % len(markers)], color="k", ms=4, alpha=0.6,
+            ax.plot(x + _prediction_offset(j, len(preds)), y, markers[j % len(markers)],
+                    color="k", mfc="none", ms=4.5, mew=0.9, alpha=0.7,
                     label=a.metrics.title(name) if k == 0 and a.metrics else None)
         _label_stimuli(ax, sd)
         ax.set_title(str(scene), fontsize=9)
@@ -574,7 +582,8 @@ SPLIT_NOTE = ("; the score model identifies only inconsistency\u00b2 + ambiguity
               "at that boundary and has no CI")
 """``{split}`` in a caption, where the model has both rater inconsistency and content
 ambiguity (SUREAL's full MLE)."""
-METRICS_NOTE = " (metric predictions after the logistic mapping as black markers)"
+METRICS_NOTE = (" (metric predictions after the logistic mapping as hollow black markers, "
+                "side by side to the right of each DMOS in the legend's order)")
 """``{metrics}`` in a caption, where metric scores were given and are drawn."""
 REPEATS_NOTE = " and between their own repetitions"
 """``{repeats}`` in a caption, where raters rated stimuli more than once (bars drawn)."""

@@ -130,3 +130,10 @@ def test_prose_and_the_report_print_the_titles(tmp_path, monkeypatch):
     assert scatter == ["GoodQ", "WeakQ [FLAGGED]"]
     benchmark = [t.get_text() for t in drawn["metric_benchmark"].axes[0].get_yticklabels()]
     assert sorted(benchmark) == ["GoodQ", "WeakQ  [FLAGGED]"]
+    # the DMOS figure: each metric's predictions beside the DMOS, side by side in the
+    # legend's order, never on the DMOS's own spot or in the next stimulus's slot
+    ax = drawn["dmos_per_scene"].axes[0]
+    lines = {ln.get_label(): ln for ln in ax.get_lines() if ln.get_label() in ("GoodQ", "WeakQ")}
+    offsets = {name: np.unique(np.round(ln.get_xdata() % 1, 9)) for name, ln in lines.items()}
+    assert len(offsets["GoodQ"]) == len(offsets["WeakQ"]) == 1
+    assert 0 < offsets["GoodQ"][0] < offsets["WeakQ"][0] < 0.5

@@ -158,7 +158,8 @@ def test_a_rerun_leaves_nothing_of_the_last_and_figures_come_as_pdf(study_files,
     # 8 raters: a ceiling is drawn, and the captions say where
     assert "the grey band is the agreement of two half panels" in html and "{ceiling}" not in html
     # with a metric, the DMOS caption names its markers
-    assert "(metric predictions after the logistic mapping as black markers)" in html
+    assert ("(metric predictions after the logistic mapping as hollow black markers, side by "
+            "side to the right of each DMOS") in html
     # the same folder without --metric: no metric table or figure of the first run is left
     assert _report(study_files, out) == 0
     _says_only_what_is_shown((out / "report.html").read_text(), out)

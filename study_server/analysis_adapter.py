@@ -45,7 +45,7 @@ class StudyFigures:
     split_half_plcc: float | None = None
     split_half_sb: float | None = None
     ceiling_bound: float | None = None  # sqrt of split_half_sb: a perfect metric's PLCC
-    split_half_ci: tuple[float, float] | None = None
+    split_half_range: tuple[float, float] | None = None
     """The 95 % range of the split-half PLCC over the random splits."""
     removed: list[str] = field(default_factory=list)
     """Raters the screening would remove (with the reason)."""
@@ -111,7 +111,7 @@ def analyse(frame: pd.DataFrame, loaded: LoadedManifest, *, seed: int = 0,
         out.split_half_plcc = float(s["plcc"]["median"])
         out.split_half_sb = float(s["plcc_spearman_brown"]["median"])
         out.ceiling_bound = float(s["plcc_full_panel_bound"]["median"])
-        out.split_half_ci = (float(s["plcc"]["ci95_low"]), float(s["plcc"]["ci95_high"]))
+        out.split_half_range = (float(s["plcc"]["p2_5"]), float(s["plcc"]["p97_5"]))
     out.dmos = a.dmos()
     out.model = a.scores.model_name
     # A young study has unrated stimuli and no second repetition yet: not problems here.

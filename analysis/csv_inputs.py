@@ -21,6 +21,7 @@ from stimuli_manifests.tables import FORMAT_COLUMN, RATINGS
 
 from .data import Exclusion
 from .errors import AnalysisError
+from .sessions import WITHDRAWAL_RULE, ServerWithdrawal, deleted_reason, without_file
 from .spreadsheet_csv import read_cells, read_decimal_commas
 
 _REQUIRED = ("participant", "stimulus", "rating")
@@ -169,14 +170,38 @@ def rank_sessions(frame: pd.DataFrame) -> pd.DataFrame:
     return frame.assign(_rank=ranks)
 
 
-def frame_from_csvs(paths: Sequence[Path], study_id: str, manifest_sha256: str
+def withdrawn_rows(frame: pd.DataFrame, deleted: dict[str, ServerWithdrawal]
+                   ) -> tuple[pd.DataFrame, list[Exclusion]]:
+    """Rows of participants withdrawn on the server (a pull listing beside the table says
+    so): a table written before the withdrawal still holds them. Refused, one line per file
+    and participant; a withdrawn participant without rows is counted as withdrawn too."""
+    if not deleted or "participant" not in frame.columns:
+        return frame, [without_file(w) for _, w in sorted((deleted or {}).items())]
+    who = frame["participant"].astype(str).str.strip()
+    gone = who.isin(list(deleted)).to_numpy()
+    exclusions = [
+        Exclusion("refused session", f"{src} ({n} rows)",
+                  deleted_reason(deleted[pid]) + ": these rows must not be used; delete them",
+                  WITHDRAWAL_RULE)
+        for (src, pid), n in frame.loc[gone].assign(_who=who[gone])
+        .groupby(["_source", "_who"], sort=True).size().items()]
+    present = set(who)
+    exclusions += [without_file(w) for pid, w in sorted(deleted.items()) if pid not in present]
+    return frame.loc[~gone], exclusions
+
+
+def frame_from_csvs(paths: Sequence[Path], study_id: str, manifest_sha256: str,
+                    deleted: dict[str, ServerWithdrawal] | None = None
                     ) -> tuple[pd.DataFrame, list[Exclusion]]:
     """The rows of ``paths`` that belong to ``study_id`` and this manifest version, ranked by
-    session start; and what was refused. Nothing left is an error."""
+    session start; and what was refused (``deleted``: participants withdrawn on the server,
+    see :func:`analysis.sessions.server_withdrawals`). Nothing left is an error."""
     frame = pd.concat([read_csv(Path(p)) for p in paths], ignore_index=True)
     frame, exclusions = other_study_rows(frame, study_id)
     frame, other_version = other_version_rows(frame, manifest_sha256)
     exclusions += other_version
+    frame, withdrawn = withdrawn_rows(frame, deleted or {})
+    exclusions += withdrawn
     if frame.empty and exclusions:
         raise AnalysisError("no ratings of this study in " + ", ".join(map(str, paths)) + ": "
                             + "; ".join(str(x) for x in exclusions[:3]))

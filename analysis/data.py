@@ -44,7 +44,8 @@ class Exclusion:
 
     ``kind`` is one of ``refused session``, ``duplicate session``, ``pilot session``,
     ``partial rater``, ``altered session`` (a partial rater whose file was changed outside the app),
-    ``screened out``, ``rejected by the score model``, ``ended by vision check``; ``who``
+    ``screened out``, ``rejected by the score model``, ``ended by vision check``,
+    ``withdrawn participant`` (withdrawn on the server, no file left); ``who``
     names the file or rater, ``reason`` says why in words a reader of the report
     understands, ``rule`` names the rule and its threshold.
     """

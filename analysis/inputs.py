@@ -30,6 +30,7 @@ from .sessions import (
     missing_from_pull,
     read_one,
     select_sessions,
+    server_withdrawals,
     session_files,
 )
 
@@ -60,7 +61,8 @@ def _frame_from_sessions(
     problems += missing_from_pull(paths, records)
     selection = select_sessions(records, loaded.manifest.study_id, loaded.sha256,
                                 include_pilots=include_pilots,
-                                twins=line_ending_twins(loaded.source))
+                                twins=line_ending_twins(loaded.source),
+                                deleted=server_withdrawals(paths, loaded.manifest.study_id))
     for exc in selection.exclusions:
         log.warning("%s", exc)
     problems += selection.problems
@@ -371,8 +373,9 @@ def load_ratings(
     panel = None
     if ratings_csv is not None:
         paths = [ratings_csv] if isinstance(ratings_csv, (str, Path)) else list(ratings_csv)
-        frame, exclusions = frame_from_csvs([Path(p) for p in paths],
-                                            loaded.manifest.study_id, loaded.sha256)
+        frame, exclusions = frame_from_csvs(
+            [Path(p) for p in paths], loaded.manifest.study_id, loaded.sha256,
+            deleted=server_withdrawals(paths, loaded.manifest.study_id))
         for exc in exclusions:
             log.warning("%s", exc)
         source = ", ".join(str(p) for p in paths)

@@ -209,6 +209,68 @@ def withdrawn_participants(exclusions: list[Exclusion]) -> list[str]:
     return out
 
 
+@dataclass(frozen=True)
+class ServerWithdrawal:
+    """A participant a pull's listing names as withdrawn: the server deleted their data."""
+
+    participant: str
+    at: str
+    listing: str
+
+
+def server_withdrawals(paths: Sequence[str | Path], study_id: str
+                       ) -> dict[str, ServerWithdrawal]:
+    """The participants withdrawn on the server (``cgvq-study withdraw``: their data were
+    deleted there) by the pull listing of each ``--sessions`` folder, or of the folder a
+    session file given by itself lies in, for ``study_id``. A copy of such a participant's
+    session kept from an earlier pull, or e-mailed, must not come back into the numbers."""
+    import json
+
+    from session_store.protocol import PULL_LISTING_FILE
+
+    out: dict[str, ServerWithdrawal] = {}
+    seen: set[Path] = set()
+    for given in paths:
+        folder = Path(given) if Path(given).is_dir() else Path(given).parent
+        listing_path = folder / PULL_LISTING_FILE
+        if listing_path.resolve() in seen or not listing_path.is_file():
+            continue
+        seen.add(listing_path.resolve())
+        try:
+            listing = json.loads(listing_path.read_text(encoding="utf-8"))
+            if str(listing.get("study_id")) != study_id:
+                continue
+            for w in listing.get("withdrawn", []):
+                pid = str(w["participant"])
+                out.setdefault(pid, ServerWithdrawal(pid, str(w.get("withdrawn_at") or ""),
+                                                     str(listing_path)))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            continue  # missing_from_pull names an unreadable listing
+    return out
+
+
+def deleted_reason(w: ServerWithdrawal) -> str:
+    """"participant P withdrew and their data were deleted on the server on DATE (LISTING)"
+    (the words :func:`withdrawn_participants` counts)."""
+    when = f" on {w.at[:10]}" if w.at else ""
+    return (f"participant {w.participant} withdrew and their data were deleted on the server"
+            f"{when} ({w.listing})")
+
+
+def _deleted_exclusion(rec: Session, w: ServerWithdrawal) -> Exclusion:
+    """The refusal of a copy of a session whose participant was withdrawn on the server."""
+    return Exclusion("refused session", rec.path,
+                     deleted_reason(w) + ": this copy must not be used; delete it",
+                     WITHDRAWAL_RULE)
+
+
+def without_file(w: ServerWithdrawal) -> Exclusion:
+    """A participant the listing names as withdrawn and of whom no file is left: counted
+    among those who took part and withdrew."""
+    return Exclusion("withdrawn participant", w.participant, deleted_reason(w),
+                     WITHDRAWAL_RULE)
+
+
 def _withdrawn_exclusion(rec: Session, withdrawn_in: str) -> Exclusion:
     """The refusal of one session of a participant who withdrew (this one or another)."""
     who = rec.info.participant
@@ -222,8 +284,8 @@ def _withdrawn_exclusion(rec: Session, withdrawn_in: str) -> Exclusion:
 
 
 def _refusal(rec: Session, study_id: str, manifest_sha256: str | None,
-             withdrawn: dict[str, str], twins: frozenset[str] = frozenset()
-             ) -> Exclusion | None:
+             withdrawn: dict[str, str], twins: frozenset[str] = frozenset(),
+             deleted: dict[str, ServerWithdrawal] | None = None) -> Exclusion | None:
     """Why ``rec`` is refused, or None when it belongs to the study."""
     if rec.damaged:
         return Exclusion("refused session", rec.path, f"{rec.damaged}; ask for the file again",
@@ -233,6 +295,8 @@ def _refusal(rec: Session, study_id: str, manifest_sha256: str | None,
             "refused session", rec.path,
             f"belongs to study {rec.info.study_id!r}, not to this manifest's study "
             f"{study_id!r}", "session study_id must equal the manifest's study_id")
+    if deleted and rec.info.participant in deleted:
+        return _deleted_exclusion(rec, deleted[rec.info.participant])
     if rec.info.participant in withdrawn:
         return _withdrawn_exclusion(rec, withdrawn[rec.info.participant])
     if manifest_sha256 and rec.info.manifest_sha256 in twins:
@@ -287,17 +351,20 @@ def line_ending_twins(path: Path | None) -> frozenset[str]:
 def select_sessions(records: list[Session], study_id: str,
                     manifest_sha256: str | None, *,
                     include_pilots: bool = False,
-                    twins: frozenset[str] = frozenset()) -> SessionSelection:
+                    twins: frozenset[str] = frozenset(),
+                    deleted: dict[str, ServerWithdrawal] | None = None) -> SessionSelection:
     """Refuse withdrawn and foreign sessions, collapse copies of one session, and leave out
     pilots (paced, no vsync) when participant sessions are there too (unless
     ``include_pilots``): a pilot alone, or with simulated raters, is analysed as it is.
-    ``twins``: :func:`line_ending_twins` of the manifest, named in the refusal."""
+    ``twins``: :func:`line_ending_twins` of the manifest, named in the refusal;
+    ``deleted``: :func:`server_withdrawals`, whose copies are refused and who are counted as
+    withdrawn also when no file of theirs is left."""
     exclusions: list[Exclusion] = []
     problems: list[InputProblem] = []
     kept: list[Session] = []
     withdrawn = _withdrawals(records, study_id)
     for rec in sorted(records, key=lambda r: r.path):
-        refused = _refusal(rec, study_id, manifest_sha256, withdrawn, twins)
+        refused = _refusal(rec, study_id, manifest_sha256, withdrawn, twins, deleted)
         if refused is not None:
             exclusions.append(refused)
             continue
@@ -326,6 +393,9 @@ def select_sessions(records: list[Session], study_id: str,
     for rec in used:
         problems += rec.problems
     exclusions += [_ended_exclusion(rec) for rec in used if rec.ended_by]
+    with_file = {rec.info.participant for rec in records}
+    exclusions += [without_file(w) for pid, w in sorted((deleted or {}).items())
+                   if pid not in with_file]
     return SessionSelection(used, exclusions, problems)
 
 

@@ -91,11 +91,28 @@ def check_study(study: Study, *, progress: bool = False) -> StudyCheck:
     if (problem := screening_distance_problem(m)) is not None:
         out.warnings.append(problem)
     out.warnings += _session_files_warning(study.folder)
+    out.warnings += _consent_warning(study)
     fps_set = {round(v.fps, 3) for v in out.videos.values()}
     if len(fps_set) > 1:
         out.warnings.append("stimuli use several frame rates: " +
                             ", ".join(f"{f:g}" for f in sorted(fps_set)))
     return out
+
+
+def _consent_warning(study: Study) -> list[str]:
+    """A study without a consent text: participants would agree to nothing before they
+    rate, which an ethics approval rarely allows; a panel that asks about vision collects
+    health data, whose consent must be explicit."""
+    if study.consent is not None:
+        return []
+    panel = study.manifest.panel
+    vs = panel.vision_screening if panel is not None else None
+    health = (" The panel's vision checks collect health data: ask for explicit consent."
+              if vs is not None and (vs.colour or vs.acuity) else
+              " The panel's questionnaires collect personal data: ask for consent."
+              if panel is not None else "")
+    return [f"no consent text (consent.md beside the manifest): participants agree to "
+            f"nothing before they rate.{health} See the docs: Ethics and privacy"]
 
 
 def _session_files_warning(folder: Path) -> list[str]:

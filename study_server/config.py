@@ -29,8 +29,10 @@ class ServerConfig:
     secure_cookies: bool = False
     """Mark the dashboard cookie Secure (set when serving over TLS or behind a TLS proxy)."""
     stats_in_background: bool = True
-    store_addresses: bool = True
-    """Keep each participant's last client address (for spotting abuse); off: none is kept."""
+    store_addresses: bool = False
+    """Keep each participant's last client address (``serve --keep-addresses``, to trace abuse
+    with your own tools); off by default: an address is personal data that nothing here
+    shows or uses, so keeping it would only add to what an ethics application must list."""
     stopping: StoppingTarget = field(default_factory=StoppingTarget)
     """The stopping rule's target (see :mod:`.stopping`); unset: none."""
 

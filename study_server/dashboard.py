@@ -297,6 +297,7 @@ class Pages:
             "to_go_words": _to_go_words(to_go_by), "n_versions": len(listing["versions"]),
             "n_arrived_withdrawn": arrived_withdrawn, "n_pending": pending,
             "n_withdrew_in_app": len(left),
+            "withdrew_in_app": [r["p"]["participant"] for r in left],
             "n_withdrawn": len(listing["withdrawn"]) + len(left),
             "rate_per_hour": rate, "eta_hours": to_go / rate if rate > 0 else None,
             "versions": {v["manifest_sha256"]: v["version"] for v in listing["versions"]},

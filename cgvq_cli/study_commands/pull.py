@@ -54,9 +54,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"  not started: {', '.join(result.not_started)}")
     if result.withdrawn:
         print(f"  withdrawn (data deleted): {', '.join(result.withdrawn)}")
-    if result.withdrew_in_app and (args.csv or args.answers):
+    if result.withdrew_in_app:
+        tables = "; their rows are in no table" if args.csv or args.answers else ""
         print(f"  withdrew in the app: {', '.join(result.withdrew_in_app)} (their session "
-              "files carry the withdrawal; their rows are in no table)")
+              f"files carry the withdrawal and no analysis uses them{tables}); their data "
+              "stay on the server until you delete them with 'cgvq-study withdraw STUDY ID' "
+              "there")
     for path in result.removed:
         print(f"  deleted {path}: an earlier pull's copy of a participant who has withdrawn")
     for path in result.rewritten:

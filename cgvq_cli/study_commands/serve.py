@@ -42,9 +42,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="requests per second per participant token (default 10)")
     parser.add_argument("--burst", type=float, default=60.0, metavar="B",
                         help="burst of requests per token (default 60)")
-    parser.add_argument("--no-addresses", action="store_true",
-                        help="keep no client addresses at all (default: the last one per "
-                             "participant, for spotting abuse)")
+    addresses = parser.add_mutually_exclusive_group()
+    addresses.add_argument("--keep-addresses", action="store_true",
+                           help="keep each participant's last client address (IP) in the "
+                                "server's database, to trace abuse (default: none is kept)")
+    addresses.add_argument("--no-addresses", action="store_true",
+                           help="keep no client address (the default; kept for scripts)")
     parser.add_argument("--max-body", type=int, default=None, metavar="BYTES",
                         help="largest request body (default 1 MiB; at least 576 KiB, the "
                              "app's upload batches)")
@@ -79,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
                           stats_every_s=args.stats_every, target_raters=args.target_raters,
                           rate_per_s=args.rate, burst=args.burst,
                           secure_cookies=args.behind_proxy is not None,
-                          store_addresses=not args.no_addresses)
+                          store_addresses=args.keep_addresses)
     for flag, value in (("--target-mean-ci", args.target_mean_ci),
                         ("--target-max-ci", args.target_max_ci)):
         if value is not None and not (0 < value < float("inf")):

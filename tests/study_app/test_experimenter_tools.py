@@ -166,3 +166,19 @@ def test_verify_names_a_pilot(tiny_study, capsys):
     participant = player_session(folder, loaded, "P01")
     assert main(["verify", str(participant)]) == 0
     assert "a pilot" not in capsys.readouterr().out
+
+
+def test_check_names_a_missing_consent_text_and_what_the_panel_collects(tmp_path, capsys):
+    from support.studies import make_study
+
+    with_consent = make_study(tmp_path / "a")
+    assert not any("consent" in w for w in check_study(load_study(with_consent)).warnings)
+    folder = make_study(tmp_path / "b", consent=False)
+    (said,) = [w for w in check_study(load_study(folder)).warnings if "consent" in w]
+    assert said.startswith("no consent text (consent.md beside the manifest)")
+    assert "health data" not in said
+    assert main(["panel", str(folder), "--add-templates"]) == 0  # vision checks included
+    capsys.readouterr()
+    assert main(["check", str(folder)]) == 0  # a warning, not an error
+    out = capsys.readouterr().out
+    assert "warning: no consent text" in out and "vision checks collect health data" in out

@@ -226,6 +226,8 @@ def test_a_participant_who_withdrew_in_the_app_is_in_no_pulled_table(
                    "--csv", str(ratings), "--answers", str(tmp_path / "a.csv"))
     assert proc.returncode == 0, proc.stderr
     assert "withdrew in the app: P01" in proc.stdout
+    assert "their data stay on the server until you delete them with 'cgvq-study withdraw" \
+        in proc.stdout
     assert {r["participant"] for r in read_table(ratings, RATINGS)} == {"P02"}
     assert (tmp_path / "p" / "P01.sqlite").is_file()  # the file carries the withdrawal
     # a table an older pull wrote with P01's rows is written again without them
@@ -252,9 +254,10 @@ def test_pull_with_a_wrong_token_is_one_line(served_study, server_factory, tmp_p
 @pytest.mark.slow  # about 10 s here: CI runs it after `make test` (.ci/run)
 def test_addresses_are_kept_only_when_wanted(served_study, tmp_path, invites, server_factory):
     inv = invites(2)
-    for args, expected in (((), "127.0.0.1"), (("--no-addresses",), None)):
+    # none by default: an address is personal data nothing here shows or uses
+    for k, (args, expected) in enumerate(((("--keep-addresses",), "127.0.0.1"), ((), None))):
         srv = server_factory(served_study, *args)
-        i = inv[0] if not args else inv[1]
+        i = inv[k]
         path = tmp_path / f"{i.participant}.sqlite"
         write_session(served_study, path, i.participant, ratings=1).close()
         sync_session(path, ServerClient(srv.url, i.token), i.participant)

@@ -158,6 +158,9 @@ def test_live_statistics_leave_out_withdrawals_and_count_the_raters_behind_them(
     # the target per stimulus expects the six who may still rate, not seven.
     assert page["n_arrived"] == 5 * 18 + 4 and page["n_arrived_withdrawn"] == 12
     assert page["n_withdrawn"] == page["n_withdrew_in_app"] == 1
+    # the page says their data are still stored, and how to delete them
+    note = html.split('id="withdrew-in-app">', 1)[1].split("</p>", 1)[0]
+    assert "data still stored: P06." in note and "cgvq-study withdraw STUDY ID" in note
     assert snap.target_per_stimulus == 6 * 2
     finished = sorted(local.glob("P0[1-5].sqlite"))
     rs = load_ratings(study / "manifest.json", sessions=finished)

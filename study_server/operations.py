@@ -8,7 +8,7 @@ import csv
 import os
 import re
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -137,27 +137,58 @@ def backup(study: str | Path, out: str | Path | None = None) -> Path:
 
 @dataclass
 class Withdrawal:
-    tombstone: Tombstone
+    tombstone: Tombstone | None
+    """None when the participant had withdrawn before (only backups were purged)."""
     deleted_files: list[Path]
     wal_cleared: bool
+    backups_holding: list[Path] = field(default_factory=list)
+    """Backups in ``server/backups/`` that still hold the participant's data."""
+    backups_purged: list[Path] = field(default_factory=list)
+    """Backups the participant's data were deleted from (``purge_backups``)."""
 
 
-def withdraw(study: str | Path, participant: str, reason: str = "withdrawn on request"
-             ) -> Withdrawal:
+def _purge_backups(folder: Path, participant: str, at: str, reason: str, purge: bool
+                   ) -> tuple[list[Path], list[Path]]:
+    """The backups that hold ``participant`` and, with ``purge``, those their data were
+    deleted from, as in the live database (a tombstone kept; other participants untouched)."""
+    holding, purged = [], []
+    for path in sorted((folder / STATE_DIR / "backups").glob("*.sqlite")):
+        with ServerStore(path, create=False) as store:
+            if store.participant(participant) is None:
+                continue
+            if not purge:
+                holding.append(path)
+                continue
+            store.withdraw(participant, at, reason)
+            store.checkpoint()
+        purged.append(path)
+    return holding, purged
+
+
+def withdraw(study: str | Path, participant: str, reason: str = "withdrawn on request",
+             *, purge_backups: bool = False) -> Withdrawal:
     """Delete a participant's rows (entries, session, flags, token) and their session file
-    in the study folder; keep a tombstone without personal data."""
+    in the study folder; keep a tombstone without personal data. Names the backups that
+    still hold them, or with ``purge_backups`` deletes them there too (also for a
+    participant who withdrew before)."""
     check_participant_id(participant)
     folder = Path(study)
     src = state_path(folder)
     if not src.is_file():
         raise StudyError(f"{folder} has no server database ({src})")
     with ServerStore(src, create=False) as store:
-        stone = store.withdraw(participant, utc_now(), reason)
-        cleared = store.checkpoint()
+        earlier = next((t for t in store.tombstones() if t.participant == participant), None)
+        if earlier is not None and purge_backups:
+            stone, cleared = None, True
+        else:
+            stone = store.withdraw(participant, utc_now(), reason)
+            cleared = store.checkpoint()
+    at = stone.withdrawn_at if stone is not None else earlier.withdrawn_at
+    holding, purged = _purge_backups(folder, participant, at, reason, purge_backups)
     deleted = []
     for suffix in ("", "-wal", "-shm"):
         p = folder / SESSIONS_DIR / f"{participant}.sqlite{suffix}"
         if p.exists():
             p.unlink()
             deleted.append(p)
-    return Withdrawal(stone, deleted, cleared)
+    return Withdrawal(stone, deleted, cleared, holding, purged)

@@ -15,19 +15,33 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("participant", help="participant id")
     parser.add_argument("--reason", default="withdrawn on request",
                         help="kept in the tombstone (no personal data, please)")
+    parser.add_argument("--purge-backups", action="store_true",
+                        help="delete the participant's data from the backups in "
+                             "server/backups/ too (each keeps a tombstone; the other "
+                             "participants' data stay); also for one who withdrew before")
 
 
 def run(args: argparse.Namespace) -> int:
     from study_server.operations import withdraw
 
-    w = withdraw(args.study, args.participant, args.reason)
-    print(f"{args.participant}: {w.tombstone.entries_deleted} uploaded entries deleted; "
-          f"tombstone kept ({w.tombstone.withdrawn_at})")
+    w = withdraw(args.study, args.participant, args.reason, purge_backups=args.purge_backups)
+    if w.tombstone is not None:
+        print(f"{args.participant}: {w.tombstone.entries_deleted} uploaded entries deleted; "
+              f"tombstone kept ({w.tombstone.withdrawn_at})")
+    else:
+        print(f"{args.participant}: withdrawn before; only the backups were searched")
     for p in w.deleted_files:
         print(f"  deleted {p}")
     if not w.wal_cleared:
         print("  note: the server was reading; the deleted pages leave its write-ahead log at "
               "its next checkpoint")
-    print("  pulled copies and backups made before now still hold this participant's data: "
-          "delete them too")
+    for p in w.backups_purged:
+        print(f"  deleted from the backup {p}")
+    if w.backups_holding:
+        print(f"  {len(w.backups_holding)} backup(s) still hold this participant's data: "
+              + ", ".join(str(p) for p in w.backups_holding)
+              + f"; 'cgvq-study withdraw {args.study} {args.participant} --purge-backups' "
+              "deletes them there")
+    print("  pulled copies made before now, and backups kept elsewhere, still hold this "
+          "participant's data: delete them too (a pull into the same folder deletes its copy)")
     return 0

@@ -106,7 +106,8 @@ class SessionStore:
         if path.parent.exists() and not path.parent.is_dir():
             raise StudyError(f"{path.parent} is a file, not a folder for session files; "
                              "choose another sessions folder")
-        path.parent.mkdir(parents=True, exist_ok=True)
+        # owner-only where made here: a session holds a person's answers (a shared lab PC)
+        path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
         created_at = created_at or utc_now()
         if session_id is None:
             session_id = sha256_text(canonical([study_id, participant, seed, created_at]))[:16]
@@ -121,6 +122,7 @@ class SessionStore:
         tmp = path.with_name(path.name + ".creating")
         tmp.unlink(missing_ok=True)
         changes = [("session", body), *_first_changes(preflight, preflight_skipped, events)]
+        tmp.touch(mode=0o600)  # SQLite gives its -wal and -shm the database file's mode
         con = connect(tmp, readonly=False)
         try:
             con.execute("BEGIN IMMEDIATE")

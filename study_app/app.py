@@ -160,7 +160,7 @@ class App:
         self.opts.validate()
         folder = self.session_path.parent
         created_folder = not folder.exists()
-        folder.mkdir(parents=True, exist_ok=True)
+        folder.mkdir(mode=0o700, parents=True, exist_ok=True)  # a person's answers
         lock = RunLock(self.session_path, self.opts.participant)
         try:
             lock.acquire()

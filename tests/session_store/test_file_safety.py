@@ -258,3 +258,24 @@ def test_a_damaged_ratings_csv_in_an_export_is_damage_of_the_copy(tmp_path, caps
     assert any(csv_member in p.message and "unreadable" in p.message for p in report.problems)
     assert main(["verify", str(archive)]) == 2
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_a_new_session_file_and_its_folder_are_the_participants_alone(tmp_path):
+    """On a shared lab computer a session file (answers, vision results) was readable by
+    every account (the default umask's 0644); now 0600, in a folder made 0700."""
+    import os
+    import stat
+
+    if os.name != "posix":
+        pytest.skip("POSIX modes")
+    from support.sessions import bare_plan
+
+    from session_store import SessionStore
+
+    folder = tmp_path / "data" / "sessions"
+    path = folder / "P01.sqlite"
+    with SessionStore.create(path, participant="P01", study_id="s", manifest_sha256=None,
+                             seed=1, app_version="t", plan=bare_plan(3)):
+        pass
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600
+    assert stat.S_IMODE(folder.stat().st_mode) == 0o700

@@ -106,9 +106,12 @@ def run(args: argparse.Namespace) -> int:
     def ready(url: str, token: str, created: bool) -> None:
         print(f"serving study {args.study} at {url}", flush=True)
         print(f"dashboard: {url}/dashboard", flush=True)
-        if created:
-            print(f"admin token (generated, kept in {args.study}/server/admin_token): {token}",
-                  flush=True)
+        kept = f"{args.study}/server/admin_token"
+        if created and sys.stdout.isatty():
+            print(f"admin token (generated, kept in {kept}): {token}", flush=True)
+        elif created:  # a service's log would keep the secret for anyone who reads it
+            print(f"admin token: generated and kept in {kept} (owner-only; not printed "
+                  "where the output is not a terminal)", flush=True)
         else:
             print("admin token: $CGVQ_ADMIN_TOKEN or the file server/admin_token in the study "
                   "folder", flush=True)

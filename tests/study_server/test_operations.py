@@ -413,3 +413,19 @@ def test_a_host_that_cannot_be_a_name_is_refused_without_asking_a_name_server(mo
             serve.resolve_host(host, 0)
     for address in ("127.0.0.1", "0.0.0.0", "::1"):
         serve.resolve_host(address, 0)  # addresses need no lookup
+
+
+def test_a_generated_admin_token_is_not_printed_into_a_pipe(served_study):
+    """Run as a service, serve's first start printed the generated admin token into the
+    journal, where whoever reads the logs could take the dashboard and every session."""
+    from study_server.child import ServeProcess
+
+    from .conftest import REPO, cli_env
+
+    env = {k: v for k, v in cli_env().items() if k != "CGVQ_ADMIN_TOKEN"}
+    srv = ServeProcess(served_study, env=env, cwd=REPO).start()
+    srv.stop()
+    token = (served_study / "server" / "admin_token").read_text().strip()
+    said = "".join(srv.output)
+    assert len(token) >= 32 and token not in said
+    assert "admin token: generated and kept in" in said and "not printed" in said

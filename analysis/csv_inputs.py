@@ -16,12 +16,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from session_store.pull_listing import ServerWithdrawal
 from stimuli_manifests.errors import TableError
 from stimuli_manifests.tables import FORMAT_COLUMN, RATINGS
 
 from .data import Exclusion
 from .errors import AnalysisError
-from .sessions import WITHDRAWAL_RULE, ServerWithdrawal, deleted_reason, without_file
+from .sessions import WITHDRAWAL_RULE, without_file
 from .spreadsheet_csv import read_cells, read_decimal_commas
 
 _REQUIRED = ("participant", "stimulus", "rating")
@@ -181,7 +182,7 @@ def withdrawn_rows(frame: pd.DataFrame, deleted: dict[str, ServerWithdrawal]
     gone = who.isin(list(deleted)).to_numpy()
     exclusions = [
         Exclusion("refused session", f"{src} ({n} rows)",
-                  deleted_reason(deleted[pid]) + ": these rows must not be used; delete them",
+                  deleted[pid].words() + ": these rows must not be used; delete them",
                   WITHDRAWAL_RULE)
         for (src, pid), n in frame.loc[gone].assign(_who=who[gone])
         .groupby(["_source", "_who"], sort=True).size().items()]
@@ -195,7 +196,7 @@ def frame_from_csvs(paths: Sequence[Path], study_id: str, manifest_sha256: str,
                     ) -> tuple[pd.DataFrame, list[Exclusion]]:
     """The rows of ``paths`` that belong to ``study_id`` and this manifest version, ranked by
     session start; and what was refused (``deleted``: participants withdrawn on the server,
-    see :func:`analysis.sessions.server_withdrawals`). Nothing left is an error."""
+    see :func:`session_store.pull_listing.server_withdrawals`). Nothing left is an error."""
     frame = pd.concat([read_csv(Path(p)) for p in paths], ignore_index=True)
     frame, exclusions = other_study_rows(frame, study_id)
     frame, other_version = other_version_rows(frame, manifest_sha256)

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
+from session_store.pull_listing import server_withdrawals
 from stimuli_manifests import LoadedManifest, Manifest, StimuliError, load_manifest
 
 from .csv_inputs import frame_from_csvs
@@ -30,7 +31,6 @@ from .sessions import (
     missing_from_pull,
     read_one,
     select_sessions,
-    server_withdrawals,
     session_files,
 )
 

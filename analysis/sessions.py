@@ -22,6 +22,7 @@ from typing import Any
 
 from session_store import SessionInfo, StudyError, read_session, session_sources
 from session_store.answers import ENDED_BY_VISION_CHECK
+from session_store.pull_listing import ServerWithdrawal
 
 from .data import Exclusion, InputProblem
 from .errors import AnalysisError
@@ -209,65 +210,17 @@ def withdrawn_participants(exclusions: list[Exclusion]) -> list[str]:
     return out
 
 
-@dataclass(frozen=True)
-class ServerWithdrawal:
-    """A participant a pull's listing names as withdrawn: the server deleted their data."""
-
-    participant: str
-    at: str
-    listing: str
-
-
-def server_withdrawals(paths: Sequence[str | Path], study_id: str
-                       ) -> dict[str, ServerWithdrawal]:
-    """The participants withdrawn on the server (``cgvq-study withdraw``: their data were
-    deleted there) by the pull listing of each ``--sessions`` folder, or of the folder a
-    session file given by itself lies in, for ``study_id``. A copy of such a participant's
-    session kept from an earlier pull, or e-mailed, must not come back into the numbers."""
-    import json
-
-    from session_store.protocol import PULL_LISTING_FILE
-
-    out: dict[str, ServerWithdrawal] = {}
-    seen: set[Path] = set()
-    for given in paths:
-        folder = Path(given) if Path(given).is_dir() else Path(given).parent
-        listing_path = folder / PULL_LISTING_FILE
-        if listing_path.resolve() in seen or not listing_path.is_file():
-            continue
-        seen.add(listing_path.resolve())
-        try:
-            listing = json.loads(listing_path.read_text(encoding="utf-8"))
-            if str(listing.get("study_id")) != study_id:
-                continue
-            for w in listing.get("withdrawn", []):
-                pid = str(w["participant"])
-                out.setdefault(pid, ServerWithdrawal(pid, str(w.get("withdrawn_at") or ""),
-                                                     str(listing_path)))
-        except (OSError, ValueError, KeyError, TypeError, AttributeError):
-            continue  # missing_from_pull names an unreadable listing
-    return out
-
-
-def deleted_reason(w: ServerWithdrawal) -> str:
-    """"participant P withdrew and their data were deleted on the server on DATE (LISTING)"
-    (the words :func:`withdrawn_participants` counts)."""
-    when = f" on {w.at[:10]}" if w.at else ""
-    return (f"participant {w.participant} withdrew and their data were deleted on the server"
-            f"{when} ({w.listing})")
-
-
 def _deleted_exclusion(rec: Session, w: ServerWithdrawal) -> Exclusion:
     """The refusal of a copy of a session whose participant was withdrawn on the server."""
     return Exclusion("refused session", rec.path,
-                     deleted_reason(w) + ": this copy must not be used; delete it",
+                     w.words() + ": this copy must not be used; delete it",
                      WITHDRAWAL_RULE)
 
 
 def without_file(w: ServerWithdrawal) -> Exclusion:
     """A participant the listing names as withdrawn and of whom no file is left: counted
     among those who took part and withdrew."""
-    return Exclusion("withdrawn participant", w.participant, deleted_reason(w),
+    return Exclusion("withdrawn participant", w.participant, w.words(),
                      WITHDRAWAL_RULE)
 
 
@@ -357,8 +310,8 @@ def select_sessions(records: list[Session], study_id: str,
     pilots (paced, no vsync) when participant sessions are there too (unless
     ``include_pilots``): a pilot alone, or with simulated raters, is analysed as it is.
     ``twins``: :func:`line_ending_twins` of the manifest, named in the refusal;
-    ``deleted``: :func:`server_withdrawals`, whose copies are refused and who are counted as
-    withdrawn also when no file of theirs is left."""
+    ``deleted``: :func:`session_store.pull_listing.server_withdrawals`, whose copies are
+    refused and who are counted as withdrawn also when no file of theirs is left."""
     exclusions: list[Exclusion] = []
     problems: list[InputProblem] = []
     kept: list[Session] = []

@@ -13,7 +13,8 @@ if TYPE_CHECKING:
 
 NAME = "verify"
 HELP = ("check returned session files, exported zips or folders of them (exit 0 all intact "
-        "and complete, 1 some incomplete or withdrawn, 2 some damaged or NOT CHECKED (a path "
+        "and complete, 1 some incomplete or withdrawn (in the app, or on the server by the "
+        "pull listing beside them), 2 some damaged or NOT CHECKED (a path "
         "that holds no session file): a zip is damaged when a member differs from SHA256SUMS, "
         "is missing or unlisted, or its ratings CSV does not match the session file, which "
         "stays the authority)")
@@ -26,9 +27,12 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from session_store.errors import StudyError
+    from session_store.pull_listing import server_withdrawals
     from study_app.export import verify_many
 
     reports = verify_many(args.paths)
+    listed: dict[str, dict] = {}  # study id -> the pull listings' withdrawals of that study
+    deleted_copies = 0
     for report in reports:
         info = report.info
         who = f"participant {info.participant}, study {info.study_id}" if info else "unknown"
@@ -52,6 +56,14 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {problem.message if problem.path == report.path else problem}")
         for warning in report.warnings:
             print(f"  warning: {warning}")
+        if info is not None and report.checked:
+            if info.study_id not in listed:
+                listed[info.study_id] = server_withdrawals(args.paths, info.study_id)
+            gone = listed[info.study_id].get(info.participant)
+            if gone is not None:
+                deleted_copies += 1
+                print(f"  WITHDRAWN ON THE SERVER: {gone.words()}; this copy must not be "
+                      "used: delete it (the analysis refuses it)")
     for line in _copies(reports):
         print(line)
     if len(reports) > 1:
@@ -62,6 +74,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{len(reports)} {noun}: " + ", ".join(f"{n} {s}" for s, n in counts.items()
                                                       if n))
     code = max((r.exit_code for r in reports), default=2)
+    if deleted_copies:
+        code = max(code, 1)
     if code == 2:  # the verdict stays on stdout; the failure gets its one line on stderr
         sys.stdout.flush()
         raise StudyError(_failure_line(reports))

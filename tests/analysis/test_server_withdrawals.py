@@ -108,3 +108,16 @@ def test_rows_of_a_withdrawn_participant_in_a_ratings_table_beside_the_listing(t
                            pulled / "ratings.csv", *OPTIONS, "--out", tmp_path / "r2")
     assert code == 0, err
     assert _summary(tmp_path / "r2")["n_raters_input"] == 4
+
+
+def test_verify_names_the_copy_of_a_participant_withdrawn_on_the_server(tmp_path, capsys):
+    """``verify`` called such a copy "intact and complete" and exited 0."""
+    from cgvq_cli.study_cli import main
+
+    _, _, pulled = _pull(tmp_path)
+    assert main(["verify", str(pulled)]) == 1
+    out = capsys.readouterr().out
+    (line,) = [ln for ln in out.splitlines() if "WITHDRAWN ON THE SERVER" in ln]
+    assert "participant P2 withdrew and their data were deleted on the server on 2026-11-20" \
+        in line and "delete it" in line
+    assert out.count("WITHDRAWN ON THE SERVER") == 1  # P1, P3, P4 are not named

@@ -79,7 +79,7 @@ def test_dashboard_in_a_real_browser(browser, tmp_path, invites, server_factory)
     from selenium.webdriver.support.ui import WebDriverWait
 
     study = dashboard_study(tmp_path)
-    inv = invites(8, study=study)
+    inv = invites(9, study=study)
     srv = server_factory(study, "--stats-every", "1", "--target-raters", "10")
     result = run_simulation(
         study / "manifest.json", tmp_path / "local",
@@ -98,6 +98,15 @@ def test_dashboard_in_a_real_browser(browser, tmp_path, invites, server_factory)
         "client_time": (datetime.now(UTC) - timedelta(minutes=7)).isoformat(),
         "local_problems": ["table ratings differs from the change log (edited outside the "
                            "app)"]})
+    # P09 rated 3 trials and withdrew in the app: their data stay until 'withdraw'
+    from study_app.remote import sync_session
+
+    from .conftest import write_session
+
+    store = write_session(study, tmp_path / "P09.sqlite", "P09", ratings=3)
+    store.withdraw("changed my mind")
+    store.close()
+    sync_session(tmp_path / "P09.sqlite", ServerClient(srv.url, inv[8].token), "P09")
     browser.get(srv.url + "/dashboard")
     assert "Admin token" in browser.page_source  # asks once
     browser.find_element(By.ID, "token").send_keys("wrong-token-12345678")
@@ -108,7 +117,8 @@ def test_dashboard_in_a_real_browser(browser, tmp_path, invites, server_factory)
     assert "That is not the admin token" in message.text
     _log_in_and_wait_for_statistics(browser, 7 * 32)
     rows = browser.find_elements(By.CSS_SELECTOR, "#participants tr[data-participant]")
-    assert len(rows) == 8
+    assert len(rows) == 9
+    assert "data still stored: P09" in browser.find_element(By.ID, "withdrew-in-app").text
     text = {r.get_attribute("data-participant"): r.text for r in rows}
     assert "finished" in text["P01"] and "32 / 32" in text["P01"]
     assert "seen, no session yet" in text["P08"] and "clock_skew" in text["P08"]
@@ -129,7 +139,7 @@ def test_dashboard_in_a_real_browser(browser, tmp_path, invites, server_factory)
     browser.get(srv.url + "/dashboard?order=look")
     looked = [r.get_attribute("data-participant") for r in
               browser.find_elements(By.CSS_SELECTOR, "#participants tr[data-participant]")]
-    assert set(looked[:len(marked)]) == marked and len(looked) == 8
+    assert set(looked[:len(marked)]) == marked and len(looked) == 9
     assert "those to look at first" in browser.find_element(By.CSS_SELECTOR,
                                                             "#order strong").text
     browser.get(srv.url + "/dashboard?order=nonsense")  # an unknown order is the default

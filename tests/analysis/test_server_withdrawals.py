@@ -74,40 +74,39 @@ def test_a_copy_of_a_withdrawn_participant_is_refused_and_both_are_counted(tmp_p
     assert "5 participants took part and 2 withdrew" in methods
 
 
-def test_a_file_given_by_itself_beside_the_pull_is_refused_too(tmp_path, capsys):
+def _counted(rs):
+    """Raters in the numbers, and those counted as withdrawn (as summary.json has them)."""
+    from analysis.sessions import withdrawn_participants
+
+    return rs.n_raters, sorted(withdrawn_participants(rs.exclusions))
+
+
+def test_a_file_given_by_itself_beside_the_pull_is_refused_too(tmp_path, caplog):
+    from analysis import load_ratings
+
     manifest, earlier, pulled = _pull(tmp_path)
     (pulled / "P2.sqlite").unlink()  # the pull deleted it; the old copy is named on its own
-    out = tmp_path / "r"
-    code, _, err = analyze(capsys, "report", "--manifest", manifest, "--sessions", pulled,
-                           earlier / "P2.sqlite", *OPTIONS, "--out", out)
-    assert code == 0, err
-    s = _summary(out)
-    assert s["n_raters_input"] == 3 and sorted(s["withdrawn"]) == ["P2", "P5"]
-    assert "data were deleted on the server" in err
+    rs = load_ratings(manifest, sessions=[pulled, earlier / "P2.sqlite"])
+    assert _counted(rs) == (3, ["P2", "P5"])
+    assert "data were deleted on the server" in caplog.text
 
 
-def test_rows_of_a_withdrawn_participant_in_a_ratings_table_beside_the_listing(tmp_path,
-                                                                              capsys):
+def test_rows_of_a_withdrawn_participant_in_a_ratings_table_beside_the_listing(tmp_path):
+    from analysis import load_ratings
+
     manifest, _, pulled = _pull(tmp_path)
     stimuli = ["R0", "R1"] + [f"R{i}_blur_L{lv}" for i in range(2) for lv in (1, 2)]
     rows = [{"participant": p, "stimulus": stim, "rating": 20 + 10 * k + j}
             for j, p in enumerate(("P1", "P2", "P3", "P4")) for k, stim in enumerate(stimuli)]
     pd.DataFrame(rows).to_csv(pulled / "ratings.csv", index=False)
-    out = tmp_path / "r"
-    code, _, err = analyze(capsys, "report", "--manifest", manifest, "--ratings",
-                           pulled / "ratings.csv", *OPTIONS, "--out", out)
-    assert code == 0, err
-    s = _summary(out)
-    assert s["n_raters_input"] == 3 and sorted(s["withdrawn"]) == ["P2", "P5"]
-    refused = [x for x in s["exclusions"] if x["kind"] == "refused session"]
-    assert len(refused) == 1 and refused[0]["who"].endswith("ratings.csv (6 rows)")
+    rs = load_ratings(manifest, ratings_csv=pulled / "ratings.csv")
+    assert _counted(rs) == (3, ["P2", "P5"])
+    refused = [x for x in rs.exclusions if x.kind == "refused session"]
+    assert len(refused) == 1 and refused[0].who.endswith("ratings.csv (6 rows)")
     # a table of another study beside the listing is not touched by it
     listing = json.loads((pulled / PULL_LISTING_FILE).read_text())
     (pulled / PULL_LISTING_FILE).write_text(json.dumps({**listing, "study_id": "other"}))
-    code, _, err = analyze(capsys, "report", "--manifest", manifest, "--ratings",
-                           pulled / "ratings.csv", *OPTIONS, "--out", tmp_path / "r2")
-    assert code == 0, err
-    assert _summary(tmp_path / "r2")["n_raters_input"] == 4
+    assert _counted(load_ratings(manifest, ratings_csv=pulled / "ratings.csv")) == (4, [])
 
 
 def test_verify_names_the_copy_of_a_participant_withdrawn_on_the_server(tmp_path, capsys):

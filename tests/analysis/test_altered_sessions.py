@@ -9,19 +9,13 @@ import sqlite3
 
 import pandas as pd
 from support.cli import analyze
-from support.sessions import player_session
+from support.sessions import blur_manifest, player_session
 
-from stimuli_manifests import load_manifest, parse_manifest, save_manifest
+from stimuli_manifests import load_manifest
 
 
 def _study(folder):
-    refs = [{"id": f"R{i}", "path": f"r{i}.mkv", "width": 256, "height": 144, "fps": 30,
-             "frames": 90} for i in range(2)]
-    conds = [{"id": f"R{i}_blur_L{lv}", "reference": f"R{i}", "path": f"r{i}_{lv}.mkv",
-              "method": "blur", "level": lv} for i in range(2) for lv in (1, 2)]
-    return save_manifest(parse_manifest({
-        "study_id": "altered", "references": refs, "conditions": conds,
-        "protocol": {"repetitions": 1}}), folder / "manifest.json")
+    return blur_manifest(folder, "altered")
 
 
 def test_an_altered_file_is_named_as_altered_not_as_partial(tmp_path, capsys):

@@ -10,21 +10,15 @@ import shutil
 
 import pandas as pd
 from support.cli import analyze
-from support.sessions import player_session
+from support.sessions import blur_manifest, player_session
 
-from stimuli_manifests import load_manifest, parse_manifest, save_manifest
+from stimuli_manifests import load_manifest
 
 RUN_SPECIFIC = ("inputs", "run")  # where the files lay, the command line, the timings
 
 
 def _study(folder):
-    refs = [{"id": f"R{i}", "path": f"r{i}.mkv", "width": 256, "height": 144, "fps": 30,
-             "frames": 90} for i in range(2)]
-    conds = [{"id": f"R{i}_blur_L{lv}", "reference": f"R{i}", "path": f"r{i}_{lv}.mkv",
-              "method": "blur", "level": lv} for i in range(2) for lv in (1, 2)]
-    return save_manifest(parse_manifest({
-        "study_id": "copied", "references": refs, "conditions": conds,
-        "protocol": {"repetitions": 1}}), folder / "manifest.json")
+    return blur_manifest(folder, "copied")
 
 
 def _outputs(folder):

@@ -22,6 +22,20 @@ def _read_only(path: Path) -> Iterator[sqlite3.Connection]:
         con.close()
 
 
+def blur_manifest(folder: Path, study_id: str) -> Path:
+    """``folder/manifest.json``: two references (R0, R1), each blurred at levels 1 and 2, one
+    repetition; no video files (the analysis reads the manifest only)."""
+    from stimuli_manifests import parse_manifest, save_manifest
+
+    refs = [{"id": f"R{i}", "path": f"r{i}.mkv", "width": 256, "height": 144, "fps": 30,
+             "frames": 90} for i in range(2)]
+    conds = [{"id": f"R{i}_blur_L{lv}", "reference": f"R{i}", "path": f"r{i}_{lv}.mkv",
+              "method": "blur", "level": lv} for i in range(2) for lv in (1, 2)]
+    return save_manifest(parse_manifest({
+        "study_id": study_id, "references": refs, "conditions": conds,
+        "protocol": {"repetitions": 1}}), folder / "manifest.json")
+
+
 def session_tables(path: Path) -> dict[str, list[tuple]]:
     """Every table of a session file as rows (what two copies of a session must share)."""
     with _read_only(path) as con:

@@ -2,9 +2,10 @@
 about the study's levels before anyone is invited.
 
 DMOS, reliability and screening need a panel; a pilot answers other questions. Do the
-ratings fall from the mildest level to the strongest (level 1 is the strongest: a rise
-means the levels are numbered the wrong way round)? Is the strongest level visible at all,
-and does the mildest come near the reference? Did the raters use the scale? The
+ratings fall from the mildest level to the strongest (the lowest level, level 1 by
+convention, is the strongest: ratings that fall from it to the mildest mean the levels are
+numbered the wrong way round)? Is the strongest level visible at all, and does the mildest
+come near the reference? Did the raters use the scale? The
 differential score of a test video is its hidden reference's rating minus its own (the
 same rater, averaged over repetitions): 0 where the distortion went unseen.
 """
@@ -86,7 +87,7 @@ def _num(x: float) -> str:
 
 
 def reversed_levels(dmos: pd.DataFrame, span: float) -> list[str]:
-    """The methods whose mean DMOS falls from level 1 (meant to be the strongest) to their
+    """The methods whose mean DMOS falls from the lowest level (meant to be the strongest) to their
     mildest level by more than :data:`FLAT_SHARE` of the scale, in words: the report's form of
     the pilot's first hint, for a study whose pilot was skipped or read as a report."""
     tests = dmos[~dmos["is_hidden_reference"].astype(bool)].dropna(subset=["level"])
@@ -120,7 +121,7 @@ def level_hints(levels: pd.DataFrame, span: float) -> list[str]:
                     f"{name}level {int(strong['level'])} (meant to be the strongest) was rated "
                     f"{_num(strong['mean'])} and level {int(mild['level'])} (the mildest) "
                     f"{_num(mild['mean'])}: the levels look numbered the wrong way round; "
-                    "level 1 must be the strongest distortion (renumber the files or map "
+                    "the lowest level must be the strongest distortion (renumber the files or map "
                     "them in a CSV, run init again, then pilot again: this pilot ran on the "
                     "old numbering)")
                 continue
@@ -192,8 +193,8 @@ def pilot_lines(view: PilotView, rs: RatingSet) -> list[str]:
     mirrored = (f" (ratings mirrored to higher-is-better: {_num(rs.scale_min)} + "
                 f"{_num(rs.scale_max)} - rating)" if rs.scale_direction == "lower_is_better"
                 else "")
-    out.append("mean rating (and its reference's minus it) per method and level; level 1 is "
-               f"the strongest{mirrored}:")
+    out.append("mean rating (and its reference's minus it) per method and level; the lowest "
+               f"level is meant to be the strongest{mirrored}:")
     refs = view.stimuli.loc[view.stimuli["is_hidden_reference"].astype(bool), "mean"]
     for method, rows in view.levels.groupby("method", sort=True):
         cells = [f"L{int(r.level)} {_num(r.mean)} ({_num(r.differential)})"

@@ -16,7 +16,7 @@ from typing import Literal
 
 from tqdm import tqdm
 
-from session_store.study_folder import SESSIONS_DIR, Study
+from session_store.study_folder import BRIEFING_NAME, CONSENT_NAME, SESSIONS_DIR, Study
 from stimuli_manifests import (
     DisplayRequirements,
     StimuliError,
@@ -59,7 +59,8 @@ def check_study(study: Study, *, progress: bool = False) -> StudyCheck:
     m = study.manifest
     report = validate_manifest(study.loaded, verify_checksums=True, probe_videos=False,
                                progress=progress)
-    out.errors += report.errors + [f"checksum mismatch: {mm}" for mm in report.mismatches]
+    out.errors += report.errors + [f"checksum mismatch: {mm}{_rehash_hint(mm, study)}"
+                                   for mm in report.mismatches]
     out.warnings += report.warnings
     stimuli = m.stimuli()
     out.n_stimuli = len(stimuli)
@@ -97,6 +98,15 @@ def check_study(study: Study, *, progress: bool = False) -> StudyCheck:
         out.warnings.append("stimuli use several frame rates: " +
                             ", ".join(f"{f:g}" for f in sorted(fps_set)))
     return out
+
+
+def _rehash_hint(mismatch: object, study: Study) -> str:
+    """The way out for a text edited after its checksum was written (after a pilot, say):
+    record the new checksum, then pilot again (participants must see what was piloted)."""
+    if str(getattr(mismatch, "stimulus_id", "")) not in (BRIEFING_NAME, CONSENT_NAME):
+        return ""
+    return (f"; if you edited it on purpose, record its checksum with 'python -m "
+            f"stimuli_manifests hash {study.folder / 'manifest.json'}' and pilot again")
 
 
 def _consent_warning(study: Study) -> list[str]:

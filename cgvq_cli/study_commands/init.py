@@ -11,13 +11,13 @@ HELP = ("build a study folder from a folder of videos (reference and test videos
         "probe every file, list every problem, copy or transcode, write the manifest")
 EPILOG = """\
 Files are mapped by two patterns over paths relative to FOLDER (placeholders {scene},
-{method}, {level}, {setting}, {ext}); level 1 is the strongest distortion, higher levels are
-milder. Or list the files in a CSV with the columns path,scene,role,method,level,setting
-(role: reference or test). Re-running on a changed folder updates the study and reports what
-changed; settings edited in STUDY/manifest.json are kept, and so are the options of the
-last init (patterns or --mapping, --transcode; kept in STUDY/init.json) that are not given
-again. Exit 0 written (or unchanged),
-2 problems found (nothing written) or bad input."""
+{method}, {level}, {setting}, {ext}); the lowest level is the strongest distortion, higher
+levels are milder (1, 2, 3, or sample counts such as 4, 16, 64). Or list the files in a CSV
+with the columns path,scene,role,method,level,setting (role: reference or test). Re-running
+on a changed folder updates the study and reports what changed; settings edited in
+STUDY/manifest.json are kept, and so are the options of the last init (patterns or
+--mapping, --transcode; kept in STUDY/init.json) that are not given again. Exit 0 written
+(or unchanged), 2 problems found (nothing written) or bad input."""
 
 
 def register(parser: argparse.ArgumentParser) -> None:

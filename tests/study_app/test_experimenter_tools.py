@@ -182,3 +182,21 @@ def test_check_names_a_missing_consent_text_and_what_the_panel_collects(tmp_path
     assert main(["check", str(folder)]) == 0  # a warning, not an error
     out = capsys.readouterr().out
     assert "warning: no consent text" in out and "vision checks collect health data" in out
+
+
+def test_a_text_edited_after_its_checksum_gets_the_way_out(tmp_path):
+    """After a pilot the briefing is edited; check said only "checksum mismatch"."""
+    from support.studies import make_study
+
+    folder = make_study(tmp_path / "s")
+    assert check_study(load_study(folder)).ok
+    (folder / "briefing.md").write_text((folder / "briefing.md").read_text() + "\nOne more.\n")
+    result = check_study(load_study(folder))
+    (said,) = [e for e in result.errors if "briefing.md" in e]
+    assert said.startswith("checksum mismatch: briefing.md")
+    assert f"'python -m stimuli_manifests hash {folder / 'manifest.json'}' and pilot again" \
+        in said
+    video = folder / "videos" / "ref0_noise1.mkv"
+    video.write_bytes(video.read_bytes() + b"x")
+    (other,) = [e for e in check_study(load_study(folder)).errors if "ref0_noise1" in e]
+    assert "pilot again" not in other  # a video changed is no edit to record

@@ -23,6 +23,7 @@ from stimuli_manifests import (
     VideoInfo,
     validate_manifest,
 )
+from stimuli_manifests.balance import Cell, missing_cells
 from stimuli_manifests.from_folder.level_order import LevelSample, level_order_warnings
 from stimuli_manifests.from_folder.pixel_sample import PixelSample
 from stimuli_manifests.from_folder.probe import decode_findings
@@ -91,6 +92,9 @@ def check_study(study: Study, *, progress: bool = False) -> StudyCheck:
     out.samples.clear()  # a few MB per video: not kept with the result
     if (problem := screening_distance_problem(m)) is not None:
         out.warnings.append(problem)
+    scenes = {str(r.id): r.scene or str(r.id) for r in m.references}
+    out.warnings += missing_cells(Cell(scenes.get(c.reference, c.reference), c.method, c.level)
+                                  for c in m.conditions)
     out.warnings += _session_files_warning(study.folder)
     out.warnings += _consent_warning(study)
     fps_set = {round(v.fps, 3) for v in out.videos.values()}

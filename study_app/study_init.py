@@ -30,6 +30,7 @@ from stimuli_manifests import (
     StimuliError,
     load_manifest,
 )
+from stimuli_manifests.balance import Cell, missing_cells
 from stimuli_manifests.from_folder.build import (
     StudyChanges,
     build_manifest,
@@ -147,6 +148,9 @@ def init_study(opts: InitOptions) -> InitResult:
     why = (f"not listed in {opts.mapping_csv.name}" if opts.mapping_csv else
            "matches no pattern")
     result.warnings += [f"{p}: {why}, left out" for p in result.mapping.unmatched]
+    result.warnings += missing_cells(
+        [Cell(v.scene, str(v.method), v.level) for v in result.mapping.videos
+         if v.role == "test"], [str(p) for p in result.mapping.unmatched])
     result.warnings += result.mapping.warnings
     result.warnings += [
         f"{p.as_posix() if p.parts else '.'}/: {n} single frames (an image sequence), left "

@@ -321,3 +321,22 @@ def test_check_refuses_a_manifest_without_conditions(tmp_path, capsys):
     assert code == 2
     assert "OK" not in out
     assert len(error_lines(err)) == 1 and "no test conditions" in err, err
+
+
+def test_a_render_named_otherwise_leaves_an_unbalanced_design_that_is_named(tmp_path, capsys):
+    """``fsr-L2.mkv`` among ``fsr_L2.mkv``: left out with one line, and check said "ready"
+    for a study whose fsr L2 rests on one scene of two."""
+    renders, study = tmp_path / "renders", tmp_path / "study"
+    make_renders(renders, problems=False)
+    (renders / "city" / "fsr_L2.mkv").rename(renders / "city" / "fsr-L2.mkv")
+    code, out, _ = init(capsys, renders, "--out", study)
+    assert code == 0, out
+    said = [ln for ln in out.splitlines() if "method 'fsr' level 2 is in" in ln]
+    assert len(said) == 1 and "1 of 2 scenes (missing in city)" in said[0]
+    assert said[0].endswith("a file left out may be it: city/fsr-L2.mkv")
+    assert not any("dlss" in ln and "scenes (missing" in ln for ln in out.splitlines())
+    result = check_study(load_study(study))
+    assert result.ok and [w for w in result.warnings
+                          if "method 'fsr' level 2 is in 1 of 2 scenes" in w]
+    assert main(["check", str(study)]) == 0
+    assert "  warning: method 'fsr' level 2 is in 1 of 2 scenes" in capsys.readouterr().out

@@ -15,9 +15,11 @@ from pathlib import Path, PurePosixPath
 from .mapping import REFERENCE_WORDS, map_by_pattern
 
 _SEPARATORS = "_-. "
+# a level may carry a short word before it (``_q1``, ``_L2``) or a unit after it (``_64spp``,
+# ``_1080p``, ``_2x``): renderers name outputs by the sample count
 _LEVEL_AFTER_SEPARATOR = re.compile(r"^(?P<method>.+?)(?P<sep>[_\-. ])(?P<prefix>[A-Za-z]{0,5})"
-                                    r"(?P<level>\d+)$")
-_LEVEL_AT_END = re.compile(r"^(?P<method>.*?[^\d])(?P<level>\d+)$")
+                                    r"(?P<level>\d+)(?P<unit>[A-Za-z]{0,5})$")
+_LEVEL_AT_END = re.compile(r"^(?P<method>.*?[^\d])(?P<level>\d+)(?P<unit>[A-Za-z]{0,5})$")
 
 
 @dataclass(frozen=True)
@@ -54,12 +56,13 @@ def _reference_ending(stem: str) -> str | None:
 
 
 def _level_template(name: str) -> str | None:
-    """``TAA_q1`` -> ``{method}_q{level}``; ``crf23`` -> ``{method}{level}``; None: no
-    trailing number, so no level to read."""
+    """``TAA_q1`` -> ``{method}_q{level}``; ``ours_64spp`` -> ``{method}_{level}spp``;
+    ``crf23`` -> ``{method}{level}``; None: no number at the end (or before a short unit),
+    so no level to read."""
     if m := _LEVEL_AFTER_SEPARATOR.fullmatch(name):
-        return "{method}" + m["sep"] + m["prefix"] + "{level}"
+        return "{method}" + m["sep"] + m["prefix"] + "{level}" + m["unit"]
     if m := _LEVEL_AT_END.fullmatch(name):
-        return "{method}{level}"
+        return "{method}{level}" + m["unit"]
     return None
 
 
@@ -103,7 +106,8 @@ def _candidates(videos: list[PurePosixPath]) -> list[tuple[str, str]]:
                 tests["{scene}/{scene}" + stem[len(scene)] + inner + ".{ext}"] += 1
             tests["{scene}/" + template + ".{ext}"] += 1
             if m := _LEVEL_AFTER_SEPARATOR.fullmatch(stem):  # method/scene_L1.ext
-                tests["{method}/{scene}" + m["sep"] + m["prefix"] + "{level}.{ext}"] += 1
+                tests["{method}/{scene}" + m["sep"] + m["prefix"] + "{level}" + m["unit"]
+                      + ".{ext}"] += 1
         elif len(rel.parts) == 1 and (split := _split_scene(stem, scenes)) is not None \
                 and (template := _level_template(split[1])) is not None:
             tests["{scene}" + split[0] + template + ".{ext}"] += 1

@@ -42,6 +42,14 @@ CASES = {
          "bistro-ground_truth.mkv": ("bistro", None, None),
          "bistro-DLSS_crf30.mkv": ("bistro", "DLSS", 30)},
         "{scene}-ground_truth.{ext}", "{scene}-{method}_crf{level}.{ext}"),
+    "sample counts with a unit (a renderer's naming)": (
+        {"sponza/reference.mp4": ("sponza", None, None),
+         "sponza/ours_4spp.mp4": ("sponza", "ours", 4),
+         "sponza/ours_64spp.mp4": ("sponza", "ours", 64),
+         "sponza/path_tracing_16spp.mp4": ("sponza", "path_tracing", 16),
+         "bistro/reference.mp4": ("bistro", None, None),
+         "bistro/ours_4spp.mp4": ("bistro", "ours", 4)},
+        "{scene}/reference.{ext}", "{scene}/{method}_{level}spp.{ext}"),
 }
 
 

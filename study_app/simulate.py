@@ -13,8 +13,9 @@ ones answer uniformly on the scale, ``inverted`` ones answer ``min + max - Q_e``
 usual noise (they read the scale backwards).
 
 True quality is a documented function of method and level (:func:`true_quality`): on the
-0..100 scale ``Q = 100 - A_m * severity ** gamma_m`` with ``severity = (L + 1 - level) / L``
-for the method's levels 1..L (level 1 = strongest distortion, severity 1), per-method
+0..100 scale ``Q = 100 - A_m * severity ** gamma_m`` with ``severity = (L + 1 - rank) / L``
+for the rank 1..L of a level among the method's L levels (the lowest level, the strongest
+distortion, has rank 1 and severity 1; levels 4, 16, 64 step as evenly as 1, 2, 3), per-method
 ``A_m`` and ``gamma_m`` in :data:`QUALITY_CURVES`; hidden references get
 :data:`HIDDEN_REFERENCE_QUALITY`. Other scales are mapped linearly.
 
@@ -134,33 +135,31 @@ class RaterTruth:
     session_file: str
 
 
-def true_quality(stimulus: Stimulus, levels: dict[str, tuple[int, int]],
+def true_quality(stimulus: Stimulus, levels: dict[str, list[int]],
                  scale: tuple[float, float] = (0.0, 100.0)) -> float:
     """Documented true quality of a stimulus (see the module docstring).
 
-    ``levels`` maps each method to its (lowest, highest) level in the manifest.
+    ``levels`` maps each method to its levels in the manifest, in ascending order.
     """
     lo, hi = scale
     if stimulus.is_hidden_reference:
         q100 = HIDDEN_REFERENCE_QUALITY
     else:
         amp, gamma = QUALITY_CURVES.get(stimulus.method, DEFAULT_CURVE)
-        first, last = levels[stimulus.method]
-        span = last - first + 1
-        level = stimulus.level if stimulus.level is not None else last
-        severity = (last + 1 - level) / span
+        ranks = levels[stimulus.method]
+        rank = ranks.index(stimulus.level) + 1 if stimulus.level is not None else len(ranks)
+        severity = (len(ranks) + 1 - rank) / len(ranks)
         q100 = 100.0 - amp * severity**gamma
     return lo + (hi - lo) * q100 / 100.0
 
 
-def _method_levels(stimuli: list[Stimulus]) -> dict[str, tuple[int, int]]:
-    out: dict[str, tuple[int, int]] = {}
+def _method_levels(stimuli: list[Stimulus]) -> dict[str, list[int]]:
+    """Each method's distinct levels, ascending (a level's rank is its place here)."""
+    out: dict[str, set[int]] = {}
     for s in stimuli:
-        if s.is_hidden_reference or s.level is None:
-            continue
-        lo, hi = out.get(s.method, (s.level, s.level))
-        out[s.method] = (min(lo, s.level), max(hi, s.level))
-    return out
+        if not s.is_hidden_reference and s.level is not None:
+            out.setdefault(s.method, set()).add(s.level)
+    return {m: sorted(v) for m, v in out.items()}
 
 
 def _outlier_kinds(opts: SimulationOptions, rng: np.random.Generator) -> list[OutlierKind | None]:

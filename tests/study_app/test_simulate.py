@@ -56,6 +56,22 @@ def test_noise_free_panel_rates_the_documented_truth(manifest, tmp_path):
             assert r["rating"] == pytest.approx(q[r["stimulus"]])
 
 
+def test_sample_count_levels_step_as_evenly_as_their_ranks(tmp_path):
+    """Levels 4, 16, 64 (sample counts) made the truth jump: severities 1, 0.8, 0.02."""
+    refs = [{"id": "SRC01", "path": "s1.mkv", "scene": "scene1"}]
+    conds = [{"reference": "SRC01", "path": f"pt{lv}.mkv", "method": "path_tracing",
+              "level": lv} for lv in (4, 16, 64)]
+    m = save_manifest(parse_manifest({"format": "cgvq-manifest/1", "study_id": "spp",
+                                      "references": refs, "conditions": conds}),
+                      tmp_path / "manifest.json")
+    opts = SimulationOptions(raters=1, seed=1, bias_sd=0.0, inconsistency_range=(0.0, 0.0),
+                             ambiguity_range=(0.0, 0.0))
+    truth = json.loads(simulate_panel(m, tmp_path / "sim", opts, progress=False).read_text())
+    q = [s["true_quality"] for s in truth["stimuli"] if s["id"] != "SRC01"]
+    # the documented curve over ranks 1..3: Q = 100 - 75 * ((4 - rank) / 3) ** 1.3
+    assert q == pytest.approx([100 - 75 * (k / 3) ** 1.3 for k in (3, 2, 1)])
+
+
 def test_bias_only_panel_shifts_each_rater_by_their_bias(manifest, tmp_path):
     opts = SimulationOptions(raters=3, seed=2, bias_sd=6.0, inconsistency_range=(0.0, 0.0),
                              ambiguity_range=(0.0, 0.0))

@@ -10,7 +10,8 @@ the summary) but do not stop the preview, as with ``run --skip-preflight``; the 
 is a screen or window too small to show the videos at 1:1 pixels. Without vsync the flips are
 paced on the clock (the pilot mode of ``run``), which the summary says.
 
-On request a small timing overlay sits in free space off the video and the screen's texts; at
+On request a small overlay (the stimulus's id and its timing) sits in free space off the video
+and the screen's texts; at
 the end (or when stopped early) every stimulus's frames shown, dropped frames, worst frame
 interval and the rating given (not stored) are listed, so the experimenter can tell whether
 this computer shows the study cleanly before inviting anyone.
@@ -61,8 +62,8 @@ log = logging.getLogger(__name__)
 OVERLAY_MARGIN = 12
 OVERLAY_UPDATE_S = 0.25
 """The overlay's figures change four times a second: readable, and few new text textures."""
-OVERLAY_TEMPLATE = ("frame 000.0 ms, worst 000.0", "dropped 0000 (0000 in all), missed 0000",
-                    "000.00 Hz paced (no vsync)")
+OVERLAY_TEMPLATE = ("scene_method_L0", "frame 000.0 ms, worst 000.0",
+                    "dropped 0000 (0000 in all), missed 0000", "000.00 Hz paced (no vsync)")
 """The widest the overlay's lines get: its box keeps this size while the figures change."""
 REQUEUE_LIMIT = RunOptions.max_dropped_frames
 """A participant's run re-queues a trial with more dropped frames than this (its default)."""
@@ -278,6 +279,9 @@ class TimingOverlay:
         self._lines: list[str] = []
         self.never_fitted = True
         self.missing = False
+        self.stimulus = ""
+        """The stimulus on screen, named on the overlay's first line (the preview is the
+        experimenter's: which video it is matters when judging the levels)."""
 
     def _start(self, m: TrialMachine) -> None:
         self._machine = m
@@ -302,7 +306,8 @@ class TimingOverlay:
         """The overlay's lines now (and forget the interval of the period just shown)."""
         d = self.display
         before = sum(r.dropped_frames for r in self.result.rows)
-        lines = [f"frame {1000 * self._recent:.1f} ms, worst {1000 * self._worst:.1f}",
+        lines = [self.stimulus,
+                 f"frame {1000 * self._recent:.1f} ms, worst {1000 * self._worst:.1f}",
                  f"dropped {self._dropped} ({before + self._dropped} in all), "
                  f"missed {self._missed}",
                  f"{d.refresh_hz:.2f} Hz {'vsync' if d.vsync else 'paced (no vsync)'}"]
@@ -516,6 +521,8 @@ class Preview:
                 gpu = upload_pair(d, pair)
                 del pair
                 min_view = self._min_view(gpu.frames, gpu.fps)
+                if overlay is not None:
+                    overlay.stimulus = trial.stimulus
                 screen = TrialScreen(d, self.m, self._name_keys, self._state, self._shot,
                                      lambda _t, i=i: self._prefetch_after(i),
                                      lambda v=min_view: v, overlay)

@@ -271,3 +271,18 @@ def test_a_video_that_stops_decoding_mid_way_keeps_the_summary(tmp_path, study_f
     assert code == 2 and "SRC01_HRC01: 21 frames shown" in out
     assert "verdict: stopped, cannot decode stimulus SRC01_HRC02" in out
     assert err.count("\n") == 1 and "the preview stopped: cannot decode" in err
+
+
+def test_the_overlay_names_the_stimulus_on_screen_first():
+    """Judging the levels in a preview, the experimenter could not tell which video was on."""
+    from types import SimpleNamespace
+
+    from study_app.preview import OVERLAY_TEMPLATE, TimingOverlay
+
+    display = SimpleNamespace(size=(1024, 768), refresh_hz=60.0, vsync=False)
+    overlay = TimingOverlay(display, PreviewResult("paced", 60.0))
+    overlay._start(SimpleNamespace())
+    overlay.stimulus = "sponza_ours_L64"
+    lines = overlay.text(None)
+    assert lines[0] == "sponza_ours_L64" and lines[1].startswith("frame ")
+    assert len(lines) == len(OVERLAY_TEMPLATE)  # the box is sized for every line
